@@ -1,0 +1,53 @@
+"""fricjax: friction models as jit-compiled scan simulators, with smooth and exact stick/slip.
+
+One flat public namespace: `import fricjax as fj`.
+"""
+
+from importlib.metadata import PackageNotFoundError, version
+
+from ._constraints import AbstractUnwrappable as AbstractUnwrappable
+from ._constraints import Fixed as Fixed
+from ._constraints import Positive as Positive
+from ._constraints import Simplex as Simplex
+from ._constraints import unwrap as unwrap
+from ._metrics import fit_percent as fit_percent
+from ._metrics import max_error as max_error
+from ._metrics import nmse as nmse
+from ._metrics import nrmse as nrmse
+from ._metrics import relative_error as relative_error
+from ._metrics import rmse as rmse
+from ._models._base import AbstractFrictionModel as AbstractFrictionModel
+from ._models._dahl import Dahl as Dahl
+from ._models._dahl import DahlState as DahlState
+from ._models._gms import GMS as GMS
+from ._models._gms import GMSState as GMSState
+from ._models._lugre import LuGre as LuGre
+from ._models._lugre import LuGreState as LuGreState
+from ._models._maxwell_slip import AbstractForceMap as AbstractForceMap
+from ._models._maxwell_slip import FIRForces as FIRForces
+from ._models._maxwell_slip import MaxwellSlip as MaxwellSlip
+from ._models._maxwell_slip import MaxwellSlipState as MaxwellSlipState
+from ._models._maxwell_slip import SpringForces as SpringForces
+from ._models._static import AbstractStaticFriction as AbstractStaticFriction
+from ._models._static import BoPavelescu as BoPavelescu
+from ._models._static import Coulomb as Coulomb
+from ._models._static import CoulombViscous as CoulombViscous
+from ._models._static import Threlfall as Threlfall
+from ._models._static import Tustin as Tustin
+from ._motion import Motion as Motion
+from ._motion import MotionSample as MotionSample
+from ._simulate import simulate as simulate
+from ._smoothing import AbstractSmoothing as AbstractSmoothing
+from ._smoothing import Exact as Exact
+from ._smoothing import Smooth as Smooth
+from ._smoothing import exact as exact
+from ._smoothing import safe_div as safe_div
+from ._smoothing import with_smoothing as with_smoothing
+from ._stribeck import AbstractStribeck as AbstractStribeck
+from ._stribeck import ExponentialStribeck as ExponentialStribeck
+from ._stribeck import RationalStribeck as RationalStribeck
+
+try:
+    __version__ = version("fricjax")
+except PackageNotFoundError:  # pragma: no cover - running from a source tree
+    __version__ = "0.0.0"

@@ -1,0 +1,128 @@
+"""Parameter reparametrisations: positive (log / softplus) and fixed parameters, and `unwrap`.
+
+Constructors take physical values and store positive parameters through a wrapper whose leaf is the
+unconstrained value, so an unconstrained optimiser can never make a stiffness or threshold negative.
+Wrappers are resolved once by `unwrap` at the simulation / loss boundary (as in equinox / paramax).
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Any, Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike
+
+from ._smoothing import is_concrete
+
+
+class AbstractUnwrappable(eqx.Module):
+    """A leaf wrapper that `unwrap` replaces by the array it represents."""
+
+    @abc.abstractmethod
+    def unwrap(self) -> Array:
+        """The represented (constrained) value."""
+
+
+class Positive(AbstractUnwrappable):
+    """A strictly positive parameter stored as an unconstrained leaf `raw`.
+
+    `value = exp(raw)` (`transform="log"`, default) or `softplus(raw)` (`transform="softplus"`).
+
+    **Arguments:**
+
+    - `value`: the positive physical value (scalar or array); validated when concrete.
+    - `name`: the argument's name, used in error messages.
+    """
+
+    raw: Array
+    transform: Literal["log", "softplus"] = eqx.field(static=True)
+
+    def __init__(self, value: ArrayLike, *, transform: Literal["log", "softplus"] = "log", name: str = "value"):
+        value = as_float_array(value)
+        if is_concrete(value):
+            if not bool(jnp.all(jnp.isfinite(value))):
+                raise ValueError(f"`{name}` must be finite, got {np.asarray(value)!r}.")
+            if not bool(jnp.all(value > 0)):
+                raise ValueError(f"`{name}` must be positive, got {np.asarray(value)!r}; pass a value > 0.")
+        self.transform = transform
+        if transform == "log":
+            self.raw = jnp.log(value)
+        elif transform == "softplus":
+            # inverse softplus, stable for large values: x + log(-expm1(-x))
+            self.raw = value + jnp.log(-jnp.expm1(-value))
+        else:
+            raise ValueError(f"`transform` must be 'log' or 'softplus', got {transform!r}.")
+
+    def unwrap(self) -> Array:
+        if self.transform == "log":
+            return jnp.exp(self.raw)
+        return jax.nn.softplus(self.raw)
+
+
+class Fixed(AbstractUnwrappable):
+    """A parameter excluded from training: its gradient is stopped at `unwrap`."""
+
+    value: Any
+
+    def unwrap(self) -> Any:
+        return jax.lax.stop_gradient(unwrap(self.value))
+
+
+def _is_wrapper(leaf: object) -> bool:
+    return isinstance(leaf, AbstractUnwrappable)
+
+
+def unwrap(tree: Any) -> Any:
+    """Replace every `Positive` / `Fixed` wrapper inside `tree` by its constrained value."""
+    return jax.tree_util.tree_map(lambda leaf: leaf.unwrap() if _is_wrapper(leaf) else leaf, tree, is_leaf=_is_wrapper)
+
+
+def positive(value: ArrayLike, name: str) -> Positive:
+    """Shorthand used by model constructors: `Positive(value, name=name)`."""
+    return Positive(value, name=name)
+
+
+def real(value: ArrayLike, name: str) -> Array:
+    """Convert an unconstrained real parameter to a float array, checking it is finite when concrete."""
+    value = as_float_array(value)
+    if is_concrete(value) and not bool(jnp.all(jnp.isfinite(value))):
+        raise ValueError(f"`{name}` must be finite, got {np.asarray(value)!r}.")
+    return value
+
+
+def as_float_array(value: Any) -> Array:
+    """`value` (scalar, list, NumPy or JAX array) as a floating JAX array, keeping a floating input's dtype."""
+    if isinstance(value, (list, tuple)):
+        value = np.asarray(value)
+    dtype = jnp.result_type(value)
+    if not jnp.issubdtype(dtype, jnp.floating):
+        dtype = jnp.result_type(float)
+    return jnp.asarray(value, dtype=dtype)
+
+
+class Simplex(AbstractUnwrappable):
+    """Positive fractions that sum to one, stored as unconstrained logits (`value = softmax(raw)`).
+
+    Used for the GMS element fractions alpha_i (sum alpha_i = 1, so the elements share the Stribeck force).
+    """
+
+    raw: Array
+
+    def __init__(self, value: ArrayLike, *, name: str = "value"):
+        value = as_float_array(value)
+        if value.ndim != 1:
+            raise ValueError(f"`{name}` must be a 1-D array of fractions, got shape {value.shape}.")
+        if is_concrete(value):
+            if not bool(jnp.all(jnp.isfinite(value) & (value > 0))):
+                raise ValueError(f"`{name}` must hold positive fractions, got {np.asarray(value)!r}.")
+            total = float(jnp.sum(value))
+            if abs(total - 1.0) > 1e-6:
+                raise ValueError(f"`{name}` must sum to 1, got sum {total!r}; divide it by its sum.")
+        self.raw = jnp.log(value)
+
+    def unwrap(self) -> Array:
+        return jax.nn.softmax(self.raw)

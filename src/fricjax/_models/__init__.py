@@ -1,0 +1,1 @@
+"""Friction models: one module per family; `_base` holds the abstract interfaces."""

@@ -1,0 +1,247 @@
+"""Static friction curves F(v) of the emps-ensemble paper (eqs. 2-11), symmetric and asymmetric.
+
+Every coefficient may be a scalar (symmetric law) or a pair `(positive, negative)` (asymmetric law: the
+first value applies for v > 0, the second for v < 0, emps-ensemble eqs. 5-7). For a negative velocity the
+law is evaluated with the negative-side coefficients, so e.g. Coulomb + viscous gives
+`F = Fv- * v - Fc-` for v < 0. Every law also has a constant `offset` [N].
+
+Smoothing (`smoothing=Smooth(eps)`, eps in m/s) replaces sign(v) by tanh(v / eps) and the +/- coefficient
+switch by the matching smooth step; `Exact()` (default) is the paper's equation with sign(0) = 0.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Any, ClassVar
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike
+
+from .._constraints import Fixed, as_float_array, positive, real, unwrap
+from .._motion import MotionSample
+from .._smoothing import AbstractSmoothing, Exact
+from .._stribeck import abs_pow
+from ._base import AbstractFrictionModel
+
+
+def _coefficient(value: ArrayLike, name: str, *, is_positive: bool) -> Any:
+    array = as_float_array(value)
+    if array.ndim not in (0, 1) or (array.ndim == 1 and array.shape[0] != 2):
+        raise ValueError(
+            f"`{name}` must be a scalar (symmetric law) or a pair (value for v > 0, value for v < 0), "
+            f"got shape {array.shape}."
+        )
+    if is_positive:
+        return positive(array, name)
+    if name == "Fv" and bool(jnp.any(array < 0)):
+        raise ValueError(f"`Fv` (viscous coefficient, N·s/m) must be >= 0, got {value!r}.")
+    return real(array, name)
+
+
+class AbstractStaticFriction(AbstractFrictionModel):
+    """A memoryless friction law F(v); `model(v)` evaluates it, `simulate` runs it as a (stateless) scan."""
+
+    offset: Any
+    smoothing: AbstractSmoothing
+
+    requires: ClassVar[frozenset[str]] = frozenset({"v"})
+
+    @abc.abstractmethod
+    def _law(self, v: Array, sign: Array, pick: Any) -> Array:
+        """The law without offset; `pick(c)` selects the coefficient for the side of `v`."""
+
+    def __call__(self, v: ArrayLike) -> Array:
+        """Friction force F(v) [N] for velocity `v` [m/s] (any shape)."""
+        p = unwrap(self)
+        v = jnp.asarray(v)
+        sign = p.smoothing.sign(v)
+        up = p.smoothing.step(v)
+
+        def pick(c: Array) -> Array:
+            if jnp.ndim(c) == 0:
+                return c
+            return up * c[0] + (1.0 - up) * c[1]
+
+        return self._law(v, sign, pick) + p.offset
+
+    def init_state(self) -> tuple[()]:
+        return ()
+
+    def step(self, state: tuple[()], sample: MotionSample) -> tuple[tuple[()], Array]:
+        return state, self(sample.v)
+
+    @property
+    def asymmetric(self) -> bool:
+        """True when any coefficient has separate values for positive and negative velocity."""
+        return any(jnp.ndim(leaf) == 1 for leaf in _param_leaves(unwrap(self)))
+
+
+def _param_leaves(model: eqx.Module) -> list[Array]:
+    return [getattr(model, f) for f in ("Fc", "Fs", "vs", "delta", "Fv", "v0") if hasattr(model, f)]
+
+
+class Coulomb(AbstractStaticFriction):
+    """Coulomb friction (emps-ensemble eq. 2 for v != 0): `F = Fc * sign(v) + offset`.
+
+    **Arguments:** `Fc` Coulomb force [N] (> 0, scalar or (+, -) pair); `offset` [N]; `smoothing`.
+
+    ```python
+    >>> import fricjax as fj
+    >>> float(fj.Coulomb(Fc=2.0)(-0.1))
+    -2.0
+    ```
+    """
+
+    Fc: Any
+
+    def __init__(self, Fc: ArrayLike, *, offset: ArrayLike = 0.0, smoothing: AbstractSmoothing = Exact()):
+        self.Fc = _coefficient(Fc, "Fc", is_positive=True)
+        self.offset = real(offset, "offset")
+        self.smoothing = smoothing
+
+    def _law(self, v: Array, sign: Array, pick: Any) -> Array:
+        p = unwrap(self)
+        return pick(p.Fc) * sign
+
+
+class CoulombViscous(AbstractStaticFriction):
+    """Coulomb + viscous friction (emps-ensemble eqs. 4-5): `F = Fv * v + Fc * sign(v) + offset`.
+
+    **Arguments:** `Fc` [N] (> 0); `Fv` viscous coefficient [N·s/m] (>= 0); each scalar or (+, -) pair;
+    `offset` [N]; `smoothing`.
+    """
+
+    Fc: Any
+    Fv: Any
+
+    def __init__(
+        self, Fc: ArrayLike, Fv: ArrayLike, *, offset: ArrayLike = 0.0, smoothing: AbstractSmoothing = Exact()
+    ):
+        self.Fc = _coefficient(Fc, "Fc", is_positive=True)
+        self.Fv = _coefficient(Fv, "Fv", is_positive=False)
+        self.offset = real(offset, "offset")
+        self.smoothing = smoothing
+
+    def _law(self, v: Array, sign: Array, pick: Any) -> Array:
+        p = unwrap(self)
+        return pick(p.Fv) * v + pick(p.Fc) * sign
+
+
+class Threlfall(AbstractStaticFriction):
+    """Coulomb with a finite slope at zero velocity + viscous (Threlfall 1978; emps-ensemble eqs. 8-9).
+
+    `F = Fv * v + Fc * K(v) * sign(v) + offset`, with `K = (1 - exp(-3|v| / v0)) / (1 - exp(-3))` for
+    `|v| <= v0` and `K = 1` above (continuous at v0; the paper's eq. 9 misplaces the parenthesis).
+    This law is continuous and differentiable at v = 0 already, so smoothing only affects the +/- switch.
+
+    **Arguments:** `Fc` [N] (> 0); `Fv` [N·s/m] (>= 0); `v0` tolerance velocity [m/s] (> 0); each scalar or
+    (+, -) pair; `offset` [N]; `smoothing`.
+    """
+
+    Fc: Any
+    Fv: Any
+    v0: Any
+
+    def __init__(
+        self,
+        Fc: ArrayLike,
+        Fv: ArrayLike,
+        v0: ArrayLike,
+        *,
+        offset: ArrayLike = 0.0,
+        smoothing: AbstractSmoothing = Exact(),
+    ):
+        self.Fc = _coefficient(Fc, "Fc", is_positive=True)
+        self.Fv = _coefficient(Fv, "Fv", is_positive=False)
+        self.v0 = _coefficient(v0, "v0", is_positive=True)
+        self.offset = real(offset, "offset")
+        self.smoothing = smoothing
+
+    def _law(self, v: Array, sign: Array, pick: Any) -> Array:
+        p = unwrap(self)
+        v0 = pick(p.v0)
+        ratio = jnp.minimum(jnp.abs(v) / v0, 1.0)
+        k = -jnp.expm1(-3.0 * ratio) / -jnp.expm1(-3.0)
+        return pick(p.Fv) * v + pick(p.Fc) * k * jnp.sign(v)
+
+
+class AbstractStribeckLaw(AbstractStaticFriction):
+    """Coulomb + viscous + Stribeck term with exponent: the shared law of `Tustin` and `BoPavelescu`."""
+
+    Fc: Any
+    Fs: Any
+    vs: Any
+    delta: Any
+    Fv: Any
+
+    def _law(self, v: Array, sign: Array, pick: Any) -> Array:
+        p = unwrap(self)
+        Fc, Fs = pick(p.Fc), pick(p.Fs)
+        stribeck = Fc + (Fs - Fc) * jnp.exp(-abs_pow(v / pick(p.vs), pick(p.delta)))
+        return pick(p.Fv) * v + stribeck * sign
+
+
+class BoPavelescu(AbstractStribeckLaw):
+    """Coulomb + viscous + Stribeck with shape exponent (Bo & Pavelescu 1982; emps-ensemble eq. 11).
+
+    `F = Fv * v + (Fc + (Fs - Fc) * exp(-|v / vs| ** delta)) * sign(v) + offset`.
+
+    **Arguments:** `Fc` [N], `Fs` [N], `vs` [m/s], `delta` (all > 0); `Fv` [N·s/m] (>= 0); each scalar or
+    (+, -) pair; `offset` [N]; `smoothing`.
+
+    ```python
+    >>> import fricjax as fj
+    >>> law = fj.BoPavelescu(Fc=20.0, Fs=25.0, vs=0.01, delta=2.0, Fv=200.0)
+    >>> round(float(law(1e-9)), 3)
+    25.0
+    ```
+    """
+
+    def __init__(
+        self,
+        Fc: ArrayLike,
+        Fs: ArrayLike,
+        vs: ArrayLike,
+        delta: ArrayLike = 2.0,
+        Fv: ArrayLike = 0.0,
+        *,
+        offset: ArrayLike = 0.0,
+        smoothing: AbstractSmoothing = Exact(),
+    ):
+        self.Fc = _coefficient(Fc, "Fc", is_positive=True)
+        self.Fs = _coefficient(Fs, "Fs", is_positive=True)
+        self.vs = _coefficient(vs, "vs", is_positive=True)
+        self.delta = _coefficient(delta, "delta", is_positive=True)
+        self.Fv = _coefficient(Fv, "Fv", is_positive=False)
+        self.offset = real(offset, "offset")
+        self.smoothing = smoothing
+
+
+class Tustin(AbstractStribeckLaw):
+    """Tustin's model (emps-ensemble eq. 10): the Stribeck law with exponent 1 (fixed, not trained).
+
+    `F = Fv * v + (Fc + (Fs - Fc) * exp(-|v| / vs)) * sign(v) + offset` (the Stribeck term carries sign(v) so
+    the law is odd, as in Tustin 1947; the paper's eq. 10 drops it).
+
+    **Arguments:** `Fc` [N], `Fs` [N], `vs` [m/s] (> 0); `Fv` [N·s/m] (>= 0); each scalar or (+, -) pair;
+    `offset` [N]; `smoothing`.
+    """
+
+    def __init__(
+        self,
+        Fc: ArrayLike,
+        Fs: ArrayLike,
+        vs: ArrayLike,
+        Fv: ArrayLike = 0.0,
+        *,
+        offset: ArrayLike = 0.0,
+        smoothing: AbstractSmoothing = Exact(),
+    ):
+        self.Fc = _coefficient(Fc, "Fc", is_positive=True)
+        self.Fs = _coefficient(Fs, "Fs", is_positive=True)
+        self.vs = _coefficient(vs, "vs", is_positive=True)
+        self.delta = Fixed(jnp.ones((), jnp.result_type(float)))
+        self.Fv = _coefficient(Fv, "Fv", is_positive=False)
+        self.offset = real(offset, "offset")
+        self.smoothing = smoothing
