@@ -9,6 +9,7 @@ from ._constraints import AbstractUnwrappable as AbstractUnwrappable
 from ._constraints import Fixed as Fixed
 from ._constraints import Positive as Positive
 from ._constraints import Simplex as Simplex
+from ._constraints import trainable_filter as trainable_filter
 from ._constraints import unwrap as unwrap
 from ._metrics import fit_percent as fit_percent
 from ._metrics import max_error as max_error

@@ -126,3 +126,17 @@ class Simplex(AbstractUnwrappable):
 
     def unwrap(self) -> Array:
         return jax.nn.softmax(self.raw)
+
+
+def trainable_filter(model: Any) -> Any:
+    """A pytree of bools over `model`: True for the trainable leaves (floating arrays), False for leaves inside
+    `Fixed` wrappers and smoothing strategies (`eps` is a setting, not a parameter). Use with `eqx.partition`.
+    """
+    from ._smoothing import AbstractSmoothing
+
+    def mark(node: Any) -> Any:
+        if isinstance(node, (Fixed, AbstractSmoothing)):
+            return jax.tree_util.tree_map(lambda _: False, node)
+        return eqx.is_inexact_array(node)
+
+    return jax.tree_util.tree_map(mark, model, is_leaf=lambda n: isinstance(n, (Fixed, AbstractSmoothing)))

@@ -27,16 +27,19 @@ def dahl_distance_update(u: Array, distance: Array, rate: Array, alpha: Array) -
     distance for alpha < 1 (and staying there).
     """
     q = 1.0 - alpha
-    near_one = jnp.abs(q) < 1e-6
+    near_one = jnp.abs(q) < 1e-5
     au = jnp.abs(u)
     nonzero = au > 0
-    safe_au = jnp.where(nonzero, au, 1.0)
+    log_au = jnp.log(jnp.where(nonzero, au, 1.0))
+    travelled = rate * distance
     safe_q = jnp.where(near_one, 1.0, q)
-    base = jnp.exp(safe_q * jnp.log(safe_au)) - safe_q * rate * distance  # |u|^q - q rate s
+    base = jnp.exp(safe_q * log_au) - safe_q * travelled  # |u|^q - q rate s
     positive_base = base > 0
     power = jnp.exp(jnp.log(jnp.where(positive_base, base, 1.0)) / safe_q)
     general = jnp.where(positive_base, power, 0.0)
-    magnitude = jnp.where(near_one, au * jnp.exp(-rate * distance), general)
+    # near alpha = 1: the expansion to first order in q keeps the derivative with respect to alpha right
+    expansion = jnp.exp(log_au - travelled + 0.5 * q * travelled * (2.0 * log_au - travelled))
+    magnitude = jnp.where(near_one, expansion, general)
     return jnp.where(nonzero, jnp.sign(u) * magnitude, 0.0)
 
 

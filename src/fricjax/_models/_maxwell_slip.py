@@ -11,6 +11,7 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._constraints import Fixed, as_float_array, positive, real, unwrap
@@ -160,7 +161,7 @@ class MaxwellSlip(AbstractFrictionModel):
     @classmethod
     def lr(cls, k: ArrayLike, max_deflection: ArrayLike, offset: ArrayLike = 0.0, **kwargs: Any) -> MaxwellSlip:
         """LR(M): thresholds preassigned equally spaced, `Delta_i = i * max_deflection / M`; fit `k` (linear)."""
-        return cls(Fixed(equally_spaced(jnp.shape(k)[-1], max_deflection)), SpringForces(k, offset), **kwargs)
+        return cls(Fixed(equally_spaced(np.shape(k)[-1], max_deflection)), SpringForces(k, offset), **kwargs)
 
     @classmethod
     def nlr(cls, k: ArrayLike, thresholds: ArrayLike, offset: ArrayLike = 0.0, **kwargs: Any) -> MaxwellSlip:
@@ -170,7 +171,7 @@ class MaxwellSlip(AbstractFrictionModel):
     @classmethod
     def dlr(cls, theta: ArrayLike, max_deflection: ArrayLike, offset: ArrayLike = 0.0, **kwargs: Any) -> MaxwellSlip:
         """DLR(M, n): preassigned equally spaced thresholds, FIR band `theta` (n+1, M) on the deflections."""
-        m = jnp.shape(theta)[-1]
+        m = np.shape(theta)[-1]
         return cls(Fixed(equally_spaced(m, max_deflection)), FIRForces(theta, None, offset), **kwargs)
 
     @classmethod

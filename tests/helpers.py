@@ -1,0 +1,68 @@
+"""Models and motions shared by the tests."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import fricjax as fj
+
+DT = 1e-3
+
+
+def presliding_to_sliding(n: int = 400, amplitude: float = 2e-3, dt: float = DT) -> fj.Motion:
+    """A sine whose amplitude grows from pre-sliding (um) into gross sliding (mm), with reversals."""
+    t = np.arange(n) * dt
+    envelope = amplitude * (t / t[-1]) ** 2 + 1e-6
+    x = envelope * np.sin(2 * np.pi * 4.0 * t / (n * dt))
+    return fj.Motion.from_position(x, dt=dt)
+
+
+def stribeck() -> fj.ExponentialStribeck:
+    return fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3, delta=2.0)
+
+
+def model_table() -> dict[str, fj.AbstractFrictionModel]:
+    """One instance of every model family (exact mode), small enough for fast tests."""
+    return {
+        "coulomb": fj.Coulomb(Fc=1.0, offset=0.1),
+        "coulomb_viscous_asym": fj.CoulombViscous(Fc=(1.0, 1.2), Fv=(50.0, 80.0)),
+        "threlfall": fj.Threlfall(Fc=1.0, Fv=50.0, v0=2e-3),
+        "tustin": fj.Tustin(Fc=1.0, Fs=1.5, vs=1e-3, Fv=50.0),
+        "bo_pavelescu_asym": fj.BoPavelescu(Fc=(1.0, 1.1), Fs=(1.5, 1.4), vs=1e-3, delta=(2.0, 1.5), Fv=50.0),
+        "dahl": fj.Dahl(sigma0=1e5, Fc=1.0),
+        "dahl_alpha": fj.Dahl(sigma0=1e5, Fc=1.0, alpha=1.7),
+        "lugre": fj.LuGre(stribeck(), sigma0=1e5, sigma1=300.0, sigma2=40.0, offset=0.05, z0=1e-6),
+        "lugre_rational": fj.LuGre(
+            fj.RationalStribeck(Fc=1.0, Fs=1.5, vs=1e-3, mu=2.0), sigma0=1e5, sigma1=300.0, sigma2=40.0
+        ),
+        "gms": fj.GMS(stribeck(), k=[4e4, 2e4, 1e4, 5e3], alpha=[0.4, 0.3, 0.2, 0.1], C=20.0, sigma2=40.0),
+        "maxwell_nlr": fj.MaxwellSlip.nlr(k=[2e5, 1e5, 5e4], thresholds=[2e-6, 6e-6, 2e-5], offset=0.1),
+        "maxwell_lr": fj.MaxwellSlip.lr(k=[2e5, 1e5, 5e4], max_deflection=2e-5),
+        "maxwell_dlr": fj.MaxwellSlip.dlr(theta=np.linspace(0.1, 0.5, 9).reshape(3, 3), max_deflection=2e-5),
+        "maxwell_dnlrx": fj.MaxwellSlip.dnlrx(
+            thresholds=[2e-6, 6e-6, 2e-5], theta=np.linspace(0.1, 0.5, 9).reshape(3, 3), c=[1e3, -5e2]
+        ),
+    }
+
+
+# smoothing widths that are "small" for each family: velocity (m/s), displacement (m), or dimensionless
+SMOOTH_EPS = {
+    "coulomb": 1e-4,
+    "coulomb_viscous_asym": 1e-4,
+    "threlfall": 1e-4,
+    "tustin": 1e-4,
+    "bo_pavelescu_asym": 1e-4,
+    "dahl": 1e-4,
+    "dahl_alpha": 1e-4,
+    "lugre": 1e-4,
+    "lugre_rational": 1e-4,
+    "gms": 1e-7,
+    "maxwell_nlr": 1e-2,
+    "maxwell_lr": 1e-2,
+    "maxwell_dlr": 1e-2,
+    "maxwell_dnlrx": 1e-2,
+}
+
+
+def smooth(name: str, model: fj.AbstractFrictionModel) -> fj.AbstractFrictionModel:
+    return fj.with_smoothing(model, fj.Smooth(SMOOTH_EPS[name]))

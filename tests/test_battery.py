@@ -1,0 +1,160 @@
+"""The shared battery every model passes (STYLE.md): shapes and dtypes, jit == no-jit, vmap == loop,
+step loop == simulate, finite gradients that agree with finite differences, no recompilation for new
+parameter values, and a sample-then-fit smoke test."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+from helpers import model_table, presliding_to_sliding, smooth
+
+import fricjax as fj
+
+MODELS = model_table()
+NAMES = sorted(MODELS)
+MOTION = presliding_to_sliding(300)
+
+
+def _loss_fn(motion: fj.Motion, target: jax.Array):
+    def loss(params, static):
+        model = eqx.combine(params, static)
+        return jnp.mean((fj.simulate(model, motion) - target) ** 2)
+
+    return loss
+
+
+@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("mode", ["exact", "smooth"])
+def test_shape_dtype_finite(name, mode):
+    model = MODELS[name] if mode == "exact" else smooth(name, MODELS[name])
+    force = fj.simulate(model, MOTION)
+    assert force.shape == (MOTION.length,)
+    assert force.dtype == jnp.float64
+    assert np.all(np.isfinite(force))
+    assert np.ptp(np.asarray(force)) > 0
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_step_loop_equals_simulate_and_no_jit(name):
+    model = smooth(name, MODELS[name])
+    motion = presliding_to_sliding(60)
+    samples = fj._simulate.motion_samples(motion)
+    state = model.init_state()
+    forces = []
+    for k in range(motion.length):
+        sample = fj.MotionSample(x=samples.x[k], v=samples.v[k], dx=samples.dx[k], dt=samples.dt)
+        state, force = model.step(state, sample)
+        forces.append(force)
+    scan_force = fj.simulate(model, motion)
+    np.testing.assert_allclose(np.asarray(forces), scan_force, rtol=1e-10, atol=1e-12)
+    with jax.disable_jit():
+        np.testing.assert_allclose(fj.simulate(model, motion), scan_force, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_vmap_over_models_equals_loop(name):
+    base = MODELS[name]
+    params, static = eqx.partition(base, fj.trainable_filter(base))
+    scales = jnp.array([0.9, 1.0, 1.1])
+    # perturb every trainable leaf (raw, unconstrained values) by a batch of offsets
+    batched = jax.tree_util.tree_map(lambda p: p[None] + 0.05 * jnp.log(scales).reshape((3,) + (1,) * p.ndim), params)
+    forces = eqx.filter_vmap(lambda p: fj.simulate(eqx.combine(p, static), MOTION))(batched)
+    for i in range(3):
+        single = eqx.combine(jax.tree_util.tree_map(lambda p, i=i: p[i], batched), static)
+        np.testing.assert_allclose(forces[i], fj.simulate(single, MOTION), rtol=1e-10, atol=1e-12)
+
+
+def test_vmap_over_motions_equals_loop():
+    model = MODELS["lugre"]
+    motions = [presliding_to_sliding(200, amplitude=a) for a in (1e-4, 1e-3, 3e-3)]
+    batch = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *motions)
+    forces = jax.vmap(lambda m: fj.simulate(model, m))(batch)
+    for i, motion in enumerate(motions):
+        np.testing.assert_allclose(forces[i], fj.simulate(model, motion), rtol=1e-12)
+
+
+def _relative_fd_check(name, model):
+    motion = presliding_to_sliding(200)
+    params, static = eqx.partition(model, fj.trainable_filter(model))
+    flat, unravel = jax.flatten_util.ravel_pytree(params)
+    target = fj.simulate(model, motion) * 1.05 + 0.01
+    loss = _loss_fn(motion, target)
+    flat_loss = jax.jit(lambda f: loss(unravel(f), static))
+    grad = jax.grad(flat_loss)(flat)
+    assert np.all(np.isfinite(grad)), f"{name}: non-finite gradient {grad}"
+    h = 1e-6
+    for i in range(flat.shape[0]):
+        e = jnp.zeros_like(flat).at[i].set(h)
+        fd = (flat_loss(flat + e) - flat_loss(flat - e)) / (2 * h)
+        scale = max(abs(float(fd)), abs(float(grad[i])), 1e-8 * float(flat_loss(flat)) + 1e-12)
+        assert abs(float(grad[i]) - float(fd)) <= 1e-4 * scale + 1e-9, (name, i, float(grad[i]), float(fd))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_gradients_match_finite_differences_smooth(name):
+    _relative_fd_check(name, smooth(name, MODELS[name]))
+
+
+@pytest.mark.parametrize("name", ["lugre", "maxwell_nlr", "coulomb_viscous_asym", "dahl"])
+def test_gradients_match_finite_differences_exact(name):
+    _relative_fd_check(name, MODELS[name])
+
+
+def test_gradients_finite_at_zero_velocity():
+    """Zero velocity everywhere (standstill) must not give NaN gradients (safe divisions and powers)."""
+    motion = fj.Motion(x=np.zeros(50), v=np.zeros(50), dt=1e-3)
+    for name, model in MODELS.items():
+        for m in (model, smooth(name, model)):
+            params, static = eqx.partition(m, fj.trainable_filter(m))
+            grads = jax.grad(lambda p, s=static: jnp.sum(fj.simulate(eqx.combine(p, s), motion) ** 2))(params)
+            leaves = jax.tree_util.tree_leaves(grads)
+            assert all(np.all(np.isfinite(g)) for g in leaves), name
+
+
+def test_no_recompilation_for_new_parameter_values():
+    compiles = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda event, duration, **kw: compiles.append(event) if "backend_compile" in event else None
+    )
+    motion = presliding_to_sliding(100)
+    fj.simulate(fj.LuGre(fj.ExponentialStribeck(1.0, 1.5, 1e-3), 1e5, 300.0, 40.0), motion)
+    before = len(compiles)
+    for sigma0 in (2e5, 3e5, 4e5):
+        fj.simulate(fj.LuGre(fj.ExponentialStribeck(1.1, 1.4, 2e-3), sigma0, 200.0, 30.0), motion)
+        fj.simulate(fj.with_smoothing(fj.Coulomb(1.0), fj.Smooth(sigma0 * 1e-9)), motion)
+    after_first = len(compiles)
+    for sigma0 in (5e5, 6e5):
+        fj.simulate(fj.LuGre(fj.ExponentialStribeck(1.2, 1.3, 3e-3), sigma0, 100.0, 20.0), motion)
+        fj.simulate(fj.with_smoothing(fj.Coulomb(2.0), fj.Smooth(sigma0 * 1e-9)), motion)
+    assert len(compiles) == after_first, "new parameter values recompiled simulate"
+    assert after_first - before <= 1  # only the first smooth Coulomb call compiles
+
+
+@pytest.mark.parametrize("name", ["lugre", "gms", "maxwell_nlr", "bo_pavelescu_asym", "dahl"])
+def test_sample_then_fit_smoke(name):
+    """Data sampled from the model; a perturbed copy fitted by Adam for a few steps gets strictly closer."""
+    true_model = smooth(name, MODELS[name])
+    motion = presliding_to_sliding(300)
+    target = fj.simulate(true_model, motion)
+    params, static = eqx.partition(true_model, fj.trainable_filter(true_model))
+    start = jax.tree_util.tree_map(lambda p: p + 0.1 * jnp.sign(p + 0.3), params)
+    loss = _loss_fn(motion, target)
+    optimiser = optax.adam(1e-2)
+
+    @jax.jit
+    def update(p, state):
+        value, grads = jax.value_and_grad(loss)(p, static)
+        updates, state = optimiser.update(grads, state, p)
+        return optax.apply_updates(p, updates), state, value
+
+    state = optimiser.init(start)
+    p = start
+    first = float(loss(start, static))
+    for _ in range(30):
+        p, state, _ = update(p, state)
+    last = float(loss(p, static))
+    assert np.isfinite(last) and last < 0.7 * first, (name, first, last)
