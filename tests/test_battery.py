@@ -10,9 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
-from helpers import model_table, presliding_to_sliding, smooth
 
 import fricjax as fj
+
+from helpers import model_table, presliding_to_sliding, smooth
 
 MODELS = model_table()
 NAMES = sorted(MODELS)

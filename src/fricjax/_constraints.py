@@ -8,7 +8,8 @@ Wrappers are resolved once by `unwrap` at the simulation / loss boundary (as in 
 from __future__ import annotations
 
 import abc
-from typing import Any, Literal
+from collections.abc import Sequence
+from typing import Any, Literal, TypeAlias
 
 import equinox as eqx
 import jax
@@ -17,6 +18,9 @@ import numpy as np
 from jaxtyping import Array, ArrayLike
 
 from ._smoothing import is_concrete
+
+ParamLike: TypeAlias = ArrayLike | Sequence[float] | Sequence[Sequence[float]]
+"""What constructors accept for a parameter: a scalar, a NumPy / JAX array or a (nested) list of floats."""
 
 
 class AbstractUnwrappable(eqx.Module):
@@ -41,7 +45,7 @@ class Positive(AbstractUnwrappable):
     raw: Array
     transform: Literal["log", "softplus"] = eqx.field(static=True)
 
-    def __init__(self, value: ArrayLike, *, transform: Literal["log", "softplus"] = "log", name: str = "value"):
+    def __init__(self, value: ParamLike, *, transform: Literal["log", "softplus"] = "log", name: str = "value"):
         value = as_float_array(value)
         if is_concrete(value):
             if not bool(jnp.all(jnp.isfinite(value))):
@@ -81,12 +85,12 @@ def unwrap(tree: Any) -> Any:
     return jax.tree_util.tree_map(lambda leaf: leaf.unwrap() if _is_wrapper(leaf) else leaf, tree, is_leaf=_is_wrapper)
 
 
-def positive(value: ArrayLike, name: str) -> Positive:
+def positive(value: ParamLike, name: str) -> Positive:
     """Shorthand used by model constructors: `Positive(value, name=name)`."""
     return Positive(value, name=name)
 
 
-def real(value: ArrayLike, name: str) -> Array:
+def real(value: ParamLike, name: str) -> Array:
     """Convert an unconstrained real parameter to a float array, checking it is finite when concrete."""
     value = as_float_array(value)
     if is_concrete(value) and not bool(jnp.all(jnp.isfinite(value))):
@@ -112,7 +116,7 @@ class Simplex(AbstractUnwrappable):
 
     raw: Array
 
-    def __init__(self, value: ArrayLike, *, name: str = "value"):
+    def __init__(self, value: ParamLike, *, name: str = "value"):
         value = as_float_array(value)
         if value.ndim != 1:
             raise ValueError(f"`{name}` must be a 1-D array of fractions, got shape {value.shape}.")

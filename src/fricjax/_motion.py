@@ -69,7 +69,9 @@ class Motion(eqx.Module):
             self.dt = jnp.asarray(dt, dtype=dtype)
             if is_concrete(self.dt):
                 if self.dt.ndim != 0:
-                    raise ValueError(f"Motion: `dt` must be a scalar sample time in seconds, got shape {self.dt.shape}.")
+                    raise ValueError(
+                        f"Motion: `dt` must be a scalar sample time in seconds, got shape {self.dt.shape}."
+                    )
                 if not (bool(jnp.isfinite(self.dt)) and float(self.dt) > 0):
                     raise ValueError(f"Motion: `dt` must be a positive, finite sample time in seconds, got {dt!r}.")
 
@@ -96,7 +98,7 @@ def velocity_from_position(x: Array, dt: Array) -> Array:
     """Central differences (second order inside, first order at the two ends) along the last axis."""
     if x.shape[-1] < 2:
         raise ValueError("Motion: need at least 2 samples of `x` to differentiate it.")
-    return jnp.gradient(x, axis=-1) / dt
+    return jnp.asarray(jnp.gradient(x, axis=-1)) / dt
 
 
 def position_from_velocity(v: Array, dt: Array, x0: ArrayLike = 0.0) -> Array:

@@ -10,8 +10,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ._constraints import unwrap
-from ._motion import Motion, MotionSample, position_from_velocity, velocity_from_position
 from ._models._base import AbstractFrictionModel
+from ._motion import Motion, MotionSample, position_from_velocity, velocity_from_position
 
 # Loop unrolling of the scan: measured by benchmarks/simulate.py on the 2-core CPU (see benchmarks/README.md).
 DEFAULT_UNROLL = 4
@@ -77,6 +77,7 @@ def motion_samples(motion: Motion) -> MotionSample:
     dt = motion.dt
     x, v = motion.x, motion.v
     if v is None:
+        assert x is not None  # Motion guarantees one of the two
         v = velocity_from_position(x, dt) if dt is not None else jnp.zeros_like(x)
     if x is None:
         x = position_from_velocity(v, dt) if dt is not None else jnp.zeros_like(v)

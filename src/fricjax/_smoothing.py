@@ -20,7 +20,7 @@ def safe_div(num: ArrayLike, den: ArrayLike, fallback: ArrayLike = 0.0) -> Array
     """`num / den` where `den != 0`, else `fallback`; NaN-free in value and gradient (double-`where`)."""
     den = jnp.asarray(den)
     nonzero = den != 0
-    return jnp.where(nonzero, num / jnp.where(nonzero, den, 1), fallback)
+    return jnp.where(nonzero, jnp.asarray(num) / jnp.where(nonzero, den, 1), fallback)
 
 
 class AbstractSmoothing(eqx.Module):
@@ -32,7 +32,7 @@ class AbstractSmoothing(eqx.Module):
 
     def abs(self, x: ArrayLike) -> Array:
         """|x| = x * sign(x): zero at zero in both modes."""
-        return x * self.sign(x)
+        return jnp.asarray(x) * self.sign(x)
 
     def step(self, x: ArrayLike) -> Array:
         """Heaviside step H(x) = (1 + sign(x)) / 2, in [0, 1]."""
@@ -40,11 +40,12 @@ class AbstractSmoothing(eqx.Module):
 
     def clip(self, x: ArrayLike, bound: ArrayLike) -> Array:
         """Saturation of `x` to `[-bound, bound]` (`bound > 0`): (|x + b| - |x - b|) / 2."""
+        x = jnp.asarray(x)
         return 0.5 * (self.abs(x + bound) - self.abs(x - bound))
 
     def relu(self, x: ArrayLike) -> Array:
         """max(x, 0) = (x + |x|) / 2."""
-        return 0.5 * (x + self.abs(x))
+        return 0.5 * (jnp.asarray(x) + self.abs(x))
 
 
 class Exact(AbstractSmoothing):
@@ -59,6 +60,7 @@ class Exact(AbstractSmoothing):
         return jnp.where(x > 0, jnp.ones_like(x), jnp.zeros_like(x))
 
     def clip(self, x: ArrayLike, bound: ArrayLike) -> Array:
+        bound = jnp.asarray(bound)
         return jnp.clip(x, -bound, bound)
 
 
@@ -87,7 +89,7 @@ class Smooth(AbstractSmoothing):
         self.eps = jnp.asarray(eps, dtype=jnp.result_type(float))
 
     def sign(self, x: ArrayLike) -> Array:
-        return jnp.tanh(x / self.eps)
+        return jnp.tanh(jnp.asarray(x) / self.eps)
 
 
 def is_concrete(x: object) -> bool:

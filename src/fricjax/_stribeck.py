@@ -9,14 +9,14 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from ._constraints import positive, unwrap
+from ._constraints import ParamLike, positive, unwrap
 
 
 def abs_pow(u: ArrayLike, p: ArrayLike) -> Array:
     """|u|**p with finite value and gradient (also w.r.t. p) at u = 0."""
     au = jnp.abs(u)
     nonzero = au > 0
-    return jnp.where(nonzero, jnp.exp(p * jnp.log(jnp.where(nonzero, au, 1.0))), 0.0)
+    return jnp.where(nonzero, jnp.exp(jnp.asarray(p) * jnp.log(jnp.where(nonzero, au, 1.0))), 0.0)
 
 
 class AbstractStribeck(eqx.Module):
@@ -27,7 +27,7 @@ class AbstractStribeck(eqx.Module):
     vs: Any
 
     @abc.abstractmethod
-    def __call__(self, v: ArrayLike) -> Array:
+    def __call__(self, v: ParamLike) -> Array:
         """s(v) in N, same shape as `v`."""
 
 
@@ -48,13 +48,13 @@ class ExponentialStribeck(AbstractStribeck):
 
     delta: Any
 
-    def __init__(self, Fc: ArrayLike, Fs: ArrayLike, vs: ArrayLike, delta: ArrayLike = 1.0):
+    def __init__(self, Fc: ParamLike, Fs: ParamLike, vs: ParamLike, delta: ParamLike = 1.0):
         self.Fc = positive(Fc, "Fc")
         self.Fs = positive(Fs, "Fs")
         self.vs = positive(vs, "vs")
         self.delta = positive(delta, "delta")
 
-    def __call__(self, v: ArrayLike) -> Array:
+    def __call__(self, v: ParamLike) -> Array:
         p = unwrap(self)
         return p.Fc + (p.Fs - p.Fc) * jnp.exp(-abs_pow(v / p.vs, p.delta))
 
@@ -69,12 +69,12 @@ class RationalStribeck(AbstractStribeck):
 
     mu: Any
 
-    def __init__(self, Fc: ArrayLike, Fs: ArrayLike, vs: ArrayLike, mu: ArrayLike = 2.0):
+    def __init__(self, Fc: ParamLike, Fs: ParamLike, vs: ParamLike, mu: ParamLike = 2.0):
         self.Fc = positive(Fc, "Fc")
         self.Fs = positive(Fs, "Fs")
         self.vs = positive(vs, "vs")
         self.mu = positive(mu, "mu")
 
-    def __call__(self, v: ArrayLike) -> Array:
+    def __call__(self, v: ParamLike) -> Array:
         p = unwrap(self)
         return p.Fc + (p.Fs - p.Fc) / (1.0 + abs_pow(v / p.vs, p.mu))

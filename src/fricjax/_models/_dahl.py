@@ -6,9 +6,9 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike
+from jaxtyping import Array
 
-from .._constraints import positive, real, unwrap
+from .._constraints import ParamLike, positive, real, unwrap
 from .._motion import MotionSample
 from .._smoothing import AbstractSmoothing, Exact
 from ._base import AbstractFrictionModel
@@ -73,12 +73,12 @@ class Dahl(AbstractFrictionModel):
 
     def __init__(
         self,
-        sigma0: ArrayLike,
-        Fc: ArrayLike,
-        alpha: ArrayLike = 1.0,
+        sigma0: ParamLike,
+        Fc: ParamLike,
+        alpha: ParamLike = 1.0,
         *,
-        offset: ArrayLike = 0.0,
-        F0: ArrayLike = 0.0,
+        offset: ParamLike = 0.0,
+        F0: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
         self.sigma0 = positive(sigma0, "sigma0")

@@ -6,9 +6,9 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
-from .._constraints import Simplex, as_float_array, positive, real, unwrap
+from .._constraints import ParamLike, Simplex, as_float_array, positive, real, unwrap
 from .._motion import MotionSample
 from .._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._stribeck import AbstractStribeck
@@ -73,12 +73,12 @@ class GMS(AbstractFrictionModel):
     def __init__(
         self,
         stribeck: AbstractStribeck,
-        k: ArrayLike,
-        alpha: ArrayLike,
-        C: ArrayLike,
-        sigma2: ArrayLike = 0.0,
+        k: ParamLike,
+        alpha: ParamLike,
+        C: ParamLike,
+        sigma2: ParamLike = 0.0,
         *,
-        offset: ArrayLike = 0.0,
+        offset: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
         if not isinstance(stribeck, AbstractStribeck):

@@ -6,9 +6,9 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike
+from jaxtyping import Array
 
-from .._constraints import positive, real, unwrap
+from .._constraints import ParamLike, positive, real, unwrap
 from .._motion import MotionSample
 from .._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._stribeck import AbstractStribeck
@@ -79,12 +79,12 @@ class LuGre(AbstractFrictionModel):
     def __init__(
         self,
         stribeck: AbstractStribeck,
-        sigma0: ArrayLike,
-        sigma1: ArrayLike,
-        sigma2: ArrayLike,
+        sigma0: ParamLike,
+        sigma1: ParamLike,
+        sigma2: ParamLike,
         *,
-        offset: ArrayLike = 0.0,
-        z0: ArrayLike = 0.0,
+        offset: ParamLike = 0.0,
+        z0: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
         if not isinstance(stribeck, AbstractStribeck):
@@ -113,7 +113,7 @@ class LuGre(AbstractFrictionModel):
         return LuGreState(z=z), force
 
 
-def _nonnegative(value: ArrayLike, name: str) -> Array:
+def _nonnegative(value: ParamLike, name: str) -> Array:
     array = real(value, name)
     if is_concrete(array) and bool(jnp.any(array < 0)):
         raise ValueError(f"`{name}` must be >= 0 (a damping coefficient, N·s/m), got {value!r}.")

@@ -12,9 +12,9 @@ from typing import Any, ClassVar
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
-from .._constraints import Fixed, as_float_array, positive, real, unwrap
+from .._constraints import Fixed, ParamLike, as_float_array, positive, real, unwrap
 from .._motion import MotionSample
 from .._smoothing import AbstractSmoothing, Exact
 from ._base import AbstractFrictionModel
@@ -57,7 +57,7 @@ class SpringForces(AbstractForceMap):
 
     k: Any
 
-    def __init__(self, k: ArrayLike, offset: ArrayLike = 0.0):
+    def __init__(self, k: ParamLike, offset: ParamLike = 0.0):
         self.k = positive(k, "k")
         self.offset = real(offset, "offset")
 
@@ -79,7 +79,7 @@ class FIRForces(AbstractForceMap):
     theta: Float[Array, "n1 M"]
     c: Float[Array, " nx1"] | None
 
-    def __init__(self, theta: ArrayLike, c: ArrayLike | None = None, offset: ArrayLike = 0.0):
+    def __init__(self, theta: ParamLike, c: ParamLike | None = None, offset: ParamLike = 0.0):
         theta = real(theta, "theta")
         if theta.ndim != 2:
             raise ValueError(f"`theta` must have shape (n + 1, M) (FIR order n, M elements), got {theta.shape}.")
@@ -137,16 +137,22 @@ class MaxwellSlip(AbstractFrictionModel):
 
     def __init__(self, thresholds: Any, force_map: AbstractForceMap, *, smoothing: AbstractSmoothing = Exact()):
         if not isinstance(force_map, AbstractForceMap):
-            raise TypeError(f"MaxwellSlip: `force_map` must be SpringForces or FIRForces, got {type(force_map).__name__}.")
+            raise TypeError(
+                f"MaxwellSlip: `force_map` must be SpringForces or FIRForces, got {type(force_map).__name__}."
+            )
         if isinstance(thresholds, Fixed):
             self.thresholds = Fixed(positive(thresholds.value, "thresholds").unwrap())
         else:
             self.thresholds = positive(thresholds, "thresholds")
         m = self.num_elements
         if jnp.ndim(unwrap(self.thresholds)) != 1:
-            raise ValueError(f"MaxwellSlip: `thresholds` must have shape (M,), got {jnp.shape(unwrap(self.thresholds))}.")
+            raise ValueError(
+                f"MaxwellSlip: `thresholds` must have shape (M,), got {jnp.shape(unwrap(self.thresholds))}."
+            )
         if isinstance(force_map, SpringForces) and jnp.shape(unwrap(force_map.k)) != (m,):
-            raise ValueError(f"MaxwellSlip: `k` must have shape ({m},) like `thresholds`, got {jnp.shape(unwrap(force_map.k))}.")
+            raise ValueError(
+                f"MaxwellSlip: `k` must have shape ({m},) like `thresholds`, got {jnp.shape(unwrap(force_map.k))}."
+            )
         if isinstance(force_map, FIRForces) and force_map.theta.shape[1] != m:
             raise ValueError(f"MaxwellSlip: `theta` must have shape (n + 1, {m}), got {force_map.theta.shape}.")
         self.force_map = force_map
@@ -159,24 +165,24 @@ class MaxwellSlip(AbstractFrictionModel):
     # --- the four model classes of parlitz2004 / worden2007 ---
 
     @classmethod
-    def lr(cls, k: ArrayLike, max_deflection: ArrayLike, offset: ArrayLike = 0.0, **kwargs: Any) -> MaxwellSlip:
+    def lr(cls, k: ParamLike, max_deflection: ParamLike, offset: ParamLike = 0.0, **kwargs: Any) -> MaxwellSlip:
         """LR(M): thresholds preassigned equally spaced, `Delta_i = i * max_deflection / M`; fit `k` (linear)."""
         return cls(Fixed(equally_spaced(np.shape(k)[-1], max_deflection)), SpringForces(k, offset), **kwargs)
 
     @classmethod
-    def nlr(cls, k: ArrayLike, thresholds: ArrayLike, offset: ArrayLike = 0.0, **kwargs: Any) -> MaxwellSlip:
+    def nlr(cls, k: ParamLike, thresholds: ParamLike, offset: ParamLike = 0.0, **kwargs: Any) -> MaxwellSlip:
         """NLR(M): stiffnesses and thresholds both estimated."""
         return cls(thresholds, SpringForces(k, offset), **kwargs)
 
     @classmethod
-    def dlr(cls, theta: ArrayLike, max_deflection: ArrayLike, offset: ArrayLike = 0.0, **kwargs: Any) -> MaxwellSlip:
+    def dlr(cls, theta: ParamLike, max_deflection: ParamLike, offset: ParamLike = 0.0, **kwargs: Any) -> MaxwellSlip:
         """DLR(M, n): preassigned equally spaced thresholds, FIR band `theta` (n+1, M) on the deflections."""
         m = np.shape(theta)[-1]
         return cls(Fixed(equally_spaced(m, max_deflection)), FIRForces(theta, None, offset), **kwargs)
 
     @classmethod
     def dnlrx(
-        cls, thresholds: ArrayLike, theta: ArrayLike, c: ArrayLike, offset: ArrayLike = 0.0, **kwargs: Any
+        cls, thresholds: ParamLike, theta: ParamLike, c: ParamLike, offset: ParamLike = 0.0, **kwargs: Any
     ) -> MaxwellSlip:
         """DNLRX(M, n, nx): estimated thresholds, FIR band `theta` (n+1, M), displacement FIR `c` (nx+1,)."""
         return cls(thresholds, FIRForces(theta, c, offset), **kwargs)
@@ -203,7 +209,7 @@ class MaxwellSlip(AbstractFrictionModel):
         return new_state, force
 
 
-def equally_spaced(m: int, max_deflection: ArrayLike) -> Array:
+def equally_spaced(m: int, max_deflection: ParamLike) -> Array:
     """Preassigned LR/DLR thresholds: `Delta_i = i * max_deflection / m`, i = 1..m (parlitz2004 §III-A)."""
     max_deflection = as_float_array(max_deflection)
     return max_deflection * jnp.arange(1, m + 1, dtype=max_deflection.dtype) / m

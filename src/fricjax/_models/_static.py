@@ -16,16 +16,16 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike
+from jaxtyping import Array
 
-from .._constraints import Fixed, as_float_array, positive, real, unwrap
+from .._constraints import Fixed, ParamLike, as_float_array, positive, real, unwrap
 from .._motion import MotionSample
 from .._smoothing import AbstractSmoothing, Exact
 from .._stribeck import abs_pow
 from ._base import AbstractFrictionModel
 
 
-def _coefficient(value: ArrayLike, name: str, *, is_positive: bool) -> Any:
+def _coefficient(value: ParamLike, name: str, *, is_positive: bool) -> Any:
     array = as_float_array(value)
     if array.ndim not in (0, 1) or (array.ndim == 1 and array.shape[0] != 2):
         raise ValueError(
@@ -51,7 +51,7 @@ class AbstractStaticFriction(AbstractFrictionModel):
     def _law(self, v: Array, sign: Array, pick: Any) -> Array:
         """The law without offset; `pick(c)` selects the coefficient for the side of `v`."""
 
-    def __call__(self, v: ArrayLike) -> Array:
+    def __call__(self, v: ParamLike) -> Array:
         """Friction force F(v) [N] for velocity `v` [m/s] (any shape)."""
         p = unwrap(self)
         v = jnp.asarray(v)
@@ -95,7 +95,7 @@ class Coulomb(AbstractStaticFriction):
 
     Fc: Any
 
-    def __init__(self, Fc: ArrayLike, *, offset: ArrayLike = 0.0, smoothing: AbstractSmoothing = Exact()):
+    def __init__(self, Fc: ParamLike, *, offset: ParamLike = 0.0, smoothing: AbstractSmoothing = Exact()):
         self.Fc = _coefficient(Fc, "Fc", is_positive=True)
         self.offset = real(offset, "offset")
         self.smoothing = smoothing
@@ -116,7 +116,7 @@ class CoulombViscous(AbstractStaticFriction):
     Fv: Any
 
     def __init__(
-        self, Fc: ArrayLike, Fv: ArrayLike, *, offset: ArrayLike = 0.0, smoothing: AbstractSmoothing = Exact()
+        self, Fc: ParamLike, Fv: ParamLike, *, offset: ParamLike = 0.0, smoothing: AbstractSmoothing = Exact()
     ):
         self.Fc = _coefficient(Fc, "Fc", is_positive=True)
         self.Fv = _coefficient(Fv, "Fv", is_positive=False)
@@ -145,11 +145,11 @@ class Threlfall(AbstractStaticFriction):
 
     def __init__(
         self,
-        Fc: ArrayLike,
-        Fv: ArrayLike,
-        v0: ArrayLike,
+        Fc: ParamLike,
+        Fv: ParamLike,
+        v0: ParamLike,
         *,
-        offset: ArrayLike = 0.0,
+        offset: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
         self.Fc = _coefficient(Fc, "Fc", is_positive=True)
@@ -200,13 +200,13 @@ class BoPavelescu(AbstractStribeckLaw):
 
     def __init__(
         self,
-        Fc: ArrayLike,
-        Fs: ArrayLike,
-        vs: ArrayLike,
-        delta: ArrayLike = 2.0,
-        Fv: ArrayLike = 0.0,
+        Fc: ParamLike,
+        Fs: ParamLike,
+        vs: ParamLike,
+        delta: ParamLike = 2.0,
+        Fv: ParamLike = 0.0,
         *,
-        offset: ArrayLike = 0.0,
+        offset: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
         self.Fc = _coefficient(Fc, "Fc", is_positive=True)
@@ -230,12 +230,12 @@ class Tustin(AbstractStribeckLaw):
 
     def __init__(
         self,
-        Fc: ArrayLike,
-        Fs: ArrayLike,
-        vs: ArrayLike,
-        Fv: ArrayLike = 0.0,
+        Fc: ParamLike,
+        Fs: ParamLike,
+        vs: ParamLike,
+        Fv: ParamLike = 0.0,
         *,
-        offset: ArrayLike = 0.0,
+        offset: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
         self.Fc = _coefficient(Fc, "Fc", is_positive=True)

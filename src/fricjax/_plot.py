@@ -1,0 +1,52 @@
+"""Figures: friction-displacement hysteresis loops and friction-velocity curves."""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Mapping
+from typing import Any
+
+import numpy as np
+
+
+def plot_loops(
+    motion: Any,
+    forces: Mapping[str, Any],
+    *,
+    presliding_window: tuple[int, int] | None = None,
+    velocity_only: Collection[str] = (),
+    title: str = "",
+) -> Any:
+    """Three panels: F(x) in pre-sliding (first samples), F(x) over the whole record, and F(v).
+
+    **Arguments:** `motion` a `Motion` with `x` and `v`; `forces` {label: force array (T,)};
+    `presliding_window` sample range of the pre-sliding panel (default: the first quarter);
+    `velocity_only` labels drawn only in the F(v) panel (static curves, whose F(x) is a square wave).
+    **Returns:** the matplotlib `Figure`.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    x = np.asarray(motion.x) * 1e6
+    v = np.asarray(motion.v) * 1e3
+    start, stop = presliding_window or (0, len(x) // 4)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
+    for label, force in forces.items():
+        force = np.asarray(force)
+        style = {"lw": 0.8, "label": label}
+        if label in velocity_only:
+            axes[2].plot(v, force, ls="--", color="k", **style)
+            continue
+        axes[0].plot(x[start:stop], force[start:stop], **style)
+        axes[1].plot(x, force, **style)
+        axes[2].plot(v, force, **style)
+    axes[0].set(xlabel="displacement x [µm]", ylabel="friction force F [N]", title="pre-sliding: hysteresis loops")
+    axes[1].set(xlabel="displacement x [µm]", ylabel="F [N]", title="pre-sliding into gross sliding")
+    axes[2].set(xlabel="velocity v [mm/s]", ylabel="F [N]", title="friction-velocity")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[2].legend(fontsize=8, loc="lower right")
+    if title:
+        fig.suptitle(title)
+    return fig
