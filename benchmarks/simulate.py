@@ -172,16 +172,16 @@ def _relax(y: float, rate: float, forcing: float, dt: float) -> float:
 
 
 @njit(cache=False)
-def lugre_numba(v, dt, Fc, Fs, vs, delta, sigma0, sigma1, sigma2, offset, z0):
+def lugre_numba(v, dx, dt, Fc, Fs, vs, delta, sigma0, sigma1, sigma2, offset, z0):
     n = v.shape[0]
     out = np.empty(n)
     z = z0
     for i in range(n):
-        vi = v[i]
+        vi = dx[i] / dt  # velocity held over the step
         rate = sigma0 * (vi * _sign(vi)) / _stribeck_exp(vi, Fc, Fs, vs, delta)
         z = _relax(z, rate, vi, dt)
         dz = vi - rate * z
-        out[i] = sigma0 * z + sigma1 * dz + sigma2 * vi + offset
+        out[i] = sigma0 * z + sigma1 * dz + sigma2 * v[i] + offset
     return out
 
 
@@ -195,7 +195,7 @@ def gms_numba(v, dx, dt, Fc, Fs, vs, delta, k, alpha, C, sigma2, offset):
     for i in range(n):
         vi = v[i]
         dxi = dx[i]
-        s = _stribeck_exp(vi, Fc, Fs, vs, delta)
+        s = _stribeck_exp(dxi / dt, Fc, Fs, vs, delta)
         direction = _sign(dxi)
         rate = C / s
         total = 0.0
@@ -251,7 +251,7 @@ def numba_runner(name: str, model: Any, motion: fj.Motion) -> Callable[[], np.nd
 
     if name == "lugre":
         s = p.stribeck
-        args = (v, dt, *map(f64, (s.Fc, s.Fs, s.vs, s.delta, p.sigma0, p.sigma1, p.sigma2, p.offset, p.z0)))
+        args = (v, dx, dt, *map(f64, (s.Fc, s.Fs, s.vs, s.delta, p.sigma0, p.sigma1, p.sigma2, p.offset, p.z0)))
         return lambda: lugre_numba(*args)
     if name == "gms4":
         s = p.stribeck

@@ -79,7 +79,12 @@ def test_vmap_over_motions_equals_loop():
 
 
 def _relative_fd_check(name, model):
-    motion = presliding_to_sliding(200)
+    """Gradient of a simulation loss w.r.t. every trainable leaf: finite, and equal to central differences.
+
+    The motion starts with 20 samples at standstill (v = 0 and dx = 0 exactly), where a careless |v|, sign or
+    division would give NaN gradients."""
+    moving = presliding_to_sliding(200)
+    motion = fj.Motion(x=np.r_[np.zeros(20), moving.x], v=np.r_[np.zeros(20), moving.v], dt=moving.dt)
     params, static = eqx.partition(model, fj.trainable_filter(model))
     flat, unravel = jax.flatten_util.ravel_pytree(params)
     target = fj.simulate(model, motion) * 1.05 + 0.01
@@ -103,17 +108,6 @@ def test_gradients_match_finite_differences_smooth(name):
 @pytest.mark.parametrize("name", ["lugre", "maxwell_nlr", "coulomb_viscous_asym", "dahl"])
 def test_gradients_match_finite_differences_exact(name):
     _relative_fd_check(name, MODELS[name])
-
-
-def test_gradients_finite_at_zero_velocity():
-    """Zero velocity everywhere (standstill) must not give NaN gradients (safe divisions and powers)."""
-    motion = fj.Motion(x=np.zeros(50), v=np.zeros(50), dt=1e-3)
-    for name, model in MODELS.items():
-        for m in (model, smooth(name, model)):
-            params, static = eqx.partition(m, fj.trainable_filter(m))
-            grads = jax.grad(lambda p, s=static: jnp.sum(fj.simulate(eqx.combine(p, s), motion) ** 2))(params)
-            leaves = jax.tree_util.tree_leaves(grads)
-            assert all(np.all(np.isfinite(g)) for g in leaves), name
 
 
 def test_no_recompilation_for_new_parameter_values():

@@ -45,8 +45,15 @@ class Positive(AbstractUnwrappable):
     raw: Array
     transform: Literal["log", "softplus"] = eqx.field(static=True)
 
-    def __init__(self, value: ParamLike, *, transform: Literal["log", "softplus"] = "log", name: str = "value"):
-        value = as_float_array(value)
+    def __init__(
+        self,
+        value: ParamLike,
+        *,
+        transform: Literal["log", "softplus"] = "log",
+        name: str = "value",
+        dtype: Any = None,
+    ):
+        value = as_float_array(value, dtype)
         if is_concrete(value):
             if not bool(jnp.all(jnp.isfinite(value))):
                 raise ValueError(f"`{name}` must be finite, got {np.asarray(value)!r}.")
@@ -85,27 +92,45 @@ def unwrap(tree: Any) -> Any:
     return jax.tree_util.tree_map(lambda leaf: leaf.unwrap() if _is_wrapper(leaf) else leaf, tree, is_leaf=_is_wrapper)
 
 
-def positive(value: ParamLike, name: str) -> Positive:
-    """Shorthand used by model constructors: `Positive(value, name=name)`."""
-    return Positive(value, name=name)
+def positive(value: ParamLike, name: str, dtype: Any = None) -> Positive:
+    """Shorthand used by model constructors: `Positive(value, name=name)`; Python numbers take `dtype`."""
+    return Positive(value, name=name, dtype=dtype)
 
 
-def real(value: ParamLike, name: str) -> Array:
+def real(value: ParamLike, name: str, dtype: Any = None) -> Array:
     """Convert an unconstrained real parameter to a float array, checking it is finite when concrete."""
-    value = as_float_array(value)
+    value = as_float_array(value, dtype)
     if is_concrete(value) and not bool(jnp.all(jnp.isfinite(value))):
         raise ValueError(f"`{name}` must be finite, got {np.asarray(value)!r}.")
     return value
 
 
-def as_float_array(value: Any) -> Array:
-    """`value` (scalar, list, NumPy or JAX array) as a floating JAX array, keeping a floating input's dtype."""
+def _is_weak(value: Any) -> bool:
+    """Python numbers and (nested) lists of them carry no dtype of their own."""
+    if isinstance(value, (list, tuple)):
+        return all(_is_weak(item) for item in value)
+    return isinstance(value, (int, float))
+
+
+def model_dtype(*values: Any) -> Any:
+    """The floating dtype a model takes from its arguments: that of its array arguments (NumPy / JAX, floating),
+    else the default float. Python numbers (e.g. defaults such as `offset=0.0`) follow it."""
+    strong = [jnp.result_type(v) for v in values if v is not None and not _is_weak(v) and hasattr(v, "dtype")]
+    strong = [d for d in strong if jnp.issubdtype(d, jnp.floating)]
+    return jnp.result_type(*strong) if strong else jnp.result_type(float)
+
+
+def as_float_array(value: Any, dtype: Any = None) -> Array:
+    """`value` (scalar, list, NumPy or JAX array) as a floating JAX array. A floating array keeps its dtype;
+    Python numbers and lists take `dtype` (default: the default float)."""
+    if _is_weak(value):
+        return jnp.asarray(np.asarray(value, dtype=np.float64), dtype=dtype or jnp.result_type(float))
     if isinstance(value, (list, tuple)):
         value = np.asarray(value)
-    dtype = jnp.result_type(value)
-    if not jnp.issubdtype(dtype, jnp.floating):
-        dtype = jnp.result_type(float)
-    return jnp.asarray(value, dtype=dtype)
+    own = jnp.result_type(value)
+    if not jnp.issubdtype(own, jnp.floating):
+        own = dtype or jnp.result_type(float)
+    return jnp.asarray(value, dtype=own)
 
 
 class Simplex(AbstractUnwrappable):
@@ -116,8 +141,8 @@ class Simplex(AbstractUnwrappable):
 
     raw: Array
 
-    def __init__(self, value: ParamLike, *, name: str = "value"):
-        value = as_float_array(value)
+    def __init__(self, value: ParamLike, *, name: str = "value", dtype: Any = None):
+        value = as_float_array(value, dtype)
         if value.ndim != 1:
             raise ValueError(f"`{name}` must be a 1-D array of fractions, got shape {value.shape}.")
         if is_concrete(value):

@@ -16,9 +16,11 @@ from ._smoothing import is_concrete
 class MotionSample(NamedTuple):
     """What a model's `step` sees at sample k (all scalars).
 
-    `x` displacement [m]; `v` velocity [m/s]; `dx = x_k - x_{k-1}` the displacement increment over the step
-    [m] (`dx_0 = 0`); `dt` the sample time [s]. The velocity `v_k` is taken as held over the step
-    `(t_{k-1}, t_k]` (zero-order hold), which is how the exact integrators of the dynamic models treat it.
+    `x` displacement [m]; `v` the velocity at t_k [m/s]; `dx = x_k - x_{k-1}` the displacement increment over
+    the step [m] (`dx_0 = 0`); `dt` the sample time [s]. The dynamic models integrate over the step
+    `(t_{k-1}, t_k]` with the velocity held at the step's mean `dx / dt` (so a record given as velocity, whose
+    displacement is built by zero-order hold, integrates `v_k` itself); `v` enters instantaneous terms
+    (viscous friction, static curves).
     """
 
     x: Array

@@ -14,7 +14,7 @@ from ._models._base import AbstractFrictionModel
 from ._motion import Motion, MotionSample, position_from_velocity, velocity_from_position
 
 # Loop unrolling of the scan: measured by benchmarks/simulate.py on the 2-core CPU (see benchmarks/README.md).
-DEFAULT_UNROLL = 4
+DEFAULT_UNROLL = 2
 
 
 def simulate(

@@ -86,10 +86,14 @@ class Smooth(AbstractSmoothing):
     def __init__(self, eps: ArrayLike):
         if is_concrete(eps) and not bool(jnp.all(jnp.asarray(eps) > 0)):
             raise ValueError(f"Smooth: `eps` must be positive, got {eps!r}; pass a small width, e.g. 1e-4.")
-        self.eps = jnp.asarray(eps, dtype=jnp.result_type(float))
+        eps_array = jnp.asarray(eps)
+        if not jnp.issubdtype(eps_array.dtype, jnp.floating):
+            eps_array = eps_array.astype(jnp.result_type(float))
+        self.eps = eps_array
 
     def sign(self, x: ArrayLike) -> Array:
-        return jnp.tanh(jnp.asarray(x) / self.eps)
+        x = jnp.asarray(x)
+        return jnp.tanh(x / self.eps.astype(x.dtype))  # the width follows the signal's dtype
 
 
 def is_concrete(x: object) -> bool:

@@ -9,7 +9,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from ._constraints import ParamLike, positive, unwrap
+from ._constraints import ParamLike, model_dtype, positive, unwrap
 
 
 def abs_pow(u: ArrayLike, p: ArrayLike) -> Array:
@@ -49,10 +49,11 @@ class ExponentialStribeck(AbstractStribeck):
     delta: Any
 
     def __init__(self, Fc: ParamLike, Fs: ParamLike, vs: ParamLike, delta: ParamLike = 1.0):
-        self.Fc = positive(Fc, "Fc")
-        self.Fs = positive(Fs, "Fs")
-        self.vs = positive(vs, "vs")
-        self.delta = positive(delta, "delta")
+        dtype = model_dtype(Fc, Fs, vs, delta)
+        self.Fc = positive(Fc, "Fc", dtype)
+        self.Fs = positive(Fs, "Fs", dtype)
+        self.vs = positive(vs, "vs", dtype)
+        self.delta = positive(delta, "delta", dtype)
 
     def __call__(self, v: ParamLike) -> Array:
         p = unwrap(self)
@@ -70,10 +71,11 @@ class RationalStribeck(AbstractStribeck):
     mu: Any
 
     def __init__(self, Fc: ParamLike, Fs: ParamLike, vs: ParamLike, mu: ParamLike = 2.0):
-        self.Fc = positive(Fc, "Fc")
-        self.Fs = positive(Fs, "Fs")
-        self.vs = positive(vs, "vs")
-        self.mu = positive(mu, "mu")
+        dtype = model_dtype(Fc, Fs, vs, mu)
+        self.Fc = positive(Fc, "Fc", dtype)
+        self.Fs = positive(Fs, "Fs", dtype)
+        self.vs = positive(vs, "vs", dtype)
+        self.mu = positive(mu, "mu", dtype)
 
     def __call__(self, v: ParamLike) -> Array:
         p = unwrap(self)

@@ -8,7 +8,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._constraints import ParamLike, positive, real, unwrap
+from .._constraints import ParamLike, model_dtype, positive, real, unwrap
 from .._motion import MotionSample
 from .._smoothing import AbstractSmoothing, Exact
 from ._base import AbstractFrictionModel
@@ -51,7 +51,8 @@ class Dahl(AbstractFrictionModel):
     For the displacement increment of a sample the equation is solved exactly (`dahl_distance_update`), so
     the model is a function of the displacement path only and stays stable for any stiffness. In the smooth
     mode the direction sgn(dx) is blended: the updates for both directions are weighted by the smooth step of
-    the velocity dx / dt (eps in m/s).
+    the step velocity dx / dt, and the distance travelled in each direction is a smooth ramp of it (eps in
+    m/s).
 
     **Arguments:**
 
@@ -81,11 +82,12 @@ class Dahl(AbstractFrictionModel):
         F0: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
-        self.sigma0 = positive(sigma0, "sigma0")
-        self.Fc = positive(Fc, "Fc")
-        self.alpha = positive(alpha, "alpha")
-        self.offset = real(offset, "offset")
-        self.F0 = real(F0, "F0")
+        dtype = model_dtype(sigma0, Fc, alpha, offset, F0)
+        self.sigma0 = positive(sigma0, "sigma0", dtype)
+        self.Fc = positive(Fc, "Fc", dtype)
+        self.alpha = positive(alpha, "alpha", dtype)
+        self.offset = real(offset, "offset", dtype)
+        self.F0 = real(F0, "F0", dtype)
         self.smoothing = smoothing
 
     def init_state(self) -> DahlState:
@@ -94,13 +96,15 @@ class Dahl(AbstractFrictionModel):
     def step(self, state: DahlState, sample: MotionSample) -> tuple[DahlState, Array]:
         p = unwrap(self)
         rate = p.sigma0 / p.Fc  # 1/m
-        F, dx = state.F, sample.dx
+        F = state.F
+        v_step = sample.dx / sample.dt  # the velocity held over the step
 
         def moved(direction: float) -> Array:
             u = 1.0 - direction * F / p.Fc
-            u = dahl_distance_update(u, p.smoothing.relu(direction * dx), rate, p.alpha)
+            travelled = p.smoothing.relu(direction * v_step) * sample.dt  # distance moved in `direction` [m]
+            u = dahl_distance_update(u, travelled, rate, p.alpha)
             return direction * p.Fc * (1.0 - u)
 
-        up = p.smoothing.step(dx / sample.dt)  # direction of motion (exact: dx > 0)
+        up = p.smoothing.step(v_step)  # direction of motion (exact: dx > 0)
         F = up * moved(1.0) + (1.0 - up) * moved(-1.0)
         return DahlState(F=F), F + p.offset

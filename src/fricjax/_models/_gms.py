@@ -5,10 +5,11 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._constraints import ParamLike, Simplex, as_float_array, positive, real, unwrap
+from .._constraints import ParamLike, Simplex, as_float_array, model_dtype, positive, real, unwrap
 from .._motion import MotionSample
 from .._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._stribeck import AbstractStribeck
@@ -35,9 +36,11 @@ class GMS(AbstractFrictionModel):
     `F = sum_i F_i + sigma2 v + offset`. With `sum alpha_i = 1` the steady sliding force is `s(v) + sigma2 v`,
     and small displacements give `sum k_i x` (pre-sliding), with non-local memory through the elements.
 
-    Discrete update for a sample (velocity held over the step): sticking elements move by `k_i dx` (`dx` the
-    displacement increment) and are clipped to `+/- alpha_i s(v)` (the clip starts slipping); slipping elements
-    relax exactly towards `alpha_i s(v) sgn(v)` with rate `C / s(v)` (stable for any C dt).
+    Discrete update for a sample, with the velocity held over the step `(t_{k-1}, t_k]` equal to the step's
+    mean velocity `dx / dt` (`dx` the displacement increment; sgn(v) is sgn(dx)): sticking elements move by
+    `k_i dx` and are clipped to `+/- alpha_i s(dx/dt)` (the clip starts slipping); slipping elements relax
+    exactly towards `alpha_i s(dx/dt) sgn(dx)` with rate `C / s(dx/dt)` (stable for any C dt). The viscous
+    term uses the sample's velocity `v_k`.
 
     Smooth mode (`Smooth(eps)`, eps in metres): the stick/slip decisions become smooth steps of lengths
     (`dx` for the direction, `(|F_i| - alpha_i s) / k_i` for the threshold, `F_i / k_i` for the reversal),
@@ -81,23 +84,24 @@ class GMS(AbstractFrictionModel):
         offset: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
+        dtype = model_dtype(*jax.tree_util.tree_leaves(stribeck), k, alpha, C, sigma2, offset)
         if not isinstance(stribeck, AbstractStribeck):
             raise TypeError(f"GMS: `stribeck` must be a Stribeck curve, got {type(stribeck).__name__}.")
         k = as_float_array(k)
         if k.ndim != 1:
             raise ValueError(f"GMS: `k` must have shape (N,), one stiffness per element, got shape {k.shape}.")
         self.stribeck = stribeck
-        self.k = positive(k, "k")
+        self.k = positive(k, "k", dtype)
         alpha = as_float_array(alpha).astype(k.dtype)
         if alpha.shape != k.shape:
             raise ValueError(f"GMS: `alpha` must have the shape of `k` {k.shape}, got {alpha.shape}.")
-        self.alpha = Simplex(alpha, name="alpha")
-        self.C = positive(C, "C")
-        sigma2 = real(sigma2, "sigma2")
+        self.alpha = Simplex(alpha, name="alpha", dtype=dtype)
+        self.C = positive(C, "C", dtype)
+        sigma2 = real(sigma2, "sigma2", dtype)
         if is_concrete(sigma2) and bool(sigma2 < 0):
             raise ValueError(f"GMS: `sigma2` must be >= 0 (N·s/m), got {sigma2!r}.")
         self.sigma2 = sigma2
-        self.offset = real(offset, "offset")
+        self.offset = real(offset, "offset", dtype)
         self.smoothing = smoothing
 
     @property
@@ -112,11 +116,12 @@ class GMS(AbstractFrictionModel):
     def step(self, state: GMSState, sample: MotionSample) -> tuple[GMSState, Array]:
         p = unwrap(self)
         sm = p.smoothing
-        s = p.stribeck(sample.v)
+        s = p.stribeck(sample.dx / sample.dt)  # at the velocity held over the step, as the slip law
         bound = p.alpha * s
         direction = sm.sign(sample.dx)
-        # continue slipping while the motion keeps the direction of the element force
-        keeps_slipping = state.slipping * sm.step(direction * state.F / p.k)
+        # continue slipping while the motion keeps the direction of the element force; a rest (dx = 0,
+        # direction 0) ends the slip in both modes (direction**2 is 0 there)
+        keeps_slipping = state.slipping * sm.step(direction * state.F / p.k) * direction**2
         F_slip = relax(state.F, p.C / s, p.C * p.alpha * direction, sample.dt)
         F_trial = state.F + p.k * sample.dx
         starts_slipping = (1.0 - keeps_slipping) * sm.step((sm.abs(F_trial) - bound) / p.k)

@@ -5,10 +5,11 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._constraints import ParamLike, positive, real, unwrap
+from .._constraints import ParamLike, model_dtype, positive, real, unwrap
 from .._motion import MotionSample
 from .._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._stribeck import AbstractStribeck
@@ -46,7 +47,9 @@ class LuGre(AbstractFrictionModel):
     with `s(v)` a Stribeck curve in newtons (`ExponentialStribeck`, worden2007 eq. 5, or `RationalStribeck`,
     eq. 10: worden2007 writes s in units of z, i.e. s / sigma0). The bristle equation is linear in `z` for the
     velocity held over a sample, and is advanced by its exact solution (`relax`), which stays stable for
-    sigma0 = 1e8 N/m at 1 kHz. `dz/dt` in the force is evaluated at the end of the step.
+    sigma0 = 1e8 N/m at 1 kHz. The velocity held over the step `(t_{k-1}, t_k]` is the step's mean velocity
+    `dx_k / dt`, so the bristle follows the recorded displacement exactly (`z = x` in pre-sliding from rest);
+    `dz/dt` is evaluated at the end of the step, and the viscous term uses the sample's velocity `v_k`.
 
     **Arguments:**
 
@@ -55,7 +58,8 @@ class LuGre(AbstractFrictionModel):
     - `sigma1`: micro-viscous (bristle damping) coefficient [N·s/m] (>= 0; typically ~ sqrt(sigma0 * mass)).
     - `sigma2`: viscous coefficient [N·s/m] (>= 0).
     - `offset`: constant force offset b [N] (worden2007 eq. 11).
-    - `z0`: initial bristle deflection z(1) [m], a parameter as in worden2007 eq. 12.
+    - `z0`: bristle deflection at the first sample z(1) [m], a parameter as in worden2007 eq. 12 (the first
+      sample has `dx_0 = 0`, so the state is `z0` there).
     - `smoothing`: `Exact()` or `Smooth(eps)`, eps in m/s smoothing |v|.
 
     ```python
@@ -87,17 +91,18 @@ class LuGre(AbstractFrictionModel):
         z0: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
+        dtype = model_dtype(*jax.tree_util.tree_leaves(stribeck), sigma0, sigma1, sigma2, offset, z0)
         if not isinstance(stribeck, AbstractStribeck):
             raise TypeError(
                 f"LuGre: `stribeck` must be a Stribeck curve (fj.ExponentialStribeck / fj.RationalStribeck), "
                 f"got {type(stribeck).__name__}."
             )
         self.stribeck = stribeck
-        self.sigma0 = positive(sigma0, "sigma0")
-        self.sigma1 = _nonnegative(sigma1, "sigma1")
-        self.sigma2 = _nonnegative(sigma2, "sigma2")
-        self.offset = real(offset, "offset")
-        self.z0 = real(z0, "z0")
+        self.sigma0 = positive(sigma0, "sigma0", dtype)
+        self.sigma1 = _nonnegative(sigma1, "sigma1", dtype)
+        self.sigma2 = _nonnegative(sigma2, "sigma2", dtype)
+        self.offset = real(offset, "offset", dtype)
+        self.z0 = real(z0, "z0", dtype)
         self.smoothing = smoothing
 
     def init_state(self) -> LuGreState:
@@ -105,16 +110,16 @@ class LuGre(AbstractFrictionModel):
 
     def step(self, state: LuGreState, sample: MotionSample) -> tuple[LuGreState, Array]:
         p = unwrap(self)
-        v = sample.v
-        rate = p.sigma0 * p.smoothing.abs(v) / p.stribeck(v)  # 1/s
-        z = relax(state.z, rate, v, sample.dt)
-        dz = v - rate * z
-        force = p.sigma0 * z + p.sigma1 * dz + p.sigma2 * v + p.offset
+        v_step = sample.dx / sample.dt  # the velocity held over (t_{k-1}, t_k]: consistent with x
+        rate = p.sigma0 * p.smoothing.abs(v_step) / p.stribeck(v_step)  # 1/s
+        z = relax(state.z, rate, v_step, sample.dt)
+        dz = v_step - rate * z
+        force = p.sigma0 * z + p.sigma1 * dz + p.sigma2 * sample.v + p.offset
         return LuGreState(z=z), force
 
 
-def _nonnegative(value: ParamLike, name: str) -> Array:
-    array = real(value, name)
+def _nonnegative(value: ParamLike, name: str, dtype: Any = None) -> Array:
+    array = real(value, name, dtype)
     if is_concrete(array) and bool(jnp.any(array < 0)):
         raise ValueError(f"`{name}` must be >= 0 (a damping coefficient, N·s/m), got {value!r}.")
     return array

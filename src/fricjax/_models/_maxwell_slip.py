@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._constraints import Fixed, ParamLike, as_float_array, positive, real, unwrap
+from .._constraints import Fixed, ParamLike, as_float_array, model_dtype, positive, real, unwrap
 from .._motion import MotionSample
 from .._smoothing import AbstractSmoothing, Exact
 from ._base import AbstractFrictionModel
@@ -58,8 +58,9 @@ class SpringForces(AbstractForceMap):
     k: Any
 
     def __init__(self, k: ParamLike, offset: ParamLike = 0.0):
-        self.k = positive(k, "k")
-        self.offset = real(offset, "offset")
+        dtype = model_dtype(k, offset)
+        self.k = positive(k, "k", dtype)
+        self.offset = real(offset, "offset", dtype)
 
     def __call__(self, thresholds: Array, dbar: Array, dbar_history: Array, x: Array, x_history: Array) -> Array:
         p = unwrap(self)
@@ -80,16 +81,17 @@ class FIRForces(AbstractForceMap):
     c: Float[Array, " nx1"] | None
 
     def __init__(self, theta: ParamLike, c: ParamLike | None = None, offset: ParamLike = 0.0):
-        theta = real(theta, "theta")
+        dtype = model_dtype(theta, c, offset)
+        theta = real(theta, "theta", dtype)
         if theta.ndim != 2:
             raise ValueError(f"`theta` must have shape (n + 1, M) (FIR order n, M elements), got {theta.shape}.")
         self.theta = theta
         if c is not None:
-            c = real(c, "c")
+            c = real(c, "c", dtype)
             if c.ndim != 1:
                 raise ValueError(f"`c` must have shape (nx + 1,) (displacement FIR of order nx), got {c.shape}.")
         self.c = c
-        self.offset = real(offset, "offset")
+        self.offset = real(offset, "offset", dtype)
 
     @property
     def dbar_lags(self) -> int:
@@ -136,14 +138,15 @@ class MaxwellSlip(AbstractFrictionModel):
     requires: ClassVar[frozenset[str]] = frozenset({"x"})
 
     def __init__(self, thresholds: Any, force_map: AbstractForceMap, *, smoothing: AbstractSmoothing = Exact()):
+        dtype = model_dtype(thresholds.value if isinstance(thresholds, Fixed) else thresholds)
         if not isinstance(force_map, AbstractForceMap):
             raise TypeError(
                 f"MaxwellSlip: `force_map` must be SpringForces or FIRForces, got {type(force_map).__name__}."
             )
         if isinstance(thresholds, Fixed):
-            self.thresholds = Fixed(positive(thresholds.value, "thresholds").unwrap())
+            self.thresholds = Fixed(positive(thresholds.value, "thresholds", dtype).unwrap())
         else:
-            self.thresholds = positive(thresholds, "thresholds")
+            self.thresholds = positive(thresholds, "thresholds", dtype)
         m = self.num_elements
         if jnp.ndim(unwrap(self.thresholds)) != 1:
             raise ValueError(

@@ -18,15 +18,15 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._constraints import Fixed, ParamLike, as_float_array, positive, real, unwrap
+from .._constraints import Fixed, ParamLike, as_float_array, model_dtype, positive, real, unwrap
 from .._motion import MotionSample
 from .._smoothing import AbstractSmoothing, Exact
 from .._stribeck import abs_pow
 from ._base import AbstractFrictionModel
 
 
-def _coefficient(value: ParamLike, name: str, *, is_positive: bool) -> Any:
-    array = as_float_array(value)
+def _coefficient(value: ParamLike, name: str, *, is_positive: bool, dtype: Any = None) -> Any:
+    array = as_float_array(value, dtype)
     if array.ndim not in (0, 1) or (array.ndim == 1 and array.shape[0] != 2):
         raise ValueError(
             f"`{name}` must be a scalar (symmetric law) or a pair (value for v > 0, value for v < 0), "
@@ -96,8 +96,9 @@ class Coulomb(AbstractStaticFriction):
     Fc: Any
 
     def __init__(self, Fc: ParamLike, *, offset: ParamLike = 0.0, smoothing: AbstractSmoothing = Exact()):
-        self.Fc = _coefficient(Fc, "Fc", is_positive=True)
-        self.offset = real(offset, "offset")
+        dtype = model_dtype(Fc, offset)
+        self.Fc = _coefficient(Fc, "Fc", is_positive=True, dtype=dtype)
+        self.offset = real(offset, "offset", dtype)
         self.smoothing = smoothing
 
     def _law(self, v: Array, sign: Array, pick: Any) -> Array:
@@ -118,9 +119,10 @@ class CoulombViscous(AbstractStaticFriction):
     def __init__(
         self, Fc: ParamLike, Fv: ParamLike, *, offset: ParamLike = 0.0, smoothing: AbstractSmoothing = Exact()
     ):
-        self.Fc = _coefficient(Fc, "Fc", is_positive=True)
-        self.Fv = _coefficient(Fv, "Fv", is_positive=False)
-        self.offset = real(offset, "offset")
+        dtype = model_dtype(Fc, Fv, offset)
+        self.Fc = _coefficient(Fc, "Fc", is_positive=True, dtype=dtype)
+        self.Fv = _coefficient(Fv, "Fv", is_positive=False, dtype=dtype)
+        self.offset = real(offset, "offset", dtype)
         self.smoothing = smoothing
 
     def _law(self, v: Array, sign: Array, pick: Any) -> Array:
@@ -152,10 +154,11 @@ class Threlfall(AbstractStaticFriction):
         offset: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
-        self.Fc = _coefficient(Fc, "Fc", is_positive=True)
-        self.Fv = _coefficient(Fv, "Fv", is_positive=False)
-        self.v0 = _coefficient(v0, "v0", is_positive=True)
-        self.offset = real(offset, "offset")
+        dtype = model_dtype(Fc, Fv, v0, offset)
+        self.Fc = _coefficient(Fc, "Fc", is_positive=True, dtype=dtype)
+        self.Fv = _coefficient(Fv, "Fv", is_positive=False, dtype=dtype)
+        self.v0 = _coefficient(v0, "v0", is_positive=True, dtype=dtype)
+        self.offset = real(offset, "offset", dtype)
         self.smoothing = smoothing
 
     def _law(self, v: Array, sign: Array, pick: Any) -> Array:
@@ -209,12 +212,13 @@ class BoPavelescu(AbstractStribeckLaw):
         offset: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
-        self.Fc = _coefficient(Fc, "Fc", is_positive=True)
-        self.Fs = _coefficient(Fs, "Fs", is_positive=True)
-        self.vs = _coefficient(vs, "vs", is_positive=True)
-        self.delta = _coefficient(delta, "delta", is_positive=True)
-        self.Fv = _coefficient(Fv, "Fv", is_positive=False)
-        self.offset = real(offset, "offset")
+        dtype = model_dtype(Fc, Fs, vs, delta, Fv, offset)
+        self.Fc = _coefficient(Fc, "Fc", is_positive=True, dtype=dtype)
+        self.Fs = _coefficient(Fs, "Fs", is_positive=True, dtype=dtype)
+        self.vs = _coefficient(vs, "vs", is_positive=True, dtype=dtype)
+        self.delta = _coefficient(delta, "delta", is_positive=True, dtype=dtype)
+        self.Fv = _coefficient(Fv, "Fv", is_positive=False, dtype=dtype)
+        self.offset = real(offset, "offset", dtype)
         self.smoothing = smoothing
 
 
@@ -238,10 +242,11 @@ class Tustin(AbstractStribeckLaw):
         offset: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
-        self.Fc = _coefficient(Fc, "Fc", is_positive=True)
-        self.Fs = _coefficient(Fs, "Fs", is_positive=True)
-        self.vs = _coefficient(vs, "vs", is_positive=True)
-        self.delta = Fixed(jnp.ones((), jnp.result_type(float)))
-        self.Fv = _coefficient(Fv, "Fv", is_positive=False)
-        self.offset = real(offset, "offset")
+        dtype = model_dtype(Fc, Fs, vs, Fv, offset)
+        self.Fc = _coefficient(Fc, "Fc", is_positive=True, dtype=dtype)
+        self.Fs = _coefficient(Fs, "Fs", is_positive=True, dtype=dtype)
+        self.vs = _coefficient(vs, "vs", is_positive=True, dtype=dtype)
+        self.delta = Fixed(jnp.ones((), dtype))
+        self.Fv = _coefficient(Fv, "Fv", is_positive=False, dtype=dtype)
+        self.offset = real(offset, "offset", dtype)
         self.smoothing = smoothing
