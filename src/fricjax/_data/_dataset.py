@@ -1,0 +1,88 @@
+"""`FrictionData`: a motion record with the measured friction force, and its splits."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from .._constraints import as_float_array
+from .._motion import Motion
+from .._smoothing import is_concrete
+
+
+class FrictionData(eqx.Module):
+    """A motion record and the measured friction force [N] along it, shape `(T,)`.
+
+    **Arguments:** `motion` a `Motion`; `force` the measured force [N], same length, finite.
+
+    ```python
+    >>> import numpy as np, fricjax as fj
+    >>> data = fj.FrictionData(fj.Motion.from_position(np.linspace(0, 1e-3, 100), dt=1e-3), np.zeros(100))
+    >>> train, test = data.split(0.8)
+    >>> train.length, test.length
+    (80, 20)
+    ```
+    """
+
+    motion: Motion
+    force: Float[Array, "T"]
+
+    def __init__(self, motion: Motion, force: ArrayLike):
+        if not isinstance(motion, Motion):
+            raise TypeError(f"FrictionData: `motion` must be a fricjax.Motion, got {type(motion).__name__}.")
+        force = as_float_array(force)
+        if force.shape[-1:] != (motion.length,):
+            raise ValueError(
+                f"FrictionData: `force` has {force.shape[-1] if force.ndim else 0} samples but the motion has "
+                f"{motion.length}; give one force sample per motion sample."
+            )
+        if is_concrete(force) and not bool(jnp.all(jnp.isfinite(force))):
+            raise ValueError("FrictionData: `force` contains NaN or inf; clean or interpolate the record.")
+        self.motion = motion
+        self.force = force
+
+    @property
+    def length(self) -> int:
+        """Number of samples T."""
+        return self.motion.length
+
+    def slice(self, start: int, stop: int) -> FrictionData:
+        """Samples `start:stop` (Python slice semantics), as a new record."""
+        if not 0 <= start < stop <= self.length:
+            raise ValueError(
+                f"FrictionData.slice: need 0 <= start < stop <= {self.length}, got start={start}, stop={stop}; "
+                "an empty split cannot be fitted or scored."
+            )
+        m = self.motion
+        motion = Motion(
+            x=None if m.x is None else m.x[..., start:stop], v=None if m.v is None else m.v[..., start:stop], dt=m.dt
+        )
+        return FrictionData(motion, self.force[..., start:stop])
+
+    def split(self, *points: float | int) -> tuple[FrictionData, ...]:
+        """Split in consecutive parts at `points`: fractions in (0, 1) or sample indices.
+
+        `data.split(0.6, 0.8)` gives train / validation / test = 60 / 20 / 20 %. Each part must be non-empty.
+        """
+        if not points:
+            raise ValueError("FrictionData.split: give at least one split point (a fraction or an index).")
+        indices = [int(round(p * self.length)) if isinstance(p, float) else int(p) for p in points]
+        edges = [0, *indices, self.length]
+        if any(b <= a for a, b in zip(edges[:-1], edges[1:], strict=True)):
+            raise ValueError(
+                f"FrictionData.split: split points {list(points)} give an empty or reversed part of a record of "
+                f"{self.length} samples (edges {edges}); use increasing points inside the record."
+            )
+        return tuple(self.slice(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True))
+
+
+def concatenate(parts: Sequence[FrictionData]) -> FrictionData:
+    """Join records end to end (same `dt`)."""
+    first = parts[0].motion
+    x = None if first.x is None else np.concatenate([np.asarray(p.motion.x) for p in parts])
+    v = None if first.v is None else np.concatenate([np.asarray(p.motion.v) for p in parts])
+    return FrictionData(Motion(x=x, v=v, dt=first.dt), np.concatenate([np.asarray(p.force) for p in parts]))
