@@ -52,3 +52,18 @@ try:
     __version__ = version("fricjax")
 except PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0.0.0"
+
+from ._data._dataset import FrictionData as FrictionData
+from ._fitting._fit import Continuation as Continuation
+from ._fitting._fit import MultiStart as MultiStart
+from ._fitting._fit import fit as fit
+from ._fitting._fit import levenberg_marquardt as levenberg_marquardt
+from ._fitting._fit import solve_linear as solve_linear
+from ._fitting._losses import AbstractLoss as AbstractLoss
+from ._fitting._losses import MultipleShootingLoss as MultipleShootingLoss
+from ._fitting._losses import OneStepLoss as OneStepLoss
+from ._fitting._losses import SimulationLoss as SimulationLoss
+from ._fitting._result import RESULT_CODES as RESULT_CODES
+from ._fitting._result import FitResult as FitResult
+from ._fitting._result import load_model as load_model
+from ._fitting._result import save_model as save_model

@@ -86,6 +86,23 @@ def motion_samples(motion: Motion) -> MotionSample:
     return MotionSample(x=x, v=v, dx=dx, dt=dt_array)
 
 
+def scan_samples(
+    model: AbstractFrictionModel, samples: MotionSample, state: Any, unroll: int = DEFAULT_UNROLL
+) -> tuple[Any, Array]:
+    """Run `model.step` over per-step signals `samples` (x, v, dx of shape (T,), scalar dt) from `state`.
+
+    The building block of `simulate`, of the fitting losses (multiple-shooting segments) and of the system
+    simulators; `model` must be unwrapped (`fj.unwrap`). **Returns:** `(final_state, force (T,))`.
+    """
+    dt = samples.dt
+
+    def body(carry: Any, xs: tuple[Array, Array, Array]) -> tuple[Any, Array]:
+        x, v, dx = xs
+        return model.step(carry, MotionSample(x=x, v=v, dx=dx, dt=dt))
+
+    return jax.lax.scan(body, state, (samples.x, samples.v, samples.dx), unroll=unroll)
+
+
 @eqx.filter_jit
 def _simulate(model: AbstractFrictionModel, motion: Motion, state0: Any, unroll: int) -> Array:
     model = unwrap(model)
@@ -96,11 +113,5 @@ def _simulate(model: AbstractFrictionModel, motion: Motion, state0: Any, unroll:
             "for a batch of motions use jax.vmap(lambda m: fj.simulate(model, m))(motions)."
         )
     state = model.init_state() if state0 is None else state0
-    dt = samples.dt
-
-    def body(carry: Any, xs: tuple[Array, Array, Array]) -> tuple[Any, Array]:
-        x, v, dx = xs
-        return model.step(carry, MotionSample(x=x, v=v, dx=dx, dt=dt))
-
-    _, force = jax.lax.scan(body, state, (samples.x, samples.v, samples.dx), unroll=unroll)
+    _, force = scan_samples(model, samples, state, unroll)
     return force

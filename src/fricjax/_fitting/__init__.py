@@ -1,0 +1,1 @@
+"""Fitting: losses, the `fit` driver, separable least squares, multi-start, continuation, results."""

@@ -1,0 +1,620 @@
+"""`fit`: gradient-based identification of any fricjax model through its simulator.
+
+Solvers: any optax `GradientTransformation` (Adam, L-BFGS, schedules) or an optimistix least-squares solver
+(Levenberg-Marquardt, Gauss-Newton, on the residual vector) or minimiser (BFGS). Options: freezing fields,
+separable least squares (linear parameters solved inside every evaluation), vmap-ed multi-start, smoothing
+continuation, validation-based early stopping, a divergence guard, progress bar, Gauss-Newton standard
+deviations. This replaces the GA + Nelder-Mead of worden2007 §4.4 / parlitz2004 §III-C / amthor §II-B.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.flatten_util
+import jax.numpy as jnp
+import numpy as np
+import optax
+import optimistix as optx
+
+from .._constraints import AbstractUnwrappable, Fixed, Positive, trainable_filter, unwrap
+from .._data._dataset import FrictionData
+from .._models._base import AbstractFrictionModel
+from .._simulate import motion_samples, scan_samples
+from .._smoothing import Smooth, exact, with_smoothing
+from ._losses import AbstractLoss, SimulationLoss
+from ._result import FitResult
+
+
+@dataclasses.dataclass(frozen=True)
+class MultiStart:
+    """`count` starts drawn around the initial model, fitted together in one vmap-ed program.
+
+    Positive (log-stored) parameters are multiplied by `exp(spread * N(0, 1))`; real ones get
+    `spread * (|value| + 1e-12) * N(0, 1)` added. The first start is the initial model itself. The best start is
+    chosen by validation loss (training loss without validation data).
+    """
+
+    count: int
+    spread: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.count < 1:
+            raise ValueError(f"MultiStart: `count` must be >= 1, got {self.count}.")
+        if not self.spread >= 0:
+            raise ValueError(f"MultiStart: `spread` must be >= 0, got {self.spread}.")
+
+
+@dataclasses.dataclass(frozen=True)
+class Continuation:
+    """Smoothing continuation: the model is fitted in smooth mode with `eps` annealed geometrically from
+    `eps_start` to `eps_end` in `stages` stages (steps split evenly); the result is also scored in exact mode.
+    `eps` is in the units each model documents (m/s for LuGre / Dahl / static curves, m for GMS, a fraction of
+    the thresholds for Maxwell-slip)."""
+
+    eps_start: float
+    eps_end: float
+    stages: int = 5
+
+    def __post_init__(self) -> None:
+        if not (self.eps_start > 0 and self.eps_end > 0):
+            raise ValueError(f"Continuation: eps_start and eps_end must be > 0, got {self.eps_start}, {self.eps_end}.")
+        if self.stages < 1:
+            raise ValueError(f"Continuation: `stages` must be >= 1, got {self.stages}.")
+
+    def schedule(self) -> np.ndarray:
+        return np.geomspace(self.eps_start, self.eps_end, self.stages)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# parameter selection
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _node(model: Any, path: str) -> Any:
+    node = model
+    for part in path.split("."):
+        if not hasattr(node, part):
+            fields = [f.name for f in dataclasses.fields(node)] if dataclasses.is_dataclass(node) else []
+            raise ValueError(
+                f"fit: {path!r} is not a field path of {type(model).__name__} ('{part}' not found"
+                + (f"; fields of {type(node).__name__}: {', '.join(fields)}" if fields else "")
+                + "). Use dotted names such as 'sigma1' or 'stribeck.Fc'."
+            )
+        node = getattr(node, part)
+    return node
+
+
+def _getter(path: str) -> Any:
+    def get(tree: Any) -> Any:
+        for part in path.split("."):
+            tree = getattr(tree, part)
+        return tree
+
+    return get
+
+
+def _set_spec(spec: Any, model: Any, paths: Sequence[str], value: bool) -> Any:
+    for path in paths:
+        node = _node(model, path)
+        if not jax.tree_util.tree_leaves(node):
+            raise ValueError(f"fit: field {path!r} of {type(model).__name__} holds no array to train or freeze.")
+        spec = eqx.tree_at(_getter(path), spec, replace_fn=lambda sub: jax.tree_util.tree_map(lambda _: value, sub))
+    return spec
+
+
+def _physical_spec(model: Any, spec: Any) -> Any:
+    """The trainable spec mapped onto `unwrap(model)` (a wrapper becomes one leaf: trained if any raw leaf is)."""
+
+    def is_wrapper(node: Any) -> bool:
+        return isinstance(node, AbstractUnwrappable)
+
+    def convert(spec_node: Any) -> Any:
+        if isinstance(spec_node, Fixed):
+            return False
+        if is_wrapper(spec_node):
+            return any(bool(leaf) for leaf in jax.tree_util.tree_leaves(spec_node))
+        return spec_node
+
+    return jax.tree_util.tree_map(convert, spec, is_leaf=is_wrapper)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# separable least squares
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _simulate_force(model: Any, data: FrictionData) -> jax.Array:
+    model = unwrap(model)
+    _, force = scan_samples(model, motion_samples(data.motion), model.init_state())
+    return force
+
+
+def solve_linear(model: Any, linear_spec: Any, data: FrictionData, burn_in: int = 0) -> Any:
+    """Set the parameters selected by `linear_spec` (which enter the simulated force linearly) to their least-
+    squares values for `data`, by a differentiable solve of the normal equations (columns scaled, tiny ridge).
+
+    The force is `f(theta) = f(0) + J theta` exactly, with `J` from one forward-mode pass (`jacfwd`).
+    """
+    linear, rest = eqx.partition(model, linear_spec)
+    flat, unravel = jax.flatten_util.ravel_pytree(linear)
+
+    def predict(theta: jax.Array) -> jax.Array:
+        return _simulate_force(eqx.combine(unravel(theta), rest), data)[burn_in:]
+
+    zero = jnp.zeros_like(flat)
+    f0 = predict(zero)
+    J = jax.jacfwd(predict)(zero)
+    target = data.force[burn_in:] - f0
+    norms = jnp.sqrt(jnp.sum(J**2, axis=0)) + jnp.finfo(J.dtype).tiny
+    Js = J / norms
+    gram = Js.T @ Js
+    ridge = 1e-12 * jnp.trace(gram) / gram.shape[0]
+    theta = jnp.linalg.solve(gram + ridge * jnp.eye(gram.shape[0], dtype=gram.dtype), Js.T @ target) / norms
+    return eqx.combine(unravel(theta), rest)
+
+
+def _check_linear(model: Any, linear_spec: Any, data: FrictionData, paths: Sequence[str]) -> None:
+    linear, rest = eqx.partition(model, linear_spec)
+    flat, unravel = jax.flatten_util.ravel_pytree(linear)
+    probe = data.slice(0, min(data.length, 400))
+    rng = np.random.default_rng(1)
+    theta = jnp.asarray(rng.normal(size=flat.shape) * (np.abs(np.asarray(flat)) + 1.0), flat.dtype)
+
+    def f(t: jax.Array) -> np.ndarray:
+        return np.asarray(_simulate_force(eqx.combine(unravel(t), rest), probe))
+
+    f0, f1, f2 = f(jnp.zeros_like(flat)), f(theta), f(2 * theta)
+    curvature = np.max(np.abs(f2 - 2 * f1 + f0))
+    if not curvature <= 1e-6 * (np.max(np.abs(f2)) + np.max(np.abs(f0)) + 1e-300):
+        raise ValueError(
+            f"fit: the `separable` fields {list(paths)} do not enter the simulated force linearly for "
+            f"{type(model).__name__}; list only offsets, FIR coefficients or output weights."
+        )
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# the driver
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def fit(
+    model: AbstractFrictionModel,
+    data: FrictionData,
+    *,
+    loss: AbstractLoss | None = None,
+    solver: Any = None,
+    steps: int = 1000,
+    validation: FrictionData | None = None,
+    freeze: Sequence[str] = (),
+    separable: Sequence[str] = (),
+    multistart: MultiStart | int | None = None,
+    continuation: Continuation | None = None,
+    eval_every: int | None = None,
+    patience: int | None = None,
+    progress: bool = False,
+    seed: int = 0,
+    compute_std: bool = True,
+) -> FitResult:
+    """Fit the parameters of `model` to `data` by gradients through the simulator.
+
+    **Arguments:**
+
+    - `model`: the initial model (any fricjax model); every floating leaf is trained except `Fixed` ones and
+      smoothing widths.
+    - `data`: training `FrictionData`.
+    - `loss`: `SimulationLoss()` (default), `MultipleShootingLoss(L)`, `OneStepLoss()`.
+    - `solver`: an optax transformation (default `optax.adam(1e-2)`; parameters are in log space for positive
+      ones, so a learning rate of 1e-2 is a 1 % step), or an optimistix least-squares solver
+      (`optx.LevenbergMarquardt(rtol, atol)`, `optx.GaussNewton`) or minimiser (`optx.BFGS`).
+    - `steps`: optimiser steps (optax) or maximum solver steps (optimistix), split over continuation stages.
+    - `validation`: data for early stopping / choosing among starts (scored by free-run simulation).
+    - `freeze`: dotted field paths not to train, e.g. `("sigma2", "stribeck.vs")`.
+    - `separable`: dotted paths of real fields that enter the force linearly (offsets, FIR coefficients,
+      LuGre `sigma1` / `sigma2`, static `Fv`): solved exactly by least squares inside every evaluation
+      (`SimulationLoss` only).
+    - `multistart`: a `MultiStart(count, spread)` or a count.
+    - `continuation`: a `Continuation(eps_start, eps_end, stages)`.
+    - `eval_every`: optax steps between checks (validation, divergence, progress); default steps / 50.
+    - `patience`: evaluations without validation improvement before stopping (default: never).
+    - `progress`: show a tqdm progress bar. `seed`: for the multi-start draws (results are deterministic).
+    - `compute_std`: Gauss-Newton standard deviations of the trained physical parameters.
+
+    **Returns:** a `FitResult` (never raises on divergence: see its `result` and `message`).
+
+    ```python
+    >>> import numpy as np, fricjax as fj
+    >>> motion = fj.Motion.from_position(1e-3 * np.sin(np.linspace(0, 12, 600)), dt=1e-3)
+    >>> truth = fj.CoulombViscous(Fc=1.0, Fv=30.0, smoothing=fj.Smooth(1e-4))
+    >>> data = fj.FrictionData(motion, fj.simulate(truth, motion))
+    >>> start = fj.CoulombViscous(Fc=0.5, Fv=10.0, smoothing=fj.Smooth(1e-4))
+    >>> result = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=50)
+    >>> round(float(fj.unwrap(result.model).Fc), 3)
+    1.0
+    ```
+    """
+    start_time = time.perf_counter()
+    _validate(model, data, validation, steps)
+    loss = SimulationLoss() if loss is None else loss
+    if not isinstance(loss, AbstractLoss):
+        raise TypeError(f"fit: `loss` must be a fricjax loss (fj.SimulationLoss(), ...), got {type(loss).__name__}.")
+    solver = optax.adam(1e-2) if solver is None else solver
+    kind = _solver_kind(solver)
+    if isinstance(multistart, int):
+        multistart = MultiStart(multistart)
+    count = 1 if multistart is None else multistart.count
+    burn_in = getattr(loss, "burn_in", 0)
+    val_loss_fn = SimulationLoss(burn_in=burn_in)
+
+    # which leaves the optimiser moves, which are solved linearly
+    spec = _set_spec(trainable_filter(model), model, freeze, False)
+    linear_spec = None
+    if separable:
+        if not isinstance(loss, SimulationLoss):
+            raise ValueError("fit: `separable` needs a SimulationLoss (the linear solve is on the simulated force).")
+        for path in separable:
+            node = _node(model, path)
+            if isinstance(node, AbstractUnwrappable) or not eqx.is_inexact_array(node):
+                raise ValueError(
+                    f"fit: separable field {path!r} is reparametrised or not a real array; only real fields "
+                    "(offsets, FIR coefficients, sigma1 / sigma2, Fv) can be solved linearly."
+                )
+        linear_spec = _set_spec(jax.tree_util.tree_map(lambda _: False, spec), model, separable, True)
+        spec = _set_spec(spec, model, separable, False)
+        _check_linear(model, linear_spec, data, separable)
+    if not any(jax.tree_util.tree_leaves(spec)) and linear_spec is None:
+        raise ValueError("fit: nothing to train: every parameter is frozen.")
+
+    eps_schedule = [None] if continuation is None else list(continuation.schedule())
+    params0, static0 = eqx.partition(model, spec)
+
+    # the optimiser sees real parameters divided by their initial magnitude (log-stored positive ones as they
+    # are), so one learning rate suits stiffnesses of 1e8 N/m and offsets of 1e-2 N alike
+    scales = _parameter_scales(params0)
+
+    def materialise(params: Any, static: Any) -> Any:
+        m = eqx.combine(jax.tree_util.tree_map(lambda u, c: u * c, params, scales), static)
+        return solve_linear(m, linear_spec, data, burn_in) if linear_spec is not None else m
+
+    extra0 = loss.init_extra(model, data)
+    starts = _draw_starts(params0, count, 0.0 if multistart is None else multistart.spread, seed)
+    starts = jax.tree_util.tree_map(lambda p, c: p / c, starts, scales)
+    extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + e.shape), extra0)
+    states = (starts, extras)
+
+    def objective(state: Any, static: Any) -> jax.Array:
+        params, extra = state
+        return loss(materialise(params, static), extra, data)
+
+    def residual_fn(state: Any, static: Any) -> jax.Array:
+        params, extra = state
+        return loss.residuals(materialise(params, static), extra, data)
+
+    def val_objective(state: Any, static: Any) -> jax.Array:
+        if validation is None:
+            return jnp.asarray(jnp.nan)
+        return val_loss_fn(materialise(state[0], static), None, validation)
+
+    batched_objective = eqx.filter_jit(eqx.filter_vmap(objective, in_axes=(0, None)))
+    batched_val = eqx.filter_jit(eqx.filter_vmap(val_objective, in_axes=(0, None)))
+
+    history: dict[str, list[Any]] = {"step": [], "train_loss": [], "val_loss": [], "eps": []}
+    best_states = states
+    best_scores = np.full(count, np.inf)
+    diverged = np.zeros(count, dtype=bool)
+    evaluations = 0
+    result_code, message = "max_steps", f"ran the full budget of {steps} steps"
+    bar = _progress_bar(progress, steps, kind)
+    stop = False
+    stage_steps = _split(steps, len(eps_schedule))
+    static = static0
+    step_count = 0
+    stall = 0
+    solver_codes: list[str] = []
+
+    for eps, budget in zip(eps_schedule, stage_steps, strict=True):
+        if stop or budget == 0:
+            continue
+        if eps is not None:
+            static = eqx.partition(with_smoothing(model, Smooth(jnp.asarray(eps))), spec)[1]
+        if kind == "optax":
+            chunk = eval_every or max(1, steps // 50)
+            opt_states = eqx.filter_vmap(_optax_init(solver))(states)
+            done = 0
+            while done < budget and not stop:
+                n = min(chunk, budget - done)
+                states, opt_states, bad, values = _run_chunk(solver, objective, states, opt_states, static, n)
+                done += n
+                step_count += n
+                evaluations += n
+                diverged |= np.asarray(bad)
+                values = np.asarray(values)
+                train_now = np.asarray(batched_objective(states, static))
+                val_now = np.asarray(batched_val(states, static))
+                scores = val_now if validation is not None else train_now
+                scores = np.where(np.isfinite(scores) & ~diverged, scores, np.inf)
+                improved = scores < best_scores
+                best_states = _where_batch(improved, states, best_states)
+                best_scores = np.where(improved, scores, best_scores)
+                stall = 0 if improved.any() else stall + 1
+                _record(history, step_count, train_now, val_now, eps)
+                if bar is not None:
+                    bar.update(n)
+                    bar.set_postfix(loss=f"{np.nanmin(train_now):.3g}", val=f"{np.nanmin(val_now):.3g}")
+                if diverged.all():
+                    stop, result_code = True, "diverged"
+                    message = _divergence_message(values)
+                elif patience is not None and validation is not None and stall >= patience:
+                    stop, result_code = True, "early_stopped"
+                    message = f"validation loss did not improve for {patience} evaluations (step {step_count})"
+        else:
+            states, codes, nsteps = _run_optimistix(solver, kind, objective, residual_fn, states, static, budget)
+            evaluations += int(np.max(nsteps))
+            step_count += int(np.max(nsteps))
+            solver_codes = codes
+            train_now = np.asarray(batched_objective(states, static))
+            val_now = np.asarray(batched_val(states, static))
+            bad = ~np.isfinite(train_now)
+            diverged |= bad
+            scores = val_now if validation is not None else train_now
+            scores = np.where(np.isfinite(scores) & ~diverged, scores, np.inf)
+            improved = scores < best_scores
+            best_states = _where_batch(improved, states, best_states)
+            best_scores = np.where(improved, scores, best_scores)
+            _record(history, step_count, train_now, val_now, eps)
+            if bar is not None:
+                bar.update(budget)
+                bar.set_postfix(loss=f"{np.nanmin(train_now):.3g}")
+            if diverged.all():
+                stop, result_code, message = True, "diverged", "the loss became non-finite for every start"
+    if bar is not None:
+        bar.close()
+
+    # choose the best start; keep its best snapshot
+    if np.isfinite(best_scores).any():
+        best = int(np.argmin(best_scores))
+    else:  # every start diverged before the first check: fall back to the initial parameters
+        best = 0
+        best_states = (starts, extras)
+    chosen = jax.tree_util.tree_map(lambda a: a[best], best_states)
+    if kind != "optax" and result_code != "diverged":
+        code = solver_codes[best] if solver_codes else "successful"
+        result_code = code.split(":")[0]
+        message = {
+            "successful": "the optimistix solver converged",
+            "max_steps": f"the optimistix solver reached max_steps = {steps} before converging",
+        }.get(code, f"the optimistix solver failed ({code.split(':')[-1]}); the best model seen was kept")
+    elif kind == "optax" and result_code == "max_steps" and diverged[best]:
+        result_code, message = "diverged", "the chosen start diverged; its last good parameters were kept"
+    if result_code not in ("diverged",) and diverged.any() and not diverged.all():
+        message += f" ({int(diverged.sum())} of {count} starts diverged and were discarded)"
+
+    final_static = static
+    fitted = materialise(chosen[0], final_static)
+    train_loss = float(loss(fitted, chosen[1], data))
+    val_loss = float(val_loss_fn(fitted, None, validation)) if validation is not None else float("nan")
+    exact_val = float(val_loss_fn(exact(fitted), None, validation)) if validation is not None else float("nan")
+    std = None
+    if compute_std and np.isfinite(train_loss):
+        std = _gauss_newton_std(fitted, spec, linear_spec, loss, chosen[1], data)
+    history_arrays = {
+        "step": np.asarray(history["step"]),
+        "train_loss": np.asarray([row[best] for row in history["train_loss"]]),
+        "val_loss": np.asarray([row[best] for row in history["val_loss"]]),
+        "eps": np.asarray(history["eps"], dtype=float),
+    }
+    return FitResult(
+        model=fitted,
+        result=result_code,
+        message=message,
+        history=history_arrays,
+        train_loss=train_loss,
+        val_loss=val_loss,
+        exact_val_loss=exact_val,
+        evaluations=evaluations,
+        wall_time=time.perf_counter() - start_time,
+        num_starts=count,
+        best_start=best,
+        std=std,
+        extra=chosen[1],
+    )
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# helpers
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _validate(model: Any, data: Any, validation: Any, steps: Any) -> None:
+    if not isinstance(model, AbstractFrictionModel):
+        raise TypeError(f"fit: `model` must be a fricjax model, got {type(model).__name__}.")
+    for name, value in (("data", data), ("validation", validation)):
+        if value is not None and not isinstance(value, FrictionData):
+            raise TypeError(f"fit: `{name}` must be a fj.FrictionData(motion, force), got {type(value).__name__}.")
+    if not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"fit: `steps` must be a positive integer, got {steps!r}.")
+
+
+def _solver_kind(solver: Any) -> str:
+    if isinstance(solver, optx.AbstractLeastSquaresSolver):
+        return "least_squares"
+    if isinstance(solver, optx.AbstractMinimiser):
+        return "minimise"
+    if isinstance(solver, optax.GradientTransformation):
+        return "optax"
+    raise TypeError(
+        f"fit: `solver` must be an optax GradientTransformation (e.g. optax.adam(1e-2)) or an optimistix "
+        f"least-squares solver / minimiser (e.g. optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)), got "
+        f"{type(solver).__name__}."
+    )
+
+
+def levenberg_marquardt(rtol: float = 1e-10, atol: float = 1e-12) -> optx.LevenbergMarquardt:
+    """A Levenberg-Marquardt solver with tolerances suited to friction fits (an optimistix solver)."""
+    return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+
+
+def _draw_starts(params: Any, count: int, spread: float, seed: int) -> Any:
+    leaves, treedef = jax.tree_util.tree_flatten(params, is_leaf=lambda n: isinstance(n, Positive))
+    key = jax.random.PRNGKey(seed)
+    out = []
+    for leaf in leaves:
+        key, sub = jax.random.split(key)
+        if isinstance(leaf, Positive):
+            raw = leaf.raw
+            noise = spread * jax.random.normal(sub, (count,) + raw.shape, raw.dtype)
+            noise = noise.at[0].set(0.0)
+            out.append(eqx.tree_at(lambda p: p.raw, leaf, raw[None] + noise))
+        elif eqx.is_inexact_array(leaf):
+            noise = spread * jax.random.normal(sub, (count,) + leaf.shape, leaf.dtype) * (jnp.abs(leaf) + 1e-12)
+            out.append(leaf[None] + noise.at[0].set(0.0))
+        else:
+            out.append(leaf)
+    return jax.tree_util.tree_unflatten(treedef, out)
+
+
+def _parameter_scales(params: Any) -> Any:
+    """1 for log/softplus-stored leaves, |initial value| (or 1 where it is 0) for real leaves."""
+
+    def scale(node: Any) -> Any:
+        if isinstance(node, AbstractUnwrappable):
+            return jax.tree_util.tree_map(lambda a: jnp.ones_like(a) if eqx.is_inexact_array(a) else a, node)
+        if eqx.is_inexact_array(node):
+            magnitude = jnp.abs(node)
+            return jnp.where(magnitude > 0, magnitude, jnp.ones_like(node))
+        return node
+
+    return jax.tree_util.tree_map(scale, params, is_leaf=lambda n: isinstance(n, AbstractUnwrappable))
+
+
+def _optax_init(solver: Any) -> Any:
+    return lambda state: solver.init(state)
+
+
+def _tree_finite(tree: Any) -> jax.Array:
+    leaves = [jnp.all(jnp.isfinite(x)) for x in jax.tree_util.tree_leaves(tree) if eqx.is_inexact_array(x)]
+    return jnp.all(jnp.stack(leaves)) if leaves else jnp.asarray(True)
+
+
+def _where_tree(condition: jax.Array, new: Any, old: Any) -> Any:
+    return jax.tree_util.tree_map(lambda a, b: jnp.where(condition, a, b), new, old)
+
+
+@eqx.filter_jit
+def _run_chunk(solver: Any, objective: Any, states: Any, opt_states: Any, static: Any, n: int) -> Any:
+    solver = optax.with_extra_args_support(solver)
+
+    def one(state: Any, opt_state: Any) -> Any:
+        def body(carry: Any, _: Any) -> Any:
+            s, o, bad = carry
+            value, grads = jax.value_and_grad(objective)(s, static)
+            updates, o_new = solver.update(
+                grads, o, s, value=value, grad=grads, value_fn=lambda p: objective(p, static)
+            )
+            s_new = optax.apply_updates(s, updates)
+            ok = jnp.isfinite(value) & _tree_finite(grads) & _tree_finite(s_new) & ~bad
+            s = _where_tree(ok, s_new, s)
+            o = _where_tree(ok, o_new, o)
+            return (s, o, bad | ~ok), jnp.where(ok, value, jnp.nan)
+
+        (state, opt_state, bad), values = jax.lax.scan(body, (state, opt_state, jnp.asarray(False)), None, length=n)
+        return state, opt_state, bad, values
+
+    return jax.vmap(one)(states, opt_states)
+
+
+def _run_optimistix(
+    solver: Any, kind: str, objective: Any, residual_fn: Any, states: Any, static: Any, max_steps: int
+) -> tuple[Any, list[str], np.ndarray]:
+    @eqx.filter_jit
+    def run(states: Any, static: Any) -> Any:
+        def one(state: Any) -> Any:
+            if kind == "least_squares":
+                sol = optx.least_squares(residual_fn, solver, state, args=static, max_steps=max_steps, throw=False)
+            else:
+                sol = optx.minimise(objective, solver, state, args=static, max_steps=max_steps, throw=False)
+            return sol.value, sol.result._value, sol.stats["num_steps"]  # noqa: SLF001
+
+        return jax.vmap(one)(states)
+
+    values, codes, nsteps = run(states, static)
+    names = [_optx_code(int(c)) for c in np.asarray(codes)]
+    return values, names, np.asarray(nsteps)
+
+
+def _optx_code(value: int) -> str:
+    """Map an optimistix RESULTS index to a fricjax result code."""
+    names = list(optx.RESULTS._name_to_item)  # noqa: SLF001 - index order is the enumeration's
+    name = names[value] if 0 <= value < len(names) else "unknown"
+    if name == "successful":
+        return "successful"
+    if "max_steps" in name:
+        return "max_steps"
+    return f"solver_failed:{name}"
+
+
+def _where_batch(mask: np.ndarray, new: Any, old: Any) -> Any:
+    mask = jnp.asarray(mask)
+    return jax.tree_util.tree_map(lambda a, b: jnp.where(mask.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
+
+
+def _record(history: dict[str, list[Any]], step: int, train: np.ndarray, val: np.ndarray, eps: Any) -> None:
+    history["step"].append(step)
+    history["train_loss"].append(train)
+    history["val_loss"].append(val)
+    history["eps"].append(np.nan if eps is None else float(eps))
+
+
+def _split(total: int, parts: int) -> list[int]:
+    base = [total // parts] * parts
+    for i in range(total - sum(base)):
+        base[i] += 1
+    return base
+
+
+def _divergence_message(values: np.ndarray) -> str:
+    return (
+        "the loss or the parameters became non-finite for every start; the last good parameters were kept "
+        "(lower the learning rate, check the data scale, or start closer)"
+    )
+
+
+def _progress_bar(progress: bool, steps: int, kind: str) -> Any:
+    if not progress:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=steps, desc=f"fit ({kind})", unit="step", leave=False)
+
+
+def _gauss_newton_std(
+    model: Any, spec: Any, linear_spec: Any, loss: AbstractLoss, extra: Any, data: FrictionData
+) -> Any:
+    """Standard deviations of the trained physical parameters: sqrt(diag(s^2 (J^T J)^+)), s^2 = |r|^2 / (N - p),
+    with r the unnormalised residuals and J their Jacobian w.r.t. the physical (unwrapped) parameters."""
+    if linear_spec is not None:
+        spec = jax.tree_util.tree_map(lambda a, b: bool(a) or bool(b), spec, linear_spec)
+    physical = unwrap(model)
+    phys_spec = _physical_spec(model, spec)
+    params, rest = eqx.partition(physical, phys_spec)
+    flat, unravel = jax.flatten_util.ravel_pytree(params)
+    if flat.size == 0:
+        return None
+    scale = jnp.std(data.force) if getattr(loss, "normalise", False) else 1.0
+
+    def residuals(theta: jax.Array) -> jax.Array:
+        return loss.residuals(eqx.combine(unravel(theta), rest), extra, data) * scale
+
+    r = residuals(flat)
+    J = jax.jacfwd(residuals)(flat) if flat.size <= 64 else jax.jacrev(residuals)(flat)
+    dof = max(int(r.size) - int(flat.size), 1)
+    s2 = jnp.sum(r**2) / dof
+    cov = s2 * jnp.linalg.pinv(J.T @ J)
+    std_flat = jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0))
+    nan_rest = jax.tree_util.tree_map(lambda a: jnp.full_like(a, jnp.nan) if eqx.is_inexact_array(a) else a, rest)
+    return eqx.combine(unravel(std_flat), nan_rest)

@@ -1,0 +1,130 @@
+"""`FitResult`, parameter tables, and saving / loading fitted models."""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+import pickle
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._constraints import unwrap
+
+RESULT_CODES = {
+    "successful": "the solver converged (or ran all steps without a better validation point being missed)",
+    "max_steps": "the step budget ran out before the solver's own convergence test held",
+    "early_stopped": "the validation loss stopped improving (patience exhausted); the best model was kept",
+    "diverged": "a loss or parameter became non-finite; the last good model was kept",
+    "solver_failed": "the optimistix solver reported a failure; the best model seen was kept",
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class FitResult:
+    """What `fit` returns.
+
+    - `model`: the fitted model (smoothing as at the end of the fit); `exact_model` is `fj.exact(model)`.
+    - `result`: a result code (`successful`, `max_steps`, `early_stopped`, `diverged`, `solver_failed`; see
+      `RESULT_CODES`) and `message`, a sentence saying why the fit stopped.
+    - `history`: dict of NumPy arrays `step`, `train_loss`, `val_loss` (NaN without validation), `eps`.
+    - `train_loss`, `val_loss`: final losses of the returned model (validation in free-run simulation);
+      `exact_val_loss`: the same with the exact model (NaN without validation data).
+    - `evaluations`: loss (+ gradient) evaluations per start; `wall_time` [s]; `num_starts`; `best_start`.
+    - `std`: pytree shaped like `fj.unwrap(model)`, the Gauss-Newton standard deviations of the trained
+      physical parameters (residual variance x (J^T J)^-1), NaN for frozen ones; `None` if not computed.
+    - `extra`: the loss's extra decision variables (multiple-shooting states).
+    """
+
+    model: Any
+    result: str
+    message: str
+    history: dict[str, np.ndarray]
+    train_loss: float
+    val_loss: float
+    exact_val_loss: float
+    evaluations: int
+    wall_time: float
+    num_starts: int
+    best_start: int
+    std: Any = None
+    extra: Any = None
+
+    @property
+    def success(self) -> bool:
+        """True unless the fit diverged or the solver failed."""
+        return self.result in ("successful", "max_steps", "early_stopped")
+
+    @property
+    def exact_model(self) -> Any:
+        from .._smoothing import exact
+
+        return exact(self.model)
+
+    def parameters(self) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
+        """`{path: (value, std)}` of the physical parameters of the fitted model (std `None` if unknown)."""
+        from .._smoothing import exact
+
+        values = _flat_paths(unwrap(exact(self.model)))  # exact(): smoothing widths are settings, not parameters
+        stds = _flat_paths(exact(self.std)) if self.std is not None else {}
+        return {path: (value, stds.get(path)) for path, value in values.items()}
+
+    def summary(self) -> str:
+        """A short human-readable report."""
+        lines = [
+            f"fit: {self.result} after {self.evaluations} evaluations in {self.wall_time:.2f} s: {self.message}",
+            f"train loss {self.train_loss:.4g}, validation loss {self.val_loss:.4g} (exact {self.exact_val_loss:.4g})",
+        ]
+        for path, (value, std) in self.parameters().items():
+            text = np.array2string(np.asarray(value), precision=5)
+            if std is not None and np.all(np.isfinite(std)):
+                text += " ± " + np.array2string(np.asarray(std), precision=3)
+            lines.append(f"  {path} = {text}")
+        return "\n".join(lines)
+
+
+def _flat_paths(tree: Any) -> dict[str, np.ndarray]:
+    out = {}
+    for path, leaf in jax.tree_util.tree_leaves_with_path(tree):
+        if eqx.is_array(leaf) and jnp.issubdtype(leaf.dtype, jnp.floating):
+            name = "".join(str(p) for p in path).lstrip(".")
+            out[name] = np.asarray(leaf)
+    return out
+
+
+_MAGIC = "fricjax-model-v1"
+
+
+def save_model(path: str | pathlib.Path, model: Any) -> None:
+    """Save a model (or any pytree of fricjax objects) to `path` (a pickle of NumPy leaves + a header).
+
+    Only load files you trust: the format is Python pickle.
+    """
+    from .. import __version__
+
+    numpy_tree = jax.tree_util.tree_map(lambda a: np.asarray(a) if eqx.is_array(a) else a, model)
+    payload = {"magic": _MAGIC, "fricjax": __version__, "model": numpy_tree}
+    path = pathlib.Path(path)
+    try:
+        with path.open("wb") as handle:
+            pickle.dump(payload, handle, protocol=pickle.HIGHEST_PROTOCOL)
+    except OSError as err:
+        raise ValueError(f"save_model: cannot write {path}: {err.strerror}; choose a writable path.") from err
+
+
+def load_model(path: str | pathlib.Path) -> Any:
+    """Load a model saved by `save_model` (leaves back as JAX arrays)."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise ValueError(f"load_model: no file at {path}.")
+    with path.open("rb") as handle:
+        try:
+            payload = pickle.load(handle)  # noqa: S301 - documented: trusted files only
+        except Exception as err:  # noqa: BLE001
+            raise ValueError(f"load_model: {path} is not a fricjax model file ({err}).") from err
+    if not isinstance(payload, dict) or payload.get("magic") != _MAGIC:
+        raise ValueError(f"load_model: {path} is not a fricjax model file (missing header).")
+    return jax.tree_util.tree_map(lambda a: jnp.asarray(a) if isinstance(a, np.ndarray) else a, payload["model"])
