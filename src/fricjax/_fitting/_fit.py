@@ -534,6 +534,7 @@ def _run_optimistix(
     @eqx.filter_jit
     def run(states: Any, static: Any) -> Any:
         def one(state: Any) -> Any:
+            sol: Any
             if kind == "least_squares":
                 sol = optx.least_squares(residual_fn, solver, state, args=static, max_steps=max_steps, throw=False)
             else:
@@ -559,8 +560,8 @@ def _optx_code(value: int) -> str:
 
 
 def _where_batch(mask: np.ndarray, new: Any, old: Any) -> Any:
-    mask = jnp.asarray(mask)
-    return jax.tree_util.tree_map(lambda a, b: jnp.where(mask.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
+    selector = jnp.asarray(mask)
+    return jax.tree_util.tree_map(lambda a, b: jnp.where(selector.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
 
 
 def _record(history: dict[str, list[Any]], step: int, train: np.ndarray, val: np.ndarray, eps: Any) -> None:

@@ -1,0 +1,1 @@
+"""Systems built around friction models: the EMPS plant with its position controller."""
