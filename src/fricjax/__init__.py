@@ -54,6 +54,19 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0.0.0"
 
 from ._data._dataset import FrictionData as FrictionData
+from ._data._dataset import concatenate as concatenate
+from ._data._emps import EMPSIDMData as EMPSIDMData
+from ._data._emps import EMPSIDMResult as EMPSIDMResult
+from ._data._emps import EMPSRecord as EMPSRecord
+from ._data._emps import emps_idm_data as emps_idm_data
+from ._data._emps import fit_emps_idm as fit_emps_idm
+from ._data._emps import load_emps as load_emps
+from ._data._preprocessing import Normaliser as Normaliser
+from ._data._preprocessing import butter_filtfilt as butter_filtfilt
+from ._data._preprocessing import central_difference as central_difference
+from ._data._preprocessing import decimate as decimate
+from ._data._preprocessing import detrend_linear as detrend_linear
+from ._data._preprocessing import normalise as normalise
 from ._fitting._fit import Continuation as Continuation
 from ._fitting._fit import MultiStart as MultiStart
 from ._fitting._fit import fit as fit
@@ -67,3 +80,8 @@ from ._fitting._result import RESULT_CODES as RESULT_CODES
 from ._fitting._result import FitResult as FitResult
 from ._fitting._result import load_model as load_model
 from ._fitting._result import save_model as save_model
+from ._systems._emps import EMPSPlant as EMPSPlant
+from ._systems._emps import EMPSSimulation as EMPSSimulation
+from ._systems._emps import emps_open_loop_rmse_mm as emps_open_loop_rmse_mm
+from ._systems._emps import simulate_closed_loop as simulate_closed_loop
+from ._systems._emps import simulate_open_loop as simulate_open_loop

@@ -55,9 +55,9 @@ class Positive(AbstractUnwrappable):
     ):
         value = as_float_array(value, dtype)
         if is_concrete(value):
-            if not bool(jnp.all(jnp.isfinite(value))):
+            if not bool(np.all(np.isfinite(np.asarray(value)))):
                 raise ValueError(f"`{name}` must be finite, got {np.asarray(value)!r}.")
-            if not bool(jnp.all(value > 0)):
+            if not bool(np.all(np.asarray(value) > 0)):
                 raise ValueError(f"`{name}` must be positive, got {np.asarray(value)!r}; pass a value > 0.")
         self.transform = transform
         if transform == "log":
@@ -100,7 +100,7 @@ def positive(value: ParamLike, name: str, dtype: Any = None) -> Positive:
 def real(value: ParamLike, name: str, dtype: Any = None) -> Array:
     """Convert an unconstrained real parameter to a float array, checking it is finite when concrete."""
     value = as_float_array(value, dtype)
-    if is_concrete(value) and not bool(jnp.all(jnp.isfinite(value))):
+    if is_concrete(value) and not bool(np.all(np.isfinite(np.asarray(value)))):
         raise ValueError(f"`{name}` must be finite, got {np.asarray(value)!r}.")
     return value
 
@@ -146,9 +146,9 @@ class Simplex(AbstractUnwrappable):
         if value.ndim != 1:
             raise ValueError(f"`{name}` must be a 1-D array of fractions, got shape {value.shape}.")
         if is_concrete(value):
-            if not bool(jnp.all(jnp.isfinite(value) & (value > 0))):
+            if not bool(np.all(np.isfinite(np.asarray(value)) & (np.asarray(value) > 0))):
                 raise ValueError(f"`{name}` must hold positive fractions, got {np.asarray(value)!r}.")
-            total = float(jnp.sum(value))
+            total = float(np.sum(np.asarray(value)))
             if abs(total - 1.0) > 1e-6:
                 raise ValueError(f"`{name}` must sum to 1, got sum {total!r}; divide it by its sum.")
         self.raw = jnp.log(value)

@@ -74,7 +74,7 @@ class Motion(eqx.Module):
                     raise ValueError(
                         f"Motion: `dt` must be a scalar sample time in seconds, got shape {self.dt.shape}."
                     )
-                if not (bool(jnp.isfinite(self.dt)) and float(self.dt) > 0):
+                if not (bool(np.isfinite(np.asarray(self.dt))) and float(np.asarray(self.dt)) > 0):
                     raise ValueError(f"Motion: `dt` must be a positive, finite sample time in seconds, got {dt!r}.")
 
     @property
@@ -115,7 +115,7 @@ def _as_signal(value: ArrayLike, name: str) -> Array:
         raise ValueError(f"Motion: `{name}` must be a 1-D signal of shape (T,), got a scalar.")
     if array.shape[-1] == 0:
         raise ValueError(f"Motion: `{name}` is empty; give at least one sample.")
-    if is_concrete(array) and not bool(jnp.all(jnp.isfinite(array))):
+    if is_concrete(array) and not bool(np.all(np.isfinite(np.asarray(array)))):
         bad = int(np.flatnonzero(~np.isfinite(np.asarray(array).reshape(-1)))[0])
         raise ValueError(
             f"Motion: `{name}` contains NaN or inf (first at flat index {bad}); clean or interpolate the record."

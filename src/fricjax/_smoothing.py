@@ -13,6 +13,7 @@ import abc
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike
 
 
@@ -84,7 +85,7 @@ class Smooth(AbstractSmoothing):
     eps: Array
 
     def __init__(self, eps: ArrayLike):
-        if is_concrete(eps) and not bool(jnp.all(jnp.asarray(eps) > 0)):
+        if is_concrete(eps) and not bool(np.all(np.asarray(eps) > 0)):
             raise ValueError(f"Smooth: `eps` must be positive, got {eps!r}; pass a small width, e.g. 1e-4.")
         eps_array = jnp.asarray(eps)
         if not jnp.issubdtype(eps_array.dtype, jnp.floating):

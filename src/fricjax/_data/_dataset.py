@@ -5,7 +5,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
@@ -40,7 +39,7 @@ class FrictionData(eqx.Module):
                 f"FrictionData: `force` has {force.shape[-1] if force.ndim else 0} samples but the motion has "
                 f"{motion.length}; give one force sample per motion sample."
             )
-        if is_concrete(force) and not bool(jnp.all(jnp.isfinite(force))):
+        if is_concrete(force) and not bool(np.all(np.isfinite(np.asarray(force)))):
             raise ValueError("FrictionData: `force` contains NaN or inf; clean or interpolate the record.")
         self.motion = motion
         self.force = force

@@ -167,7 +167,9 @@ def _check_linear(model: Any, linear_spec: Any, data: FrictionData, paths: Seque
     theta = jnp.asarray(rng.normal(size=flat.shape) * (np.abs(np.asarray(flat)) + 1.0), flat.dtype)
 
     def f(t: jax.Array) -> np.ndarray:
-        return np.asarray(_simulate_force(eqx.combine(unravel(t), rest), probe))
+        from .._simulate import simulate
+
+        return np.asarray(simulate(eqx.combine(unravel(t), rest), probe.motion))
 
     f0, f1, f2 = f(jnp.zeros_like(flat)), f(theta), f(2 * theta)
     curvature = np.max(np.abs(f2 - 2 * f1 + f0))
@@ -277,31 +279,12 @@ def fit(
     # are), so one learning rate suits stiffnesses of 1e8 N/m and offsets of 1e-2 N alike
     scales = _parameter_scales(params0)
 
-    def materialise(params: Any, static: Any) -> Any:
-        m = eqx.combine(jax.tree_util.tree_map(lambda u, c: u * c, params, scales), static)
-        return solve_linear(m, linear_spec, data, burn_in) if linear_spec is not None else m
-
+    problem = _Problem(loss=loss, linear_spec=linear_spec, scales=scales, data=data, validation=validation)
     extra0 = loss.init_extra(model, data)
     starts = _draw_starts(params0, count, 0.0 if multistart is None else multistart.spread, seed)
     starts = jax.tree_util.tree_map(lambda p, c: p / c, starts, scales)
     extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + e.shape), extra0)
     states = (starts, extras)
-
-    def objective(state: Any, static: Any) -> jax.Array:
-        params, extra = state
-        return loss(materialise(params, static), extra, data)
-
-    def residual_fn(state: Any, static: Any) -> jax.Array:
-        params, extra = state
-        return loss.residuals(materialise(params, static), extra, data)
-
-    def val_objective(state: Any, static: Any) -> jax.Array:
-        if validation is None:
-            return jnp.asarray(jnp.nan)
-        return val_loss_fn(materialise(state[0], static), None, validation)
-
-    batched_objective = eqx.filter_jit(eqx.filter_vmap(objective, in_axes=(0, None)))
-    batched_val = eqx.filter_jit(eqx.filter_vmap(val_objective, in_axes=(0, None)))
 
     history: dict[str, list[Any]] = {"step": [], "train_loss": [], "val_loss": [], "eps": []}
     best_states = states
@@ -324,18 +307,17 @@ def fit(
             static = eqx.partition(with_smoothing(model, Smooth(jnp.asarray(eps))), spec)[1]
         if kind == "optax":
             chunk = eval_every or max(1, steps // 50)
-            opt_states = eqx.filter_vmap(_optax_init(solver))(states)
+            opt_states = _optax_init(solver, states)
             done = 0
             while done < budget and not stop:
                 n = min(chunk, budget - done)
-                states, opt_states, bad, values = _run_chunk(solver, objective, states, opt_states, static, n)
+                states, opt_states, bad, values = _run_chunk(solver, problem, states, opt_states, static, n)
                 done += n
                 step_count += n
                 evaluations += n
                 diverged |= np.asarray(bad)
                 values = np.asarray(values)
-                train_now = np.asarray(batched_objective(states, static))
-                val_now = np.asarray(batched_val(states, static))
+                train_now, val_now = map(np.asarray, _batched_losses(problem, states, static))
                 scores = val_now if validation is not None else train_now
                 scores = np.where(np.isfinite(scores) & ~diverged, scores, np.inf)
                 improved = scores < best_scores
@@ -353,12 +335,11 @@ def fit(
                     stop, result_code = True, "early_stopped"
                     message = f"validation loss did not improve for {patience} evaluations (step {step_count})"
         else:
-            states, codes, nsteps = _run_optimistix(solver, kind, objective, residual_fn, states, static, budget)
+            states, codes, nsteps = _run_optimistix(solver, kind, problem, states, static, budget)
             evaluations += int(np.max(nsteps))
             step_count += int(np.max(nsteps))
             solver_codes = codes
-            train_now = np.asarray(batched_objective(states, static))
-            val_now = np.asarray(batched_val(states, static))
+            train_now, val_now = map(np.asarray, _batched_losses(problem, states, static))
             bad = ~np.isfinite(train_now)
             diverged |= bad
             scores = val_now if validation is not None else train_now
@@ -395,10 +376,12 @@ def fit(
         message += f" ({int(diverged.sum())} of {count} starts diverged and were discarded)"
 
     final_static = static
-    fitted = materialise(chosen[0], final_static)
-    train_loss = float(loss(fitted, chosen[1], data))
-    val_loss = float(val_loss_fn(fitted, None, validation)) if validation is not None else float("nan")
-    exact_val = float(val_loss_fn(exact(fitted), None, validation)) if validation is not None else float("nan")
+    fitted = problem.materialise(chosen[0], final_static)
+    train_loss = float(_evaluate(loss, fitted, chosen[1], data))
+    val_loss = float(_evaluate(val_loss_fn, fitted, None, validation)) if validation is not None else float("nan")
+    exact_val = (
+        float(_evaluate(val_loss_fn, exact(fitted), None, validation)) if validation is not None else float("nan")
+    )
     std = None
     if compute_std and np.isfinite(train_loss):
         std = _gauss_newton_std(fitted, spec, linear_spec, loss, chosen[1], data)
@@ -492,8 +475,9 @@ def _parameter_scales(params: Any) -> Any:
     return jax.tree_util.tree_map(scale, params, is_leaf=lambda n: isinstance(n, AbstractUnwrappable))
 
 
-def _optax_init(solver: Any) -> Any:
-    return lambda state: solver.init(state)
+@eqx.filter_jit
+def _optax_init(solver: Any, states: Any) -> Any:
+    return jax.vmap(solver.init)(states)
 
 
 def _tree_finite(tree: Any) -> jax.Array:
@@ -505,16 +489,55 @@ def _where_tree(condition: jax.Array, new: Any, old: Any) -> Any:
     return jax.tree_util.tree_map(lambda a, b: jnp.where(condition, a, b), new, old)
 
 
+class _Problem(eqx.Module):
+    """Everything an evaluation needs besides the parameters, as one pytree: jitted drivers take it as an
+    argument (arrays traced, the rest static), so a second `fit` of the same shapes reuses the compilation."""
+
+    loss: AbstractLoss
+    linear_spec: Any
+    scales: Any
+    data: FrictionData
+    validation: FrictionData | None
+
+    def materialise(self, params: Any, static: Any) -> Any:
+        m = eqx.combine(jax.tree_util.tree_map(lambda u, c: u * c, params, self.scales), static)
+        if self.linear_spec is None:
+            return m
+        return solve_linear(m, self.linear_spec, self.data, getattr(self.loss, "burn_in", 0))
+
+    def objective(self, state: Any, static: Any) -> jax.Array:
+        params, extra = state
+        return self.loss(self.materialise(params, static), extra, self.data)
+
+    def residuals(self, state: Any, static: Any) -> jax.Array:
+        params, extra = state
+        return self.loss.residuals(self.materialise(params, static), extra, self.data)
+
+    def val_objective(self, state: Any, static: Any) -> jax.Array:
+        if self.validation is None:
+            return jnp.asarray(jnp.nan)
+        scorer = SimulationLoss(burn_in=getattr(self.loss, "burn_in", 0))
+        return scorer(self.materialise(state[0], static), None, self.validation)
+
+
 @eqx.filter_jit
-def _run_chunk(solver: Any, objective: Any, states: Any, opt_states: Any, static: Any, n: int) -> Any:
+def _batched_losses(problem: _Problem, states: Any, static: Any) -> tuple[jax.Array, jax.Array]:
+    def both(state: Any) -> tuple[jax.Array, jax.Array]:
+        return problem.objective(state, static), problem.val_objective(state, static)
+
+    return jax.vmap(both)(states)
+
+
+@eqx.filter_jit
+def _run_chunk(solver: Any, problem: _Problem, states: Any, opt_states: Any, static: Any, n: int) -> Any:
     solver = optax.with_extra_args_support(solver)
 
     def one(state: Any, opt_state: Any) -> Any:
         def body(carry: Any, _: Any) -> Any:
             s, o, bad = carry
-            value, grads = jax.value_and_grad(objective)(s, static)
+            value, grads = jax.value_and_grad(problem.objective)(s, static)
             updates, o_new = solver.update(
-                grads, o, s, value=value, grad=grads, value_fn=lambda p: objective(p, static)
+                grads, o, s, value=value, grad=grads, value_fn=lambda p: problem.objective(p, static)
             )
             s_new = optax.apply_updates(s, updates)
             ok = jnp.isfinite(value) & _tree_finite(grads) & _tree_finite(s_new) & ~bad
@@ -528,22 +551,27 @@ def _run_chunk(solver: Any, objective: Any, states: Any, opt_states: Any, static
     return jax.vmap(one)(states, opt_states)
 
 
+@eqx.filter_jit
+def _optimistix_solve(solver: Any, kind: str, problem: _Problem, states: Any, static: Any, max_steps: int) -> Any:
+    def one(state: Any) -> Any:
+        sol: Any
+        if kind == "least_squares":
+            sol = optx.least_squares(
+                lambda y, args: problem.residuals(y, args), solver, state, args=static, max_steps=max_steps, throw=False
+            )
+        else:
+            sol = optx.minimise(
+                lambda y, args: problem.objective(y, args), solver, state, args=static, max_steps=max_steps, throw=False
+            )
+        return sol.value, sol.result._value, sol.stats["num_steps"]  # noqa: SLF001
+
+    return jax.vmap(one)(states)
+
+
 def _run_optimistix(
-    solver: Any, kind: str, objective: Any, residual_fn: Any, states: Any, static: Any, max_steps: int
+    solver: Any, kind: str, problem: _Problem, states: Any, static: Any, max_steps: int
 ) -> tuple[Any, list[str], np.ndarray]:
-    @eqx.filter_jit
-    def run(states: Any, static: Any) -> Any:
-        def one(state: Any) -> Any:
-            sol: Any
-            if kind == "least_squares":
-                sol = optx.least_squares(residual_fn, solver, state, args=static, max_steps=max_steps, throw=False)
-            else:
-                sol = optx.minimise(objective, solver, state, args=static, max_steps=max_steps, throw=False)
-            return sol.value, sol.result._value, sol.stats["num_steps"]  # noqa: SLF001
-
-        return jax.vmap(one)(states)
-
-    values, codes, nsteps = run(states, static)
+    values, codes, nsteps = _optimistix_solve(solver, kind, problem, states, static, max_steps)
     names = [_optx_code(int(c)) for c in np.asarray(codes)]
     return values, names, np.asarray(nsteps)
 
@@ -593,6 +621,11 @@ def _progress_bar(progress: bool, steps: int, kind: str) -> Any:
     return tqdm(total=steps, desc=f"fit ({kind})", unit="step", leave=False)
 
 
+@eqx.filter_jit
+def _evaluate(loss: AbstractLoss, model: Any, extra: Any, data: FrictionData) -> jax.Array:
+    return loss(model, extra, data)
+
+
 def _gauss_newton_std(
     model: Any, spec: Any, linear_spec: Any, loss: AbstractLoss, extra: Any, data: FrictionData
 ) -> Any:
@@ -603,9 +636,14 @@ def _gauss_newton_std(
     physical = unwrap(model)
     phys_spec = _physical_spec(model, spec)
     params, rest = eqx.partition(physical, phys_spec)
-    flat, unravel = jax.flatten_util.ravel_pytree(params)
-    if flat.size == 0:
+    if not jax.tree_util.tree_leaves(params):
         return None
+    return _std_from_jacobian(params, rest, loss, extra, data)
+
+
+@eqx.filter_jit
+def _std_from_jacobian(params: Any, rest: Any, loss: AbstractLoss, extra: Any, data: FrictionData) -> Any:
+    flat, unravel = jax.flatten_util.ravel_pytree(params)
     scale = jnp.std(data.force) if getattr(loss, "normalise", False) else 1.0
 
     def residuals(theta: jax.Array) -> jax.Array:

@@ -7,6 +7,7 @@ from typing import Any, ClassVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from .._constraints import ParamLike, Simplex, as_float_array, model_dtype, positive, real, unwrap
@@ -98,7 +99,7 @@ class GMS(AbstractFrictionModel):
         self.alpha = Simplex(alpha, name="alpha", dtype=dtype)
         self.C = positive(C, "C", dtype)
         sigma2 = real(sigma2, "sigma2", dtype)
-        if is_concrete(sigma2) and bool(sigma2 < 0):
+        if is_concrete(sigma2) and bool(np.any(np.asarray(sigma2) < 0)):
             raise ValueError(f"GMS: `sigma2` must be >= 0 (N·s/m), got {sigma2!r}.")
         self.sigma2 = sigma2
         self.offset = real(offset, "offset", dtype)

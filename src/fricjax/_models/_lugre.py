@@ -7,6 +7,7 @@ from typing import Any, ClassVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from .._constraints import ParamLike, model_dtype, positive, real, unwrap
@@ -120,6 +121,6 @@ class LuGre(AbstractFrictionModel):
 
 def _nonnegative(value: ParamLike, name: str, dtype: Any = None) -> Array:
     array = real(value, name, dtype)
-    if is_concrete(array) and bool(jnp.any(array < 0)):
+    if is_concrete(array) and bool(np.any(np.asarray(array) < 0)):
         raise ValueError(f"`{name}` must be >= 0 (a damping coefficient, N·s/m), got {value!r}.")
     return array

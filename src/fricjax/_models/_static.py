@@ -16,11 +16,12 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from .._constraints import Fixed, ParamLike, as_float_array, model_dtype, positive, real, unwrap
 from .._motion import MotionSample
-from .._smoothing import AbstractSmoothing, Exact
+from .._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._stribeck import abs_pow
 from ._base import AbstractFrictionModel
 
@@ -34,7 +35,7 @@ def _coefficient(value: ParamLike, name: str, *, is_positive: bool, dtype: Any =
         )
     if is_positive:
         return positive(array, name)
-    if name == "Fv" and bool(jnp.any(array < 0)):
+    if name == "Fv" and is_concrete(array) and bool(np.any(np.asarray(array) < 0)):
         raise ValueError(f"`Fv` (viscous coefficient, N·s/m) must be >= 0, got {value!r}.")
     return real(array, name)
 

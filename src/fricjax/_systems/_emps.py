@@ -61,9 +61,9 @@ class EMPSPlant(eqx.Module):
 
     ```python
     >>> import fricjax as fj
-    >>> plant = EMPSPlant(95.1089, fj.CoulombViscous(Fc=20.3935, Fv=203.5034, offset=-3.1648))
+    >>> plant = fj.EMPSPlant(95.1089, fj.CoulombViscous(Fc=20.3935, Fv=203.5034, offset=-3.1648))
     >>> round(float(plant.resisting_force(0.1)), 4)
-    37.5794
+    37.579
     ```
     """
 
@@ -165,7 +165,9 @@ def _closed_loop(
     p = unwrap(plant)
     h = dt / substeps
 
-    def body(state: tuple[Array, ...], inputs: tuple[Array, Array]) -> tuple[tuple[Array, ...], tuple[Array, ...]]:
+    State = tuple[Array, Array, Array, Array]
+
+    def body(state: State, inputs: tuple[Array, Array]) -> tuple[State, tuple[Array, Array, Array]]:
         q, v, q_prev, q_prev2 = state  # q(k), q'(k), q(k-1), q(k-2)
         qg_k, disturbance_k = inputs
         # (qf(k) - qf(k-1)) / dt with qf(k) = (q(k) + q(k-1)) / 2
@@ -185,7 +187,7 @@ def _signal(value: ArrayLike, name: str, dtype: Any = None) -> Array:
         raise ValueError(f"`{name}` must be a 1-D signal of shape (T,), got shape {array.shape}.")
     if array.shape[0] < 1:
         raise ValueError(f"`{name}` is empty; give at least one sample.")
-    if is_concrete(array) and not bool(jnp.all(jnp.isfinite(array))):
+    if is_concrete(array) and not bool(np.all(np.isfinite(np.asarray(array)))):
         bad = int(np.flatnonzero(~np.isfinite(np.asarray(array)))[0])
         raise ValueError(f"`{name}` contains NaN or inf (first at index {bad}); clean or interpolate the record.")
     return array
@@ -196,7 +198,7 @@ def _scalar(value: ArrayLike, name: str, dtype: Any, *, unit: str, positive_only
     if array.ndim != 0:
         raise ValueError(f"`{name}` must be a scalar ({unit}), got shape {array.shape}.")
     if is_concrete(array):
-        if not bool(jnp.isfinite(array)):
+        if not bool(np.isfinite(np.asarray(array))):
             raise ValueError(f"`{name}` must be finite ({unit}), got {value!r}.")
         if positive_only and not float(array) > 0:
             raise ValueError(f"`{name}` must be positive ({unit}), got {value!r}.")
@@ -245,8 +247,8 @@ def simulate_open_loop(
 
     ```python
     >>> import numpy as np, fricjax as fj
-    >>> plant = EMPSPlant(95.0, fj.CoulombViscous(Fc=20.0, Fv=200.0))
-    >>> sim = simulate_open_loop(plant, np.full(100, 2.0), gtau=35.15, dt=1e-3)
+    >>> plant = fj.EMPSPlant(95.0, fj.CoulombViscous(Fc=20.0, Fv=200.0))
+    >>> sim = fj.simulate_open_loop(plant, np.full(100, 2.0), gtau=35.15, dt=1e-3)
     >>> bool(sim.qd[-1] > 0)
     True
     ```
@@ -306,9 +308,9 @@ def simulate_closed_loop(
 
     ```python
     >>> import numpy as np, fricjax as fj
-    >>> plant = EMPSPlant(95.0, fj.CoulombViscous(Fc=20.0, Fv=200.0))
+    >>> plant = fj.EMPSPlant(95.0, fj.CoulombViscous(Fc=20.0, Fv=200.0))
     >>> qg = np.linspace(0.0, 0.01, 2000)
-    >>> sim = simulate_closed_loop(plant, qg, gtau=35.15, kp=160.18, kv=243.45, dt=1e-3)
+    >>> sim = fj.simulate_closed_loop(plant, qg, gtau=35.15, kp=160.18, kv=243.45, dt=1e-3)
     >>> bool(abs(sim.q[-1] - 0.01) < 1e-4)
     True
     ```
@@ -347,8 +349,8 @@ def emps_open_loop_rmse_mm(y_true: ArrayLike, y_sim: ArrayLike, *, skip: int = 2
     Jittable; reduces the last axis.
 
     ```python
-    >>> import numpy as np
-    >>> float(emps_open_loop_rmse_mm(np.zeros(30), np.full(30, 1e-3)))
+    >>> import numpy as np, fricjax as fj
+    >>> float(fj.emps_open_loop_rmse_mm(np.zeros(30), np.full(30, 1e-3)))
     1.0
     ```
     """

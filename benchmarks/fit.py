@@ -1,0 +1,169 @@
+"""Gradient / Levenberg-Marquardt fits against scipy's Nelder-Mead (the papers' method) from the same start.
+
+For LuGre and GMS (N = 4) on 40 000 samples of synthetic data from the exact model (an excitation going
+from pre-sliding into gross sliding), the same loss (simulation NMSE, smooth model) is minimised by
+`fj.fit(..., solver=fj.levenberg_marquardt())` and by `scipy.optimize.minimize(method="Nelder-Mead")` over the
+same unconstrained parameter vector, starting 50 % off. Nelder-Mead gets the jit-compiled fricjax loss as its
+black box (the fastest evaluator it could have). Printed, one JSON line per model: each method's final loss,
+wall time (compile time separately), the time fricjax needs to reach Nelder-Mead's final loss, the speed-up,
+and the parameter errors.
+
+Run: `python benchmarks/fit.py [--steps 40000] [--nm-evals 4000] [--models lugre gms4]`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from typing import Any
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import equinox as eqx  # noqa: E402
+import jax.flatten_util  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+import scipy  # noqa: E402
+import scipy.optimize  # noqa: E402
+
+import fricjax as fj  # noqa: E402
+
+
+def excitation(steps: int, dt: float = 1e-3) -> fj.Motion:
+    """1 Hz sine whose amplitude rises from 2 um (pre-sliding) to 1 mm (sliding) and back."""
+    t = np.arange(steps) * dt
+    amplitude = 2e-6 * (1e-3 / 2e-6) ** (0.5 * (1 - np.cos(2 * np.pi * t / t[-1])))
+    return fj.Motion.from_position(amplitude * np.sin(2 * np.pi * t), dt=dt)
+
+
+def models(name: str) -> tuple[Any, Any, float]:
+    """(truth, start 50 % off, smoothing eps) for a benchmark model."""
+    if name == "lugre":
+        truth = fj.LuGre(fj.ExponentialStribeck(1.0, 1.5, 2e-3, 2.0), sigma0=1e5, sigma1=300.0, sigma2=40.0)
+        start = fj.LuGre(fj.ExponentialStribeck(1.5, 0.75, 1e-3, 3.0), sigma0=5e4, sigma1=450.0, sigma2=20.0)
+        return truth, start, 1e-6
+    if name == "gms4":
+        stribeck = fj.ExponentialStribeck(1.0, 1.5, 2e-3, 2.0)
+        truth = fj.GMS(stribeck, k=[6e4, 2.5e4, 1e4, 5e3], alpha=[0.1, 0.2, 0.3, 0.4], C=50.0, sigma2=40.0)
+        start = fj.GMS(
+            fj.ExponentialStribeck(1.5, 0.75, 1e-3, 3.0),
+            k=[9e4, 3.75e4, 1.5e4, 7.5e3],
+            alpha=[0.15, 0.3, 0.2, 0.35],
+            C=75.0,
+            sigma2=20.0,
+        )
+        return truth, start, 1e-9
+    raise ValueError(name)
+
+
+def parameter_errors(fitted: Any, truth: Any) -> dict[str, float]:
+    """Max relative error per field (GMS elements compared after sorting by stiffness)."""
+    f, t = fj.unwrap(fj.exact(fitted)), fj.unwrap(fj.exact(truth))
+    out = {}
+    for (path, a), (_, b) in zip(
+        jax.tree_util.tree_leaves_with_path(f), jax.tree_util.tree_leaves_with_path(t), strict=True
+    ):
+        name = "".join(str(p) for p in path).lstrip(".")
+        a, b = np.asarray(a), np.asarray(b)
+        if name in ("k", "alpha") and isinstance(fitted, fj.GMS):
+            order_a = np.argsort(np.asarray(f.k))
+            order_b = np.argsort(np.asarray(t.k))
+            a, b = a[order_a], b[order_b]
+        if np.all(b == 0):
+            continue
+        out[name] = float(np.max(np.abs(a - b) / np.abs(b)))
+    return out
+
+
+def bench(name: str, steps: int, nm_evals: int) -> dict[str, Any]:
+    truth, start, eps = models(name)
+    motion = excitation(steps)
+    data = fj.FrictionData(motion, fj.simulate(truth, motion))
+    start = fj.with_smoothing(start, fj.Smooth(eps))
+
+    # fricjax: Levenberg-Marquardt through the simulator (first call includes compilation)
+    t0 = time.perf_counter()
+    result = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=200, compute_std=False)
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    result = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=200, compute_std=False)
+    fj_time = time.perf_counter() - t0
+    fj_loss = result.train_loss
+
+    # Nelder-Mead on the same loss over the same unconstrained vector
+    params, static = eqx.partition(start, fj.trainable_filter(start))
+    flat0, unravel = jax.flatten_util.ravel_pytree(params)
+    loss_fn = fj.SimulationLoss()
+    objective = jax.jit(lambda f: loss_fn(eqx.combine(unravel(f), static), None, data))
+    objective(flat0).block_until_ready()
+    trace: list[tuple[float, float]] = []
+    t0 = time.perf_counter()
+
+    def f(x: np.ndarray) -> float:
+        value = float(objective(jnp.asarray(x)))
+        trace.append((time.perf_counter() - t0, value))
+        return value
+
+    nm = scipy.optimize.minimize(
+        f, np.asarray(flat0), method="Nelder-Mead", options={"maxfev": nm_evals, "xatol": 1e-10, "fatol": 1e-16}
+    )
+    nm_time = time.perf_counter() - t0
+    nm_loss = float(nm.fun)
+    nm_model = eqx.combine(unravel(jnp.asarray(nm.x)), static)
+
+    # time for fricjax to reach Nelder-Mead's final loss: LM runs of growing max_steps (its full converged
+    # run time is an upper bound when even that is needed)
+    reach_time = fj_time
+    for max_steps in (2, 4, 8, 16, 32, 64):
+        t0 = time.perf_counter()
+        partial = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=max_steps, compute_std=False)
+        elapsed = time.perf_counter() - t0
+        if partial.train_loss <= nm_loss:
+            reach_time = elapsed
+            break
+    nm_reach = next((t for t, v in trace if v <= fj_loss), None)
+    return {
+        "benchmark": "fit",
+        "model": name,
+        "steps": steps,
+        "fricjax_solver": "LevenbergMarquardt",
+        "fricjax_loss": fj_loss,
+        "fricjax_exact_nmse_percent": float(fj.nmse(data.force, fj.simulate(fj.exact(result.model), motion))),
+        "fricjax_time_s": fj_time,
+        "fricjax_first_call_s": first,
+        "fricjax_evaluations": result.evaluations,
+        "fricjax_result": result.result,
+        "fricjax_param_rel_errors": parameter_errors(result.model, truth),
+        "nm_loss": nm_loss,
+        "nm_time_s": nm_time,
+        "nm_evaluations": int(nm.nfev),
+        "nm_param_rel_errors": parameter_errors(nm_model, truth),
+        "nm_time_to_fricjax_loss_s": nm_reach,
+        "fricjax_time_to_nm_loss_s": reach_time,
+        "speedup_to_nm_loss": nm_time / reach_time,
+        "target_speedup": 20.0,
+        "pass": bool(nm_time / reach_time >= 20.0),
+        "jax": jax.__version__,
+        "scipy": scipy.__version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+        "cpu": platform.processor() or platform.machine(),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--steps", type=int, default=40000)
+    parser.add_argument("--nm-evals", type=int, default=4000)
+    parser.add_argument("--models", nargs="+", default=["lugre", "gms4"])
+    args = parser.parse_args()
+    for name in args.models:
+        print(json.dumps(bench(name, args.steps, args.nm_evals)), flush=True)
+
+
+if __name__ == "__main__":
+    main()
