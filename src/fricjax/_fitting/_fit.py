@@ -24,7 +24,6 @@ import optimistix as optx
 
 from .._constraints import AbstractUnwrappable, Fixed, Positive, trainable_filter, unwrap
 from .._data._dataset import FrictionData
-from .._models._base import AbstractFrictionModel
 from .._simulate import motion_samples, scan_samples
 from .._smoothing import Smooth, exact, with_smoothing
 from ._losses import AbstractLoss, SimulationLoss
@@ -186,8 +185,8 @@ def _check_linear(model: Any, linear_spec: Any, data: FrictionData, paths: Seque
 
 
 def fit(
-    model: AbstractFrictionModel,
-    data: FrictionData,
+    model: Any,
+    data: Any,
     *,
     loss: AbstractLoss | None = None,
     solver: Any = None,
@@ -207,9 +206,10 @@ def fit(
 
     **Arguments:**
 
-    - `model`: the initial model (any fricjax model); every floating leaf is trained except `Fixed` ones and
-      smoothing widths.
-    - `data`: training `FrictionData`.
+    - `model`: the initial model (any fricjax model, or any equinox Module the loss can evaluate, such as an
+      `EMPSPlant` with `EMPSOpenLoopLoss`); every floating leaf is trained except `Fixed` ones and smoothing
+      widths.
+    - `data`: training data (`FrictionData` for the friction losses; the loss's `data_type` otherwise).
     - `loss`: `SimulationLoss()` (default), `MultipleShootingLoss(L)`, `OneStepLoss()`.
     - `solver`: an optax transformation (default `optax.adam(1e-2)`; parameters are in log space for positive
       ones, so a learning rate of 1e-2 is a 1 % step), or an optimistix least-squares solver
@@ -241,17 +241,16 @@ def fit(
     ```
     """
     start_time = time.perf_counter()
-    _validate(model, data, validation, steps)
     loss = SimulationLoss() if loss is None else loss
     if not isinstance(loss, AbstractLoss):
         raise TypeError(f"fit: `loss` must be a fricjax loss (fj.SimulationLoss(), ...), got {type(loss).__name__}.")
+    _validate(model, data, validation, steps, loss)
     solver = optax.adam(1e-2) if solver is None else solver
     kind = _solver_kind(solver)
     if isinstance(multistart, int):
         multistart = MultiStart(multistart)
     count = 1 if multistart is None else multistart.count
-    burn_in = getattr(loss, "burn_in", 0)
-    val_loss_fn = SimulationLoss(burn_in=burn_in)
+    val_loss_fn = loss.validation_loss()
 
     # which leaves the optimiser moves, which are solved linearly
     spec = _set_spec(trainable_filter(model), model, freeze, False)
@@ -413,12 +412,16 @@ def fit(
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def _validate(model: Any, data: Any, validation: Any, steps: Any) -> None:
-    if not isinstance(model, AbstractFrictionModel):
-        raise TypeError(f"fit: `model` must be a fricjax model, got {type(model).__name__}.")
+def _validate(model: Any, data: Any, validation: Any, steps: Any, loss: Any) -> None:
+    if not isinstance(model, eqx.Module):
+        raise TypeError(f"fit: `model` must be a fricjax model (an equinox Module), got {type(model).__name__}.")
+    data_type = getattr(loss, "data_type", FrictionData)
     for name, value in (("data", data), ("validation", validation)):
-        if value is not None and not isinstance(value, FrictionData):
-            raise TypeError(f"fit: `{name}` must be a fj.FrictionData(motion, force), got {type(value).__name__}.")
+        if value is not None and not isinstance(value, data_type):
+            raise TypeError(
+                f"fit: `{name}` must be a {data_type.__name__} for {type(loss).__name__}, got {type(value).__name__}"
+                + (" (wrap motion and force as fj.FrictionData(motion, force))." if data_type is FrictionData else ".")
+            )
     if not isinstance(steps, (int, np.integer)) or steps < 1:
         raise ValueError(f"fit: `steps` must be a positive integer, got {steps!r}.")
 
@@ -516,8 +519,7 @@ class _Problem(eqx.Module):
     def val_objective(self, state: Any, static: Any) -> jax.Array:
         if self.validation is None:
             return jnp.asarray(jnp.nan)
-        scorer = SimulationLoss(burn_in=getattr(self.loss, "burn_in", 0))
-        return scorer(self.materialise(state[0], static), None, self.validation)
+        return self.loss.validation_loss()(self.materialise(state[0], static), None, self.validation)
 
 
 @eqx.filter_jit

@@ -8,7 +8,7 @@ loss value of 0.01 is an NMSE of 1 % (worden2007 eq. 1).
 from __future__ import annotations
 
 import abc
-from typing import Any
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -28,8 +28,14 @@ class AbstractLoss(eqx.Module):
     states of multiple shooting); `init_extra(model, data)` gives their starting values (`None` if none).
     """
 
-    def init_extra(self, model: Any, data: FrictionData) -> Any:
+    data_type: ClassVar[type] = FrictionData
+
+    def init_extra(self, model: Any, data: Any) -> Any:
         return None
+
+    def validation_loss(self) -> AbstractLoss:
+        """The loss that scores validation data (free-run simulation by default; it takes no `extra`)."""
+        return SimulationLoss(burn_in=getattr(self, "burn_in", 0))
 
     @abc.abstractmethod
     def residuals(self, model: Any, extra: Any, data: FrictionData) -> Float[Array, " R"]:
