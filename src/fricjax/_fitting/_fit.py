@@ -252,6 +252,8 @@ def fit(
     count = 1 if multistart is None else multistart.count
     val_loss_fn = loss.validation_loss()
 
+    if continuation is not None:  # smooth from the start, so every stage shares one tree structure
+        model = with_smoothing(model, Smooth(jnp.asarray(continuation.eps_start, dtype=float)))
     # which leaves the optimiser moves, which are solved linearly
     spec = _set_spec(trainable_filter(model), model, freeze, False)
     linear_spec = None
@@ -299,11 +301,20 @@ def fit(
     stall = 0
     solver_codes: list[str] = []
 
+    linear_only = not any(eqx.is_array(leaf) for leaf in jax.tree_util.tree_leaves(params0))
+    if linear_only:  # only separable (linear) parameters: one least-squares solve is the whole fit
+        stop, result_code, message = True, "successful", "only linear parameters: solved by least squares"
+        best_scores = np.zeros(count)
     for eps, budget in zip(eps_schedule, stage_steps, strict=True):
         if stop or budget == 0:
             continue
         if eps is not None:
-            static = eqx.partition(with_smoothing(model, Smooth(jnp.asarray(eps))), spec)[1]
+            static = eqx.partition(with_smoothing(model, Smooth(jnp.asarray(eps, dtype=float))), spec)[1]
+            # losses at different widths are not comparable: each stage starts its own best-so-far
+            train_now, val_now = map(np.asarray, _batched_losses(problem, states, static))
+            scores = val_now if validation is not None else train_now
+            best_states = states
+            best_scores = np.where(np.isfinite(scores) & ~diverged, scores, np.inf)
         if kind == "optax":
             chunk = eval_every or max(1, steps // 50)
             opt_states = _optax_init(solver, states)
@@ -451,7 +462,7 @@ def _draw_starts(params: Any, count: int, spread: float, seed: int) -> Any:
     out = []
     for leaf in leaves:
         key, sub = jax.random.split(key)
-        if isinstance(leaf, Positive):
+        if isinstance(leaf, Positive) and leaf.raw is not None:
             raw = leaf.raw
             noise = spread * jax.random.normal(sub, (count,) + raw.shape, raw.dtype)
             noise = noise.at[0].set(0.0)
@@ -459,6 +470,8 @@ def _draw_starts(params: Any, count: int, spread: float, seed: int) -> Any:
         elif eqx.is_inexact_array(leaf):
             noise = spread * jax.random.normal(sub, (count,) + leaf.shape, leaf.dtype) * (jnp.abs(leaf) + 1e-12)
             out.append(leaf[None] + noise.at[0].set(0.0))
+        elif isinstance(leaf, Positive):  # frozen: partitioned out
+            out.append(leaf)
         else:
             out.append(leaf)
     return jax.tree_util.tree_unflatten(treedef, out)
@@ -655,7 +668,11 @@ def _std_from_jacobian(params: Any, rest: Any, loss: AbstractLoss, extra: Any, d
     J = jax.jacfwd(residuals)(flat) if flat.size <= 64 else jax.jacrev(residuals)(flat)
     dof = max(int(r.size) - int(flat.size), 1)
     s2 = jnp.sum(r**2) / dof
-    cov = s2 * jnp.linalg.pinv(J.T @ J)
+    # columns scaled to unit norm first: physical parameters span many decades (sigma0 ~ 1e8, vs ~ 1e-3)
+    norms = jnp.sqrt(jnp.sum(J**2, axis=0))
+    norms = jnp.where(norms > 0, norms, 1.0)
+    Js = J / norms
+    cov = s2 * jnp.linalg.pinv(Js.T @ Js) / jnp.outer(norms, norms)
     std_flat = jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0))
     nan_rest = jax.tree_util.tree_map(lambda a: jnp.full_like(a, jnp.nan) if eqx.is_inexact_array(a) else a, rest)
     return eqx.combine(unravel(std_flat), nan_rest)

@@ -84,6 +84,7 @@ class OneStepLoss(AbstractLoss):
     normalise: bool = eqx.field(static=True, default=True)
 
     def residuals(self, model: Any, extra: Any, data: FrictionData) -> Array:
+        model = unwrap(model)
         predict = getattr(model, "predict_one_step", None)
         if predict is None:
             raise TypeError(

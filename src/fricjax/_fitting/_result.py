@@ -79,9 +79,9 @@ class FitResult:
             f"train loss {self.train_loss:.4g}, validation loss {self.val_loss:.4g} (exact {self.exact_val_loss:.4g})",
         ]
         for path, (value, std) in self.parameters().items():
-            text = np.array2string(np.asarray(value), precision=5)
+            text = np.array2string(np.asarray(value), formatter={"float_kind": lambda x: f"{x:.6g}"})
             if std is not None and np.all(np.isfinite(std)):
-                text += " ± " + np.array2string(np.asarray(std), precision=3)
+                text += " ± " + np.array2string(np.asarray(std), formatter={"float_kind": lambda x: f"{x:.3g}"})
             lines.append(f"  {path} = {text}")
         return "\n".join(lines)
 
