@@ -315,7 +315,7 @@ def test_fit_result_history_parameters_and_summary(noisy_fits):
     _, fits = noisy_fits
     for _, result in fits.values():
         lengths = {key: len(value) for key, value in result.history.items()}
-        assert set(lengths) == {"step", "train_loss", "val_loss", "eps"}
+        assert set(lengths) == {"step", "train_loss", "val_loss", "eps", "time"}
         assert len(set(lengths.values())) == 1 and lengths["step"] >= 1, lengths
         assert np.all(np.diff(result.history["step"]) > 0)
         params = result.parameters()

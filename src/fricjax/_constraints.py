@@ -134,7 +134,9 @@ def as_float_array(value: Any, dtype: Any = None) -> Array:
 
 
 class Simplex(AbstractUnwrappable):
-    """Positive fractions that sum to one, stored as unconstrained logits (`value = softmax(raw)`).
+    """Positive fractions that sum to one, stored as N - 1 unconstrained logits relative to the last fraction
+    (`value = softmax([raw, 0])`): no redundant direction, so Gauss-Newton / Levenberg-Marquardt Jacobians
+    stay full rank.
 
     Used for the GMS element fractions alpha_i (sum alpha_i = 1, so the elements share the Stribeck force).
     """
@@ -151,10 +153,10 @@ class Simplex(AbstractUnwrappable):
             total = float(np.sum(np.asarray(value)))
             if abs(total - 1.0) > 1e-6:
                 raise ValueError(f"`{name}` must sum to 1, got sum {total!r}; divide it by its sum.")
-        self.raw = jnp.log(value)
+        self.raw = jnp.log(value[:-1]) - jnp.log(value[-1])
 
     def unwrap(self) -> Array:
-        return jax.nn.softmax(self.raw)
+        return jax.nn.softmax(jnp.concatenate([self.raw, jnp.zeros((1,), self.raw.dtype)]))
 
 
 def trainable_filter(model: Any) -> Any:

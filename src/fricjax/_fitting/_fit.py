@@ -191,7 +191,7 @@ def fit(
     loss: AbstractLoss | None = None,
     solver: Any = None,
     steps: int = 1000,
-    validation: FrictionData | None = None,
+    validation: Any = None,
     freeze: Sequence[str] = (),
     separable: Sequence[str] = (),
     multistart: MultiStart | int | None = None,
@@ -287,7 +287,7 @@ def fit(
     extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + e.shape), extra0)
     states = (starts, extras)
 
-    history: dict[str, list[Any]] = {"step": [], "train_loss": [], "val_loss": [], "eps": []}
+    history: dict[str, list[Any]] = {"step": [], "train_loss": [], "val_loss": [], "eps": [], "time": []}
     best_states = states
     best_scores = np.full(count, np.inf)
     diverged = np.zeros(count, dtype=bool)
@@ -334,7 +334,7 @@ def fit(
                 best_states = _where_batch(improved, states, best_states)
                 best_scores = np.where(improved, scores, best_scores)
                 stall = 0 if improved.any() else stall + 1
-                _record(history, step_count, train_now, val_now, eps)
+                _record(history, step_count, train_now, val_now, eps, time.perf_counter() - start_time)
                 if bar is not None:
                     bar.update(n)
                     bar.set_postfix(loss=f"{np.nanmin(train_now):.3g}", val=f"{np.nanmin(val_now):.3g}")
@@ -357,7 +357,7 @@ def fit(
             improved = scores < best_scores
             best_states = _where_batch(improved, states, best_states)
             best_scores = np.where(improved, scores, best_scores)
-            _record(history, step_count, train_now, val_now, eps)
+            _record(history, step_count, train_now, val_now, eps, time.perf_counter() - start_time)
             if bar is not None:
                 bar.update(budget)
                 bar.set_postfix(loss=f"{np.nanmin(train_now):.3g}")
@@ -400,6 +400,7 @@ def fit(
         "train_loss": np.asarray([row[best] for row in history["train_loss"]]),
         "val_loss": np.asarray([row[best] for row in history["val_loss"]]),
         "eps": np.asarray(history["eps"], dtype=float),
+        "time": np.asarray(history["time"], dtype=float),
     }
     return FitResult(
         model=fitted,
@@ -607,7 +608,10 @@ def _where_batch(mask: np.ndarray, new: Any, old: Any) -> Any:
     return jax.tree_util.tree_map(lambda a, b: jnp.where(selector.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
 
 
-def _record(history: dict[str, list[Any]], step: int, train: np.ndarray, val: np.ndarray, eps: Any) -> None:
+def _record(
+    history: dict[str, list[Any]], step: int, train: np.ndarray, val: np.ndarray, eps: Any, elapsed: float
+) -> None:
+    history["time"].append(elapsed)
     history["step"].append(step)
     history["train_loss"].append(train)
     history["val_loss"].append(val)

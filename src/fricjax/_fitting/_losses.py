@@ -38,10 +38,10 @@ class AbstractLoss(eqx.Module):
         return SimulationLoss(burn_in=getattr(self, "burn_in", 0))
 
     @abc.abstractmethod
-    def residuals(self, model: Any, extra: Any, data: FrictionData) -> Float[Array, " R"]:
+    def residuals(self, model: Any, extra: Any, data: Any) -> Float[Array, " R"]:
         """The residual vector (prediction - measurement, scaled)."""
 
-    def __call__(self, model: Any, extra: Any, data: FrictionData) -> Array:
+    def __call__(self, model: Any, extra: Any, data: Any) -> Array:
         return jnp.mean(self.residuals(model, extra, data) ** 2)
 
     def _scale(self, data: FrictionData) -> Array:

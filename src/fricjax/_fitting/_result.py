@@ -30,7 +30,8 @@ class FitResult:
     - `model`: the fitted model (smoothing as at the end of the fit); `exact_model` is `fj.exact(model)`.
     - `result`: a result code (`successful`, `max_steps`, `early_stopped`, `diverged`, `solver_failed`; see
       `RESULT_CODES`) and `message`, a sentence saying why the fit stopped.
-    - `history`: dict of NumPy arrays `step`, `train_loss`, `val_loss` (NaN without validation), `eps`.
+    - `history`: dict of NumPy arrays `step`, `train_loss`, `val_loss` (NaN without validation), `eps`, and
+      `time` (seconds since the call started, compilation included).
     - `train_loss`, `val_loss`: final losses of the returned model (validation in free-run simulation);
       `exact_val_loss`: the same with the exact model (NaN without validation data).
     - `evaluations`: loss (+ gradient) evaluations per start; `wall_time` [s]; `num_starts`; `best_start`.
