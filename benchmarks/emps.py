@@ -1,0 +1,356 @@
+"""EMPS benchmark: IDM (IDIM-LS) and open-loop (simulation-error) fits of the eight static friction laws.
+
+For each law of the emps-ensemble paper (Coulomb + viscous, Threlfall, Tustin, Bo-Pavelescu; symmetric and
+asymmetric) one JSON line: the IDM parameters fitted on DATA_EMPS.mat (`fj.fit_emps_idm`) with their relative
+errors on the training and test files; the open-loop fit that starts from them (`fj.fit_emps_open_loop`,
+Levenberg-Marquardt on the official simulation error) with its parameters; the official test score (free-run
+position RMSE in mm on DATA_EMPS_PULSES.mat, the first 20 samples only initialising the state) of the fitted
+plant, of its IDM start and of the published reference parameters run through the same simulator; and the
+fit wall times (compilation included). Every line carries the machine and the versions.
+
+`--study` runs the sensitivity study behind the settings of `fit_emps_open_loop` instead (initial state, input
+timing, sub-steps, offset drift, and the fit settings compared by two-fold cross-validation over the halves of
+the training file); its test scores are printed for the record only (`"used_for_choice": false`).
+
+Run: `python benchmarks/emps.py [--quick] [--laws CoulombViscous Tustin] [--study]`; the data folder is
+`$FRICJAX_DATA` (default: `../shared/data` beside the repository).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import platform
+import sys
+import time
+from typing import Any
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import equinox as eqx  # noqa: E402
+import jaxlib  # noqa: E402
+import numpy as np  # noqa: E402
+import optimistix  # noqa: E402
+
+import fricjax as fj  # noqa: E402
+
+LAWS = {"CoulombViscous": fj.CoulombViscous, "Threlfall": fj.Threlfall, "Tustin": fj.Tustin, "BoPavelescu": fj.BoPavelescu}
+REFERENCE = fj.EMPSPlant(95.1089, fj.CoulombViscous(Fc=20.3935, Fv=203.5034, offset=-3.1648))
+"""The published IDIM-LS model of the benchmark (Janot et al. 2019, §3.4)."""
+
+
+def data_dir() -> pathlib.Path:
+    default = pathlib.Path(__file__).resolve().parents[2] / "shared" / "data"
+    path = pathlib.Path(os.environ.get("FRICJAX_DATA", default))
+    if not (path / "emps" / "DATA_EMPS.mat").is_file():
+        sys.exit(f"EMPS data not found under {path}; set FRICJAX_DATA to the shared/data folder.")
+    return path
+
+
+def cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def environment() -> dict[str, Any]:
+    device = jax.devices()[0]
+    return {
+        "device": f"{device.platform}:{getattr(device, 'device_kind', '')}",
+        "jax": jax.__version__,
+        "jaxlib": jaxlib.__version__,
+        "equinox": eqx.__version__,
+        "optimistix": optimistix.__version__,
+        "numpy": np.__version__,
+        "python": platform.python_version(),
+        "cpu": cpu_model(),
+        "cores": os.cpu_count(),
+        "loadavg_1min": round(os.getloadavg()[0], 2),
+    }
+
+
+def emit(record: dict[str, Any]) -> None:
+    print(json.dumps({**record, **environment()}), flush=True)
+
+
+def rounded(value: Any, digits: int = 6) -> Any:
+    array = np.asarray(value, dtype=float)
+    return round(float(array), digits) if array.ndim == 0 else [round(float(x), digits) for x in array]
+
+
+def plant_parameters(plant: fj.EMPSPlant) -> dict[str, Any]:
+    """Physical parameters of a plant: M, the friction law's coefficients and the total offset."""
+    p = fj.unwrap(fj.exact(plant))
+    out = {"M": rounded(p.mass)}
+    for name in ("Fc", "Fs", "vs", "delta", "Fv", "v0"):
+        if hasattr(p.friction, name):
+            out[name] = rounded(getattr(p.friction, name))
+    out["offset"] = rounded(p.friction.offset + p.offset)
+    return out
+
+
+def idm_parameters(idm: Any) -> dict[str, Any]:
+    return {"M": rounded(idm.M), **{k: rounded(v) for k, v in idm.params.items()}, "offset": rounded(idm.offset)}
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The eight laws
+
+
+def run_laws(train: fj.EMPSRecord, test: fj.EMPSRecord, laws: list[str], steps: int) -> None:
+    score = fj.score_emps_open_loop
+    reference_test = score(REFERENCE, test)
+    reference_train = score(REFERENCE, train)
+    rows = []
+    for name in laws:
+        for asymmetric in (False, True):
+            law = LAWS[name]
+            t0 = time.perf_counter()
+            idm = fj.fit_emps_idm(train, law, asymmetric=asymmetric)
+            idm_s = time.perf_counter() - t0
+            start = idm.plant()
+            t0 = time.perf_counter()
+            fitted = fj.fit_emps_open_loop(train, law, asymmetric=asymmetric, idm=idm, steps=steps)
+            fit_s = time.perf_counter() - t0
+            row = {
+                "kind": "law",
+                "law": name,
+                "asymmetric": asymmetric,
+                "idm": {
+                    "params": idm_parameters(idm),
+                    "rel_error_train_pct": round(idm.relative_error, 4),
+                    "rel_error_test_pct": round(idm.relative_error_on(test), 4),
+                    "condition_number": round(idm.condition_number, 4),
+                    "fit_s": round(idm_s, 3),
+                    "train_rmse_mm": round(score(start, train), 4),
+                    "test_rmse_mm": round(score(start, test), 4),
+                },
+                "open_loop": {
+                    "params": plant_parameters(fitted.plant),
+                    "train_rmse_mm": round(float(np.sqrt(fitted.result.train_loss)), 4),
+                    "test_rmse_mm": round(score(fitted.plant, test), 4),
+                    "test_rmse_exact_law_mm": round(score(fj.exact(fitted.plant), test), 4),
+                    "result": fitted.result.result,
+                    "solver_steps": fitted.result.evaluations,
+                    "steps_budget": steps,
+                    "smoothing": "continuation 1e-2 -> 1e-4 m/s, 3 stages",
+                    "fit_s": round(fit_s, 2),
+                    "fit_s_note": "fit_emps_open_loop wall time: compilation, 3 Levenberg-Marquardt stages, std devs",
+                },
+                "reference_test_rmse_mm": round(reference_test, 4),
+                "reference_train_rmse_mm": round(reference_train, 4),
+                "beats_reference": bool(score(fitted.plant, test) < reference_test),
+            }
+            rows.append(row)
+            emit(row)
+    emit(
+        {
+            "kind": "summary",
+            "reference_test_rmse_mm": round(reference_test, 4),
+            "test_rmse_mm": {
+                f"{r['law']}{'-asym' if r['asymmetric'] else ''}": [r["idm"]["test_rmse_mm"], r["open_loop"]["test_rmse_mm"]]
+                for r in rows
+            },
+            "test_rmse_note": "[IDM start, open-loop fit]",
+            "all_beat_reference": all(r["beats_reference"] for r in rows),
+        }
+    )
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The sensitivity study (training file only for the choices)
+
+
+def shifted(record: fj.EMPSRecord, shift: int) -> fj.EMPSRecord:
+    """The record with `vir` delayed by `shift` samples (advanced for shift < 0), edges repeated."""
+    vir = np.roll(record.vir, shift)
+    if shift > 0:
+        vir[:shift] = record.vir[0]
+    elif shift < 0:
+        vir[shift:] = record.vir[-1]
+    return eqx.tree_at(lambda r: r.vir, record, vir)
+
+
+def windows_rmse(plant: fj.EMPSPlant, record: fj.EMPSRecord, horizon: int, stride: int = 250, **options: Any) -> float:
+    """RMS of the official free-run error over many short windows (20 initialisation + `horizon` samples)."""
+    errors = []
+    for start in range(0, record.length - horizon - 20, stride):
+        part = fj.split_emps_record(record, start, start + horizon + 20)
+        errors.append(fj.score_emps_open_loop(plant, part, **options) ** 2)
+    return float(np.sqrt(np.mean(errors)))
+
+
+def run_study(train: fj.EMPSRecord, test: fj.EMPSRecord) -> None:
+    score = fj.score_emps_open_loop
+    n = train.length
+    halves = (fj.split_emps_record(train, 0, n // 2), fj.split_emps_record(train, n // 2))
+
+    # 1. initial state, input timing and sub-steps, with the reference parameters
+    for degree in (1, 2, 3, 5):
+        emit(
+            {
+                "kind": "study",
+                "group": "initial_state",
+                "degree": degree,
+                "train_rmse_mm": round(score(REFERENCE, train, degree=degree), 4),
+                "test_rmse_mm": round(score(REFERENCE, test, degree=degree), 4),
+                "train_windows_200ms_rmse_mm": round(windows_rmse(REFERENCE, train, 200, degree=degree), 4),
+            }
+        )
+    for record in (train, test):
+        sim = fj.simulate_open_loop(REFERENCE, record.vir[19:], record.gtau, record.dt, q0=record.qm[19], qd0=0.0)
+        emit(
+            {
+                "kind": "study",
+                "group": "initial_state",
+                "degree": "at rest (qd0 = 0)",
+                "record": record.name,
+                "rmse_mm": round(float(fj.emps_open_loop_rmse_mm(record.qm[19:], sim.q, skip=1)), 4),
+            }
+        )
+    for shift in (-1, 0, 1):
+        emit(
+            {
+                "kind": "study",
+                "group": "input_timing",
+                "vir_delay_samples": shift,
+                "train_rmse_mm": round(score(REFERENCE, shifted(train, shift)), 4),
+                "train_windows_200ms_rmse_mm": round(windows_rmse(REFERENCE, shifted(train, shift), 200), 4),
+                "train_windows_1s_rmse_mm": round(windows_rmse(REFERENCE, shifted(train, shift), 1000), 4),
+            }
+        )
+    for substeps in (1, 10):
+        for label, plant in (("exact", REFERENCE), ("smooth 1e-4", fj.with_smoothing(REFERENCE, fj.Smooth(1e-4)))):
+            emit(
+                {
+                    "kind": "study",
+                    "group": "substeps",
+                    "substeps": substeps,
+                    "law": label,
+                    "train_rmse_mm": round(score(plant, train, substeps=substeps), 4),
+                    "test_rmse_mm": round(score(plant, test, substeps=substeps), 4),
+                }
+            )
+
+    # 2. the offset that balances the drift, per part of the records (reference M, Fc, Fv)
+    period = 6210  # the reference trajectory repeats 4 times in 24 841 samples
+    parts = {f"train period {i + 1}": fj.split_emps_record(train, i * period, (i + 1) * period) for i in range(4)}
+    cut = int(round(0.7 * n))
+    parts |= {
+        "train first 70 %": fj.split_emps_record(train, 0, cut),
+        "train last 30 %": fj.split_emps_record(train, cut),
+        "train half 1": halves[0],
+        "train half 2": halves[1],
+        "train": train,
+        "test": test,
+    }
+    offsets = np.round(np.arange(-3.45, -2.90, 0.005), 3)
+    for label, record in parts.items():
+        values = [
+            score(fj.EMPSPlant(95.1089, fj.CoulombViscous(Fc=20.3935, Fv=203.5034, offset=o)), record) for o in offsets
+        ]
+        i = int(np.argmin(values))
+        emit(
+            {
+                "kind": "study",
+                "group": "best_offset",
+                "part": label,
+                "best_offset_N": float(offsets[i]),
+                "rmse_at_best_mm": round(values[i], 4),
+                "rmse_reference_mm": round(score(REFERENCE, record), 4),
+                "at_grid_edge": i in (0, len(offsets) - 1),
+            }
+        )
+
+    # 3. fit settings, by two-fold cross-validation over the halves of the training file
+    def cv(**options: Any) -> dict[str, Any]:
+        t0 = time.perf_counter()
+        folds = [fj.fit_emps_open_loop(h, compute_std=False, **options) for h in halves]
+        cv_scores = [score(folds[0].plant, halves[1]), score(folds[1].plant, halves[0])]
+        head = fj.fit_emps_open_loop(train, validation=0.3, compute_std=False, **options)
+        full = fj.fit_emps_open_loop(train, compute_std=False, **options)
+        return {
+            "cv_rmse_mm": [round(s, 4) for s in cv_scores],
+            "cv_mean_mm": round(float(np.mean(cv_scores)), 4),
+            "tail30_rmse_mm": round(float(np.sqrt(head.result.val_loss)), 4),
+            "fold_results": [f.result.result for f in folds],
+            "full_fit": plant_parameters(full.plant),
+            "full_train_rmse_mm": round(score(full.plant, train), 4),
+            "full_result": full.result.result,
+            "test_rmse_mm": round(score(full.plant, test), 4),
+            "test_rmse_exact_law_mm": round(score(fj.exact(full.plant), test), 4),
+            "used_for_choice": ["cv_mean_mm"],
+            "wall_s": round(time.perf_counter() - t0, 1),
+        }
+
+    idm_folds = [fj.fit_emps_idm(h, fj.CoulombViscous).plant() for h in halves]
+    emit(
+        {
+            "kind": "study",
+            "group": "fit_settings",
+            "setting": "IDM start (no open-loop fit)",
+            "cv_rmse_mm": [round(score(idm_folds[0], halves[1]), 4), round(score(idm_folds[1], halves[0]), 4)],
+            "test_rmse_mm": round(score(REFERENCE, test), 4),
+        }
+    )
+    settings: list[tuple[str, dict[str, Any]]] = [
+        ("default: continuation 1e-2 -> 1e-4, 300 steps", {}),
+        ("eps 1e-2", {"eps": 1e-2, "steps": 200}),
+        ("eps 1e-3", {"eps": 1e-3, "steps": 200}),
+        ("eps 3e-4", {"eps": 3e-4, "steps": 200}),
+        ("eps 1e-4", {"eps": 1e-4, "steps": 200}),
+        ("continuation 1e-2 -> 1e-5", {"eps": fj.Continuation(1e-2, 1e-5, 3)}),
+        ("segments 1 s, eps 1e-3", {"eps": 1e-3, "steps": 200, "loss": fj.EMPSOpenLoopLoss(segment_length=1000)}),
+        ("segments 2.5 s, eps 1e-3", {"eps": 1e-3, "steps": 200, "loss": fj.EMPSOpenLoopLoss(segment_length=2500)}),
+        ("segments 5 s, eps 1e-3", {"eps": 1e-3, "steps": 200, "loss": fj.EMPSOpenLoopLoss(segment_length=5000)}),
+        ("freeze M", {"freeze": ("mass",)}),
+        ("freeze M, Fv", {"freeze": ("mass", "friction.Fv")}),
+    ]
+    for label, options in settings:
+        emit({"kind": "study", "group": "fit_settings", "setting": label, **cv(**options)})
+
+    # 4. the profile of the training criterion along M (Fc, Fv, offset fitted for each M)
+    idm = fj.fit_emps_idm(train, fj.CoulombViscous)
+    for mass in (82.0, 86.0, 90.0, 95.1089, 100.0):
+        start = eqx.tree_at(lambda p: p.mass, idm.plant(), fj.Positive(mass))
+        fitted = fj.fit_emps_open_loop(train, start=start, freeze=("mass",), compute_std=False)
+        emit(
+            {
+                "kind": "study",
+                "group": "mass_profile",
+                "M": mass,
+                "train_rmse_mm": round(score(fitted.plant, train), 4),
+                "test_rmse_mm": round(score(fitted.plant, test), 4),
+                "params": plant_parameters(fitted.plant),
+            }
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--laws", nargs="+", default=list(LAWS), choices=list(LAWS))
+    parser.add_argument("--steps", type=int, default=300, help="Levenberg-Marquardt steps (over 3 stages)")
+    parser.add_argument("--quick", action="store_true", help="90 steps per fit (about a third of the time)")
+    parser.add_argument("--study", action="store_true", help="run the sensitivity study instead (~15 min)")
+    args = parser.parse_args()
+    folder = data_dir() / "emps"
+    train, test = fj.load_emps(folder / "DATA_EMPS.mat"), fj.load_emps(folder / "DATA_EMPS_PULSES.mat")
+    t0 = time.perf_counter()
+    if args.study:
+        run_study(train, test)
+    else:
+        run_laws(train, test, args.laws, 90 if args.quick else args.steps)
+    emit({"kind": "total", "wall_s": round(time.perf_counter() - t0, 1)})
+
+
+if __name__ == "__main__":
+    main()
