@@ -55,6 +55,8 @@ except PackageNotFoundError:  # pragma: no cover - running from a source tree
 
 from ._data._dataset import FrictionData as FrictionData
 from ._data._dataset import concatenate as concatenate
+from ._data._differentiators import al_alaoui_coefficients as al_alaoui_coefficients
+from ._data._differentiators import al_alaoui_derivative as al_alaoui_derivative
 from ._data._emps import EMPSIDMData as EMPSIDMData
 from ._data._emps import EMPSIDMResult as EMPSIDMResult
 from ._data._emps import EMPSRecord as EMPSRecord
@@ -67,6 +69,10 @@ from ._data._preprocessing import central_difference as central_difference
 from ._data._preprocessing import decimate as decimate
 from ._data._preprocessing import detrend_linear as detrend_linear
 from ._data._preprocessing import normalise as normalise
+from ._data._tribometer import TribometerData as TribometerData
+from ._data._tribometer import default_tribometer_model as default_tribometer_model
+from ._data._tribometer import make_tribometer as make_tribometer
+from ._data._tribometer import model_parameters as model_parameters
 from ._fitting._fit import Continuation as Continuation
 from ._fitting._fit import MultiStart as MultiStart
 from ._fitting._fit import fit as fit
@@ -80,6 +86,11 @@ from ._fitting._result import RESULT_CODES as RESULT_CODES
 from ._fitting._result import FitResult as FitResult
 from ._fitting._result import load_model as load_model
 from ._fitting._result import save_model as save_model
+from ._models._ensemble import AbstractEnsemble as AbstractEnsemble
+from ._models._ensemble import AverageEnsemble as AverageEnsemble
+from ._models._ensemble import ForwardSelection as ForwardSelection
+from ._models._ensemble import WeightedEnsemble as WeightedEnsemble
+from ._models._ensemble import select_forward as select_forward
 from ._systems._emps import EMPSPlant as EMPSPlant
 from ._systems._emps import EMPSSimulation as EMPSSimulation
 from ._systems._emps import emps_open_loop_rmse_mm as emps_open_loop_rmse_mm

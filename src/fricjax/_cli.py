@@ -112,6 +112,192 @@ def _demo_eps(model: Any) -> float:
     return 1e-8  # m/s
 
 
+MODEL_NAMES = ("stribeck", "lugre", "gms", "nlr", "dnlrx")
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    """`fricjax compare`: fit every model, score on the test part, add ensembles, write the report."""
+    import shutil
+    import tempfile
+
+    import fricjax as fj
+
+    from . import _compare as cmp
+
+    out = pathlib.Path(args.out)
+    unknown = [m for m in args.models if m not in MODEL_NAMES]
+    if unknown:
+        raise cmp.CompareError(f"--models: unknown model {unknown[0]!r}; choose from {', '.join(MODEL_NAMES)}")
+    _check_writable(out)
+    if args.data == "emps":
+        return _compare_emps(out, args)
+    split, card, truth = cmp.load_split(args.data, seed=args.seed)
+    print(
+        f"fricjax {fj.__version__} compare: {args.data}, {split.full.length} samples "
+        f"(train {split.train_end}, validation {split.validation_end - split.train_end}, "
+        f"test {split.full.length - split.validation_end}), models: {', '.join(args.models)}"
+    )
+    started = time.perf_counter()
+    rows = cmp.fit_and_score(list(args.models), split, seed=args.seed, progress=not args.no_progress)
+    rows += cmp.add_ensembles(rows, split)
+    reference = None
+    if truth is not None:
+        true_nmse, true_max, _ = cmp.score(truth, split)
+        reference = {
+            "model": f"true model ({type(truth).__name__}, exact, noisy data)",
+            "nmse_percent": true_nmse,
+            "max_error": true_max,
+        }
+    print()
+    print(cmp.format_table(rows))
+    if reference is not None:
+        print(f"{'reference: ' + str(reference['model']):44s} {'':6s} {true_nmse:9.4f} {true_max:7.3f}")
+    staging = pathlib.Path(tempfile.mkdtemp(prefix=".partial-", dir=out))
+    try:
+        (staging / "models").mkdir()
+        for row in rows:
+            fj.save_model(staging / "models" / f"{row.name}.pkl", row.model)
+        cmp.plot_errors(rows, split, staging / "test_errors.png")
+        cmp.plot_loops(rows, split, staging / "hysteresis_loops.png")
+        report = {
+            "fricjax": fj.__version__,
+            "versions": _versions(),
+            "data": args.data,
+            "seed": args.seed,
+            "data_card": card,
+            "reference": reference,
+            "models": [
+                {
+                    "name": r.name,
+                    "label": r.label,
+                    "nmse_percent": r.nmse,
+                    "max_error": r.max_error,
+                    "fit_time_s": r.fit_time,
+                    "num_parameters": r.num_parameters,
+                    "result": r.result,
+                    "parameters": _parameters(r.model),
+                }
+                for r in sorted(rows, key=lambda r: r.nmse)
+            ],
+            "total_time_s": time.perf_counter() - started,
+        }
+        (staging / "report.json").write_text(json.dumps(report, indent=2, default=_jsonable))
+        for item in staging.iterdir():
+            target = out / item.name
+            if target.is_dir():
+                shutil.rmtree(target)
+            item.replace(target)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    print(
+        f"\nreport: {out / 'report.json'}; figures: {out / 'test_errors.png'}, {out / 'hysteresis_loops.png'}; "
+        f"models: {out / 'models'} ({time.perf_counter() - started:.0f} s)"
+    )
+    return 0
+
+
+def _compare_emps(out: pathlib.Path, args: argparse.Namespace) -> int:
+    """`--data emps`: the EMPS table (IDM for the 8 laws of the emps-ensemble paper, train and test errors)."""
+    import os
+
+    import fricjax as fj
+
+    from . import _compare as cmp
+
+    root = pathlib.Path(os.environ.get("FRICJAX_DATA", pathlib.Path.cwd().parent / "shared" / "data")) / "emps"
+    train_path, test_path = root / "DATA_EMPS.mat", root / "DATA_EMPS_PULSES.mat"
+    if not train_path.is_file() or not test_path.is_file():
+        raise cmp.CompareError(f"--data emps: EMPS files not found in {root}; set FRICJAX_DATA to the data folder")
+    train, test = fj.load_emps(train_path), fj.load_emps(test_path)
+    laws: list[tuple[str, Any]] = [
+        ("Coulomb + viscous", fj.CoulombViscous),
+        ("Threlfall", fj.Threlfall),
+        ("Tustin", fj.Tustin),
+        ("Bo-Pavelescu", fj.BoPavelescu),
+    ]
+    rows = []
+    print(f"{'law':34s} {'train rel. error %':>18s} {'test rel. error %':>18s}  parameters")
+    for label, law in laws:
+        for asymmetric in (False, True):
+            result = fj.fit_emps_idm(train, law, asymmetric=asymmetric)
+            name = f"{label} ({'asymmetric' if asymmetric else 'symmetric'})"
+            test_error = float(result.relative_error_on(test))
+            params = {
+                "M": float(result.M),
+                "offset": float(result.offset),
+                **{k: np.asarray(v).tolist() for k, v in result.params.items()},
+            }
+            rows.append(
+                {
+                    "law": name,
+                    "train_relative_error_percent": float(result.relative_error),
+                    "test_relative_error_percent": test_error,
+                    "parameters": params,
+                }
+            )
+            text = ", ".join(f"{k}={np.round(np.asarray(v), 4).tolist()}" for k, v in params.items())
+            print(f"{name:34s} {float(result.relative_error):18.4f} {test_error:18.4f}  {text}")
+    (out / "report.json").write_text(
+        json.dumps(
+            {"data": "emps", "fricjax": fj.__version__, "versions": _versions(), "idm": rows},
+            indent=2,
+            default=_jsonable,
+        )
+    )
+    print(f"report: {out / 'report.json'}")
+    return 0
+
+
+def _check_writable(out: pathlib.Path) -> None:
+    from ._compare import CompareError
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as err:
+        raise CompareError(f"--out {out}: not writable ({err.strerror})") from err
+
+
+def _parameters(model: Any) -> dict[str, Any]:
+    import jax
+
+    import fricjax as fj
+
+    out = {}
+    for path, leaf in jax.tree_util.tree_leaves_with_path(fj.unwrap(fj.exact(model))):
+        if hasattr(leaf, "dtype") and np.issubdtype(np.asarray(leaf).dtype, np.floating):
+            out["".join(str(p) for p in path).lstrip(".")] = np.asarray(leaf).tolist()
+    return out
+
+
+def _versions() -> dict[str, str]:
+    import platform
+
+    import equinox
+    import jax
+    import optax
+    import optimistix
+
+    return {
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "equinox": equinox.__version__,
+        "optax": optax.__version__,
+        "optimistix": optimistix.__version__,
+        "numpy": np.__version__,
+    }
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return str(value)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="fricjax", description="Friction models as JAX scan simulators.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -120,6 +306,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--out", default="fricjax-demo", help="output folder for the figure and JSON (default: %(default)s)"
     )
     demo.add_argument("--no-figure", action="store_true", help="skip the figure")
+    compare = sub.add_parser(
+        "compare", help="fit every model to a record, compare them on held-out data, add ensembles, report"
+    )
+    compare.add_argument(
+        "--data",
+        default="tribometer:mixed",
+        help="tribometer:presliding|mixed|sliding (synthetic), emps (real EMPS data), or FILE.npz/.csv with "
+        "columns t or dt, x and/or v, force (default: %(default)s)",
+    )
+    compare.add_argument("--models", nargs="+", default=list(MODEL_NAMES), help="models to fit (default: all)")
+    compare.add_argument("--out", default="fricjax-compare", help="output folder (default: %(default)s)")
+    compare.add_argument("--seed", type=int, default=0, help="seed for the synthetic data and multi-starts")
+    compare.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
     import jax
 
@@ -135,7 +334,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"fricjax demo: cannot write to --out {out}: {err.strerror}", file=sys.stderr)
             return 2
         run_demo(out, figure=not args.no_figure)
-    return 0
+        return 0
+    from ._compare import CompareError
+
+    try:
+        return run_compare(args)
+    except CompareError as err:
+        print(f"fricjax compare: {err}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

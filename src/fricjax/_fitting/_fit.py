@@ -192,6 +192,7 @@ def fit(
     solver: Any = None,
     steps: int = 1000,
     validation: Any = None,
+    validation_burn_in: int | None = None,
     freeze: Sequence[str] = (),
     separable: Sequence[str] = (),
     multistart: MultiStart | int | None = None,
@@ -216,6 +217,9 @@ def fit(
       (`optx.LevenbergMarquardt(rtol, atol)`, `optx.GaussNewton`) or minimiser (`optx.BFGS`).
     - `steps`: optimiser steps (optax) or maximum solver steps (optimistix), split over continuation stages.
     - `validation`: data for early stopping / choosing among starts (scored by free-run simulation).
+    - `validation_burn_in`: samples of `validation` simulated but not scored. For hysteretic models pass the
+      record from its start up to the end of the validation part, with `validation_burn_in` = the length of
+      the part before it, so the model enters the validation part in the state its history gives it.
     - `freeze`: dotted field paths not to train, e.g. `("sigma2", "stribeck.vs")`.
     - `separable`: dotted paths of real fields that enter the force linearly (offsets, FIR coefficients,
       LuGre `sigma1` / `sigma2`, static `Fv`): solved exactly by least squares inside every evaluation
@@ -250,7 +254,7 @@ def fit(
     if isinstance(multistart, int):
         multistart = MultiStart(multistart)
     count = 1 if multistart is None else multistart.count
-    val_loss_fn = loss.validation_loss()
+    val_loss_fn = loss.validation_loss() if validation_burn_in is None else SimulationLoss(burn_in=validation_burn_in)
 
     if continuation is not None:  # smooth from the start, so every stage shares one tree structure
         model = with_smoothing(model, Smooth(jnp.asarray(continuation.eps_start, dtype=float)))
@@ -280,7 +284,9 @@ def fit(
     # are), so one learning rate suits stiffnesses of 1e8 N/m and offsets of 1e-2 N alike
     scales = _parameter_scales(params0)
 
-    problem = _Problem(loss=loss, linear_spec=linear_spec, scales=scales, data=data, validation=validation)
+    problem = _Problem(
+        loss=loss, linear_spec=linear_spec, scales=scales, data=data, validation=validation, val_loss=val_loss_fn
+    )
     extra0 = loss.init_extra(model, data)
     starts = _draw_starts(params0, count, 0.0 if multistart is None else multistart.spread, seed)
     starts = jax.tree_util.tree_map(lambda p, c: p / c, starts, scales)
@@ -515,6 +521,7 @@ class _Problem(eqx.Module):
     scales: Any
     data: FrictionData
     validation: FrictionData | None
+    val_loss: AbstractLoss
 
     def materialise(self, params: Any, static: Any) -> Any:
         m = eqx.combine(jax.tree_util.tree_map(lambda u, c: u * c, params, self.scales), static)
@@ -533,7 +540,7 @@ class _Problem(eqx.Module):
     def val_objective(self, state: Any, static: Any) -> jax.Array:
         if self.validation is None:
             return jnp.asarray(jnp.nan)
-        return self.loss.validation_loss()(self.materialise(state[0], static), None, self.validation)
+        return self.val_loss(self.materialise(state[0], static), None, self.validation)
 
 
 @eqx.filter_jit

@@ -1,0 +1,602 @@
+"""A synthetic tribometer: friction data in the pre-sliding, mixed and gross-sliding regimes, with sensor effects.
+
+It imitates the KU Leuven tribometer of parlitz2004 §II-B and worden2007 §2: a Lorentz actuator imposes a
+displacement on the moving block, a laser interferometer measures it (quantised, noisy), and a piezoelectric
+force cell measures the friction force (noisy, with a slow trend from charge leakage). The friction force is
+simulated by a known ("true") fricjax model from the *true* displacement, so a fitted model can be scored
+against the noise-free force and its parameters against the true ones.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import pathlib
+from collections.abc import Sequence
+from typing import Any, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._constraints import unwrap
+from .._models._base import AbstractFrictionModel
+from .._models._dahl import Dahl
+from .._models._gms import GMS
+from .._models._lugre import LuGre
+from .._models._maxwell_slip import MaxwellSlip, SpringForces
+from .._motion import Motion, MotionSample
+from .._simulate import motion_samples, simulate
+from .._stribeck import ExponentialStribeck
+from ._dataset import FrictionData
+from ._differentiators import al_alaoui_derivative
+
+# ---------------------------------------------------------------------------------------------------------------
+# Regimes and the excitation
+
+
+class _Regime(NamedTuple):
+    low: float  # smallest displacement amplitude, in units of the breakaway displacement
+    high: float  # largest displacement amplitude, same units
+    minor: float  # amplitude of the fast component relative to the slow one (minor loops when > 1 / 3.7)
+    description: str
+
+
+REGIMES: dict[str, _Regime] = {
+    "presliding": _Regime(
+        0.02,
+        0.6,
+        0.35,
+        "pre-sliding: displacement amplitude 0.02-0.6 x the breakaway displacement; the weakest element never "
+        "slips, so there is no gross sliding and the peak force stays below the breakaway force",
+    ),
+    "mixed": _Regime(
+        0.1,
+        4.0,
+        0.3,
+        "mixed: displacement amplitude 0.1-4 x the breakaway displacement; pre-sliding stretches with "
+        "excursions into gross sliding",
+    ),
+    "sliding": _Regime(
+        15.0,
+        30.0,
+        0.12,
+        "gross sliding: displacement amplitude 15-30 x the breakaway displacement; sticking only shortly "
+        "after the velocity reversals",
+    ),
+}
+
+# the carrier: a slow component, a fast one (minor loops) and a weak faster one (frequencies in Hz, x jitter)
+_CARRIER_HZ = 4.0
+_CARRIER_RATIOS = (1.0, 3.7, 8.3)
+# the amplitude modulation: two slow sines with incommensurate frequencies [Hz]
+_ENVELOPE_HZ = (0.45, 1.15)
+_FADE_IN_S = 0.1
+
+# default sensor effects
+_FORCE_NOISE_REL = 0.0075  # of the clean force's peak-to-peak range
+_DRIFT_REL = -0.03  # total drift at the end of the record, of the clean force's peak-to-peak range
+_POSITION_QUANTISATION = 1e-9  # m: a laser interferometer's resolution (Renishaw, parlitz2004 §II-B)
+_POSITION_NOISE_STD = 1e-9  # m: vibration and air-path noise of the interferometer
+
+
+def default_tribometer_model() -> GMS:
+    """The default true model of `make_tribometer`: an exact GMS, N = 4, for a small dry steel contact.
+
+    `ExponentialStribeck(Fc=1.0 N, Fs=1.4 N, vs=1e-3 m/s, delta=1)` (worden2007 eq. 5),
+    `k = [1.4e5, 1.12e5, 8.4e4, 5.6e4] N/m`, `alpha = [0.1, 0.2, 0.3, 0.4]`, `C = 20 N/s`, `sigma2 = 10 N·s/m`.
+    The element breakaway displacements `alpha_i Fs / k_i` are 1, 2.5, 5 and 10 um (the pre-sliding range of a
+    dry contact, Lampaert et al. 2003); the initial pre-sliding stiffness is `sum k_i = 3.92e5 N/m`.
+    """
+    return GMS(
+        ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3, delta=1.0),
+        k=[1.4e5, 1.12e5, 8.4e4, 5.6e4],
+        alpha=[0.1, 0.2, 0.3, 0.4],
+        C=20.0,
+        sigma2=10.0,
+    )
+
+
+class _Excitation(NamedTuple):
+    x: np.ndarray
+    v: np.ndarray
+    frequencies_hz: list[float]
+    amplitudes: list[float]
+    envelope_hz: list[float]
+    envelope_m: tuple[float, float]
+
+
+def _excitation(rng: np.random.Generator, t: np.ndarray, scale: float, regime: _Regime) -> _Excitation:
+    """An amplitude-modulated multi-sine displacement [m] and its analytic velocity [m/s], from rest at t = 0.
+
+    `x(t) = fade(t) * env(t) * m(t) / max|m|`, with `m` the sum of three sines (the slow carrier, a component
+    3.7 x faster whose velocity exceeds the carrier's when `minor > 0.27`, so the velocity reverses inside a
+    half-cycle and minor loops appear, and a weak one 8.3 x faster), `env` an amplitude modulation between
+    `low` and `high` breakaway displacements built from two slow sines (so loops grow and shrink, with nested
+    reversals: non-local memory), and `fade` a raised cosine over the first 0.1 s (the rig starts at rest).
+    """
+    jitter = rng.uniform(0.9, 1.1)
+    freqs = [_CARRIER_HZ * jitter * r * (rng.uniform(0.97, 1.03) if i else 1.0) for i, r in enumerate(_CARRIER_RATIOS)]
+    amps = [1.0, regime.minor, regime.minor / 4.0]
+    phases = rng.uniform(0.0, 2.0 * np.pi, size=len(freqs))
+    env_freqs = [f * rng.uniform(0.9, 1.1) for f in _ENVELOPE_HZ]
+    env_phases = rng.uniform(0.0, 2.0 * np.pi, size=2)
+
+    m = sum(a * np.sin(2 * np.pi * f * t + p) for a, f, p in zip(amps, freqs, phases, strict=True))
+    dm = sum(a * 2 * np.pi * f * np.cos(2 * np.pi * f * t + p) for a, f, p in zip(amps, freqs, phases, strict=True))
+    peak = np.max(np.abs(m))
+    m, dm = m / peak, dm / peak
+
+    # e in [0, 1]: mean of two slow sines; squared so that small loops take more of the time
+    u = 0.5 + 0.25 * sum(np.sin(2 * np.pi * f * t + p) for f, p in zip(env_freqs, env_phases, strict=True))
+    du = 0.25 * sum(2 * np.pi * f * np.cos(2 * np.pi * f * t + p) for f, p in zip(env_freqs, env_phases, strict=True))
+    low, high = regime.low * scale, regime.high * scale
+    env = low + (high - low) * u**2
+    denv = (high - low) * 2.0 * u * du
+
+    ramp = np.clip(t / _FADE_IN_S, 0.0, 1.0)
+    fade = 0.5 * (1.0 - np.cos(np.pi * ramp))
+    dfade = np.where(t < _FADE_IN_S, 0.5 * np.pi / _FADE_IN_S * np.sin(np.pi * ramp), 0.0)
+
+    x = fade * env * m
+    v = dfade * env * m + fade * denv * m + fade * env * dm
+    return _Excitation(x, v, freqs, amps, env_freqs, (low, high))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# What the regimes are measured against
+
+
+def _breakaway_displacement(model: AbstractFrictionModel) -> float:
+    """The displacement scale [m] over which `model` goes from sticking to gross sliding.
+
+    GMS: `max_i alpha_i s(0) / k_i` (the weakest element's breakaway); Maxwell-slip: `max_i Delta_i`; LuGre:
+    `s(0) / sigma0` (the bristle deflection at the static force); Dahl: `Fc / sigma0`. Other models have no
+    pre-sliding scale: pass `breakaway_displacement=` to `make_tribometer`.
+    """
+    p = unwrap(model)
+    if isinstance(p, GMS):
+        return float(jnp.max(p.alpha * p.stribeck(0.0) / p.k))
+    if isinstance(p, MaxwellSlip):
+        return float(jnp.max(p.thresholds))
+    if isinstance(p, LuGre):
+        return float(p.stribeck(0.0) / p.sigma0)
+    if isinstance(p, Dahl):
+        return float(p.Fc / p.sigma0)
+    raise ValueError(
+        f"make_tribometer: {type(model).__name__} has no pre-sliding displacement scale to set the regime's "
+        "amplitude from; pass `breakaway_displacement=` (metres), e.g. 1e-5."
+    )
+
+
+def _breakaway_force(model: AbstractFrictionModel) -> float | None:
+    """The static (breakaway) force [N]: `s(0)` for GMS / LuGre, `Fc` for Dahl, `sum k_i Delta_i` for an LR/NLR
+    Maxwell-slip model; `None` where the model has none."""
+    p = unwrap(model)
+    if isinstance(p, (GMS, LuGre)):
+        return float(p.stribeck(0.0))
+    if isinstance(p, Dahl):
+        return float(p.Fc)
+    if isinstance(p, MaxwellSlip) and isinstance(p.force_map, SpringForces):
+        return float(jnp.sum(p.force_map.k * p.thresholds))
+    return None
+
+
+def _offset(model: AbstractFrictionModel) -> float:
+    p = unwrap(model)
+    offset = getattr(p, "offset", None)
+    if offset is None and isinstance(p, MaxwellSlip):
+        offset = p.force_map.offset
+    return 0.0 if offset is None else float(offset)
+
+
+@eqx.filter_jit
+def _slip_scan(model: AbstractFrictionModel, motion: Motion) -> Array:
+    """Per sample and element: 1.0 where the element slips (GMS: its slip indicator; Maxwell-slip: the clip is
+    active), shape `(T, N)`."""
+    p = unwrap(model)
+    samples = motion_samples(motion)
+
+    def body(state: Any, xs: tuple[Array, Array, Array]) -> tuple[Any, Array]:
+        x, v, dx = xs
+        sample = MotionSample(x=x, v=v, dx=dx, dt=samples.dt)
+        new_state, _ = p.step(state, sample)
+        if isinstance(p, GMS):
+            slipping = new_state.slipping
+        else:  # MaxwellSlip
+            slipping = (jnp.abs(state.delta + dx) > unwrap(p.thresholds)).astype(dx.dtype)
+        return new_state, slipping
+
+    _, slipping = jax.lax.scan(body, p.init_state(), (samples.x, samples.v, samples.dx))
+    return slipping
+
+
+def slipping_elements(model: AbstractFrictionModel, motion: Motion) -> np.ndarray | None:
+    """Which elements of a GMS or Maxwell-slip `model` slip at each sample of `motion`: bool `(T, N)`.
+
+    Re-simulates the model's state from rest. `None` for models without elements (LuGre, Dahl, static curves).
+    For a smooth model an element counts as slipping when its slip weight exceeds 1/2.
+    """
+    if not isinstance(model, (GMS, MaxwellSlip)):
+        return None
+    return np.asarray(_slip_scan(model, motion)) > 0.5
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The data set
+
+
+class TribometerData(eqx.Module):
+    """A synthetic tribometer record, its train / validation / test splits, the truth and a data card.
+
+    **Fields:**
+
+    - `train`, `validation`, `test`: consecutive parts of `full` (`FrictionData`).
+    - `full`: the whole measured record: the measured (quantised, noisy) displacement, the velocity derived
+      from it, and the measured (noisy, drifting) force.
+    - `true_model`: the model that made the force (as passed, or the default exact GMS).
+    - `true_motion`: the true displacement and its analytic velocity (what the force was simulated from).
+    - `clean_force`: the noise- and drift-free force [N], shape `(T,)`.
+    - `card`: the data card, a JSON-serialisable dict (regime, seed, sizes, sample rate, excitation, sensor
+      effects, the true parameters, the fraction of samples with every element sticking, peak / breakaway
+      force, ...). `card_text()` prints it; `save_card(path)` writes it as JSON.
+    """
+
+    train: FrictionData
+    validation: FrictionData
+    test: FrictionData
+    full: FrictionData
+    true_model: AbstractFrictionModel
+    true_motion: Motion
+    clean_force: Float[Array, "T"]
+    card: dict[str, Any]
+
+    def card_text(self) -> str:
+        """The data card as indented `key: value` lines."""
+        return "\n".join(_card_lines(self.card, 0))
+
+    def save_card(self, path: str | os.PathLike[str]) -> pathlib.Path:
+        """Write the data card as JSON to `path`; returns the path."""
+        path = pathlib.Path(path)
+        path.write_text(json.dumps(self.card, indent=2) + "\n")
+        return path
+
+
+def _card_lines(card: dict[str, Any], indent: int) -> list[str]:
+    lines = []
+    for key, value in card.items():
+        if isinstance(value, dict):
+            lines.append(" " * indent + f"{key}:")
+            lines.extend(_card_lines(value, indent + 2))
+        else:
+            lines.append(" " * indent + f"{key}: {_fmt(value)}")
+    return lines
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_fmt(v) for v in value) + "]"
+    return str(value)
+
+
+def make_tribometer(
+    regime: str,
+    *,
+    seed: int = 0,
+    model: AbstractFrictionModel | None = None,
+    duration: float = 4.0,
+    sample_rate: float = 2000.0,
+    noise: bool = True,
+    force_noise_std: float | None = None,
+    drift: float | None = None,
+    drift_time_constant: float | None = None,
+    position_quantisation: float | None = None,
+    position_noise_std: float | None = None,
+    velocity: str = "central",
+    breakaway_displacement: float | None = None,
+    splits: Sequence[float] = (0.6, 0.8),
+) -> TribometerData:
+    """Synthetic tribometer data in a chosen friction regime, with the sensor effects of a real rig.
+
+    The rig (parlitz2004 §II-B, Figs. 2-5; worden2007 §2): an actuator imposes a displacement `x(t)` on the
+    moving block; the friction force is simulated by the true `model` from the **true** displacement (and its
+    analytic velocity), then measured by a piezoelectric force cell, while `x` is measured by a laser
+    interferometer. The record carries what the sensors give:
+
+    - **measured displacement** = the true one plus white position noise (`position_noise_std`, default 1 nm,
+      vibration and air-path noise), quantised to the interferometer resolution (`position_quantisation`,
+      default 1 nm, the resolution of the Renishaw interferometer of the Leuven rig); worden2007 §2 reports
+      quantisation noise "substantial" at pre-sliding amplitudes.
+    - **velocity** derived from the measured displacement: `velocity="central"` (default) by central
+      differences (`fj.Motion.from_position`), `"al-alaoui"` by the zero-phase Al-Alaoui differentiator
+      (`fj.al_alaoui_derivative`, worden2007 §6).
+    - **measured force** = clean force + white noise (`force_noise_std`, default 0.75 % of the clean force's
+      peak-to-peak range) + a slow drift from charge leakage of the piezo force cell (parlitz2004 §II-B, the
+      "slow trend" of Fig. 5, removed there by linear detrending): `drift * (1 - exp(-t / tau)) /
+      (1 - exp(-T / tau))`, reaching `drift` [N] (default -3 % of the peak-to-peak range) at the end of the
+      record, with `tau = drift_time_constant` (default: the record's duration, a curved trend between a linear
+      and a saturating one).
+
+    The excitation is an amplitude-modulated multi-sine (the periodic trajectories the rig can always impose,
+    parlitz2004 §II-B): a slow carrier (about 4 Hz) with a faster component that reverses the velocity inside
+    a half-cycle (minor loops) and a slow modulation of the amplitude, so loops of many sizes, nested
+    reversals and wiped-out inner loops (non-local memory) appear, as in the profiles of parlitz2004 Figs. 4-5.
+    The phases and frequencies (±10 %) are drawn from `seed`. The amplitude is set relative to the true model's
+    breakaway displacement `x_b` (GMS: `max_i alpha_i Fs / k_i`, 10 um for the default model):
+
+    - `"presliding"`: 0.02-0.6 `x_b`: no gross sliding; most samples have every element sticking; the peak
+      force stays well below the breakaway force `Fs`.
+    - `"mixed"`: 0.1-4 `x_b`: pre-sliding stretches and excursions into gross sliding.
+    - `"sliding"`: 15-30 `x_b`: gross sliding, sticking only just after the velocity reversals.
+
+    The default true model is `default_tribometer_model()`: an exact GMS with N = 4 elements and an exponential
+    Stribeck curve (`Fc = 1 N`, `Fs = 1.4 N`, `vs = 1 mm/s`, `k = 1.4e5 ... 5.6e4 N/m`, `sigma2 = 10 N·s/m`).
+
+    The default size, 4 s at 2 kHz (8000 samples; 4800 for training), keeps a fit of a handful of models on the
+    training split within minutes on a laptop CPU. The data are deterministic for a seed (NumPy `Generator`s
+    spawned from `seed`: the excitation, the force noise and the position noise each have their own stream, so
+    switching one effect off leaves the others unchanged).
+
+    **Arguments:**
+
+    - `regime`: `"presliding"`, `"mixed"` or `"sliding"`.
+    - `seed`: non-negative integer seed.
+    - `model`: the true friction model (any fricjax model; default `default_tribometer_model()`). It is used as
+      given: pass `fj.exact(model)` for the exact equations.
+    - `duration`: record length [s]; `sample_rate`: [Hz] (the record has `round(duration * sample_rate)`
+      samples, at least 100).
+    - `noise`: `False` switches every sensor effect off (the measured force is the clean force, the measured
+      displacement the true one); the effect arguments must then be left at `None` or 0.
+    - `force_noise_std` [N], `drift` [N, signed], `drift_time_constant` [s], `position_quantisation` [m],
+      `position_noise_std` [m]: the sensor effects (`None`: the defaults above; 0 switches one off).
+    - `velocity`: `"central"` or `"al-alaoui"`, how the velocity is derived from the measured displacement.
+    - `breakaway_displacement`: the displacement scale `x_b` [m] of the regimes; default from the model (GMS,
+      Maxwell-slip, LuGre, Dahl; required for other models).
+    - `splits`: the train / validation / test boundaries as two increasing fractions (default 60 / 20 / 20 %).
+
+    **Returns:** a `TribometerData` (`train`, `validation`, `test`, `full`, `true_model`, `true_motion`,
+    `clean_force`, `card`).
+
+    ```python
+    >>> import fricjax as fj
+    >>> data = fj.make_tribometer("presliding", seed=0)
+    >>> data.train.length, data.validation.length, data.test.length
+    (4800, 1600, 1600)
+    >>> data.card["sticking"]["all_sticking_fraction"] > 0.5
+    True
+    ```
+    """
+    if not isinstance(regime, str) or regime not in REGIMES:
+        raise ValueError(
+            f"make_tribometer: unknown `regime` {regime!r}; choose one of {', '.join(map(repr, REGIMES))}."
+        )
+    spec = REGIMES[regime]
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"make_tribometer: `seed` must be a non-negative integer, got {seed!r}.")
+    if model is None:
+        model = default_tribometer_model()
+    elif not isinstance(model, AbstractFrictionModel):
+        raise TypeError(f"make_tribometer: `model` must be a fricjax friction model, got {type(model).__name__}.")
+    duration = _positive("duration", duration, "s")
+    sample_rate = _positive("sample_rate", sample_rate, "Hz")
+    length = int(round(duration * sample_rate))
+    if length < 100:
+        raise ValueError(
+            f"make_tribometer: `duration * sample_rate` gives {length} samples; at least 100 are needed "
+            "(lengthen `duration` or raise `sample_rate`)."
+        )
+    if not isinstance(noise, bool):
+        raise TypeError(f"make_tribometer: `noise` must be True or False, got {noise!r}.")
+    effects = {
+        "force_noise_std": force_noise_std,
+        "drift": drift,
+        "drift_time_constant": drift_time_constant,
+        "position_quantisation": position_quantisation,
+        "position_noise_std": position_noise_std,
+    }
+    for name, value in effects.items():
+        if value is None:
+            continue
+        number = _finite(name, value)
+        if name != "drift" and (number < 0 or (name == "drift_time_constant" and number == 0)):
+            bound = "> 0" if name == "drift_time_constant" else ">= 0"
+            raise ValueError(f"make_tribometer: `{name}` must be {bound}, got {value!r}.")
+        if not noise and number != 0 and name != "drift_time_constant":
+            raise ValueError(
+                f"make_tribometer: `noise=False` switches every sensor effect off, but `{name}={value!r}` was "
+                "given; pass noise=True to use it, or drop the argument."
+            )
+    if velocity not in ("central", "al-alaoui"):
+        raise ValueError(f"make_tribometer: `velocity` must be 'central' or 'al-alaoui', got {velocity!r}.")
+    splits = _check_splits(splits, length)
+    if breakaway_displacement is None:
+        x_b = _breakaway_displacement(model)
+    else:
+        x_b = _positive("breakaway_displacement", breakaway_displacement, "m")
+
+    dt = 1.0 / sample_rate
+    t = np.arange(length) * dt
+    streams = [np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(3)]
+    excitation = _excitation(streams[0], t, x_b, spec)
+
+    # the truth: force from the true displacement and its analytic velocity
+    true_motion = Motion(x=excitation.x, v=excitation.v, dt=dt)
+    clean = np.asarray(simulate(model, true_motion))
+    if not np.all(np.isfinite(clean)):
+        raise ValueError(
+            f"make_tribometer: the simulated force of {type(model).__name__} is not finite; check the model's "
+            "parameters."
+        )
+    force_range = float(np.ptp(clean))
+
+    # sensor effects
+    if noise:
+        force_std = _FORCE_NOISE_REL * force_range if force_noise_std is None else float(force_noise_std)
+        drift_n = _DRIFT_REL * force_range if drift is None else float(drift)
+        tau = duration if drift_time_constant is None else float(drift_time_constant)
+        quantum = _POSITION_QUANTISATION if position_quantisation is None else float(position_quantisation)
+        x_std = _POSITION_NOISE_STD if position_noise_std is None else float(position_noise_std)
+    else:
+        force_std = drift_n = quantum = x_std = 0.0
+        tau = duration if drift_time_constant is None else float(drift_time_constant)
+    t_end = t[-1] if t[-1] > 0 else dt
+    drift_signal = drift_n * (-np.expm1(-t / tau)) / (-math.expm1(-t_end / tau))
+    force = clean + force_std * streams[1].standard_normal(length) + drift_signal
+    x_meas = excitation.x + x_std * streams[2].standard_normal(length)
+    if quantum > 0:
+        x_meas = quantum * np.round(x_meas / quantum)
+    if not noise:
+        force, x_meas = clean.copy(), excitation.x.copy()
+    if velocity == "central":
+        motion = Motion.from_position(x_meas, dt)
+    else:
+        motion = Motion(x=x_meas, v=al_alaoui_derivative(x_meas, dt, zero_phase=True), dt=dt)
+    full = FrictionData(motion, force)
+    train, validation, test = full.split(*splits)
+
+    # regime statistics from the true model's state
+    edges = [0, *[int(round(s * length)) for s in splits], length]
+    slipping = slipping_elements(model, true_motion)
+    sticking: dict[str, Any]
+    if slipping is None:
+        sticking = {
+            "all_sticking_fraction": None,
+            "gross_sliding_fraction": None,
+            "note": f"{type(model).__name__} has no stick/slip elements",
+        }
+    else:
+        all_stick = ~np.any(slipping, axis=1)
+        all_slip = np.all(slipping, axis=1)
+        sticking = {
+            "all_sticking_fraction": float(np.mean(all_stick)),
+            "gross_sliding_fraction": float(np.mean(all_slip)),
+            "per_element_slipping_fraction": [float(f) for f in np.mean(slipping, axis=0)],
+            "all_sticking_fraction_by_split": {
+                name: float(np.mean(all_stick[a:b]))
+                for name, a, b in zip(("train", "validation", "test"), edges[:-1], edges[1:], strict=True)
+            },
+        }
+    f_break = _breakaway_force(model)
+    peak = float(np.max(np.abs(clean - _offset(model))))
+    card: dict[str, Any] = {
+        "regime": regime,
+        "description": spec.description,
+        "seed": int(seed),
+        "model": type(model).__name__,
+        "samples": {"full": length, "train": train.length, "validation": validation.length, "test": test.length},
+        "split_edges": edges,
+        "sample_rate_hz": sample_rate,
+        "dt_s": dt,
+        "duration_s": length * dt,
+        "excitation": {
+            "kind": "amplitude-modulated multi-sine from rest (raised-cosine fade-in over 0.1 s)",
+            "frequencies_hz": [round(f, 6) for f in excitation.frequencies_hz],
+            "relative_amplitudes": excitation.amplitudes,
+            "envelope_frequencies_hz": [round(f, 6) for f in excitation.envelope_hz],
+            "amplitude_range_m": list(excitation.envelope_m),
+            "amplitude_range_over_breakaway_displacement": [spec.low, spec.high],
+            "peak_displacement_m": float(np.max(np.abs(excitation.x))),
+            "peak_velocity_m_per_s": float(np.max(np.abs(excitation.v))),
+        },
+        "breakaway_displacement_m": x_b,
+        "breakaway_force_N": f_break,
+        "peak_force_N": peak,
+        "peak_over_breakaway_force": None if f_break is None else peak / f_break,
+        "force_range_N": force_range,
+        "sticking": sticking,
+        "sensor": {
+            "noise": noise,
+            "force_noise_std_N": force_std,
+            "force_noise_over_range": force_std / force_range if force_range > 0 else None,
+            "drift_N": drift_n,
+            "drift_time_constant_s": tau,
+            "drift_model": "drift * (1 - exp(-t/tau)) / (1 - exp(-T/tau)) (charge leakage of the piezo force cell)",
+            "position_quantisation_m": quantum,
+            "position_noise_std_m": x_std,
+            "velocity": "central differences of the measured displacement (fj.Motion.from_position)"
+            if velocity == "central"
+            else "zero-phase Al-Alaoui differentiator of the measured displacement (fj.al_alaoui_derivative)",
+        },
+        "model_parameters": model_parameters(model),
+    }
+    json.dumps(card)  # the card must stay JSON-serialisable
+    return TribometerData(
+        train=train,
+        validation=validation,
+        test=test,
+        full=full,
+        true_model=model,
+        true_motion=true_motion,
+        clean_force=jnp.asarray(clean),
+        card=card,
+    )
+
+
+def model_parameters(model: eqx.Module) -> dict[str, Any]:
+    """The physical parameter values of `model` (constraint wrappers resolved) as plain floats / lists, keyed by
+    their path (`"stribeck.Fc"`, `"k"`, ...), rounded to 12 significant digits (6 for float32).
+
+    ```python
+    >>> import fricjax as fj
+    >>> fj.model_parameters(fj.Dahl(sigma0=1e5, Fc=1.0))["sigma0"]
+    100000.0
+    ```
+    """
+    leaves = jax.tree_util.tree_flatten_with_path(unwrap(model))[0]
+    out: dict[str, Any] = {}
+    for path, leaf in leaves:
+        if not eqx.is_array_like(leaf) or isinstance(leaf, (bool, str)):
+            continue
+        key = jax.tree_util.keystr(path).lstrip(".")
+        value = np.asarray(leaf)
+        if not np.issubdtype(value.dtype, np.floating):
+            continue
+        # round away the last-digit noise of the log / softmax reparametrisations (1e5 -> 100000.00000000003)
+        digits = 12 if value.dtype == np.float64 else 6
+        rounded = [float(f"{v:.{digits}g}") for v in value.reshape(-1).tolist()]
+        out[key] = rounded[0] if value.ndim == 0 else np.reshape(rounded, value.shape).tolist()
+    return out
+
+
+def _positive(name: str, value: Any, unit: str) -> float:
+    number = _finite(name, value)
+    if number <= 0:
+        raise ValueError(f"make_tribometer: `{name}` must be a positive number in {unit}, got {value!r}.")
+    return number
+
+
+def _finite(name: str, value: Any) -> float:
+    if isinstance(value, bool):
+        raise TypeError(f"make_tribometer: `{name}` must be a number, got {value!r}.")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"make_tribometer: `{name}` must be a number, got {value!r}.") from None
+    if not math.isfinite(number):
+        raise ValueError(f"make_tribometer: `{name}` must be finite, got {value!r}.")
+    return number
+
+
+def _check_splits(splits: Any, length: int) -> tuple[float, float]:
+    try:
+        points = tuple(float(s) for s in splits)
+    except (TypeError, ValueError):
+        raise TypeError(
+            f"make_tribometer: `splits` must be two increasing fractions, e.g. (0.6, 0.8), got {splits!r}."
+        ) from None
+    if len(points) != 2 or not 0 < points[0] < points[1] < 1:
+        raise ValueError(
+            f"make_tribometer: `splits` must be two increasing fractions in (0, 1) (train / validation / test "
+            f"boundaries), e.g. (0.6, 0.8), got {splits!r}."
+        )
+    edges = [0, *[int(round(p * length)) for p in points], length]
+    if any(b <= a for a, b in zip(edges[:-1], edges[1:], strict=True)):
+        raise ValueError(
+            f"make_tribometer: `splits` {splits!r} leave an empty part of the {length}-sample record; move them apart."
+        )
+    return points
