@@ -340,7 +340,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return run_compare(args)
     except CompareError as err:
-        print(f"fricjax compare: {err}", file=sys.stderr)
+        print("fricjax compare: " + " ".join(str(err).split()), file=sys.stderr)
         return 2
 
 

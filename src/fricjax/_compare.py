@@ -331,7 +331,8 @@ def _read_columns(path: Any) -> dict[str, np.ndarray]:
     except CompareError:
         raise
     except Exception as err:  # noqa: BLE001 - any parse failure becomes one line
-        raise CompareError(f"--data {path}: cannot read the file ({type(err).__name__}: {err})") from err
+        detail = " ".join(str(err).split())  # one line
+        raise CompareError(f"--data {path}: cannot read the file ({type(err).__name__}: {detail})") from err
     raise CompareError(f"--data {path}: unsupported file type {suffix!r}; use .npz or .csv")
 
 
