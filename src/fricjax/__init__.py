@@ -96,3 +96,9 @@ from ._systems._emps import EMPSSimulation as EMPSSimulation
 from ._systems._emps import emps_open_loop_rmse_mm as emps_open_loop_rmse_mm
 from ._systems._emps import simulate_closed_loop as simulate_closed_loop
 from ._systems._emps import simulate_open_loop as simulate_open_loop
+from ._systems._emps_fit import EMPSOpenLoopFit as EMPSOpenLoopFit
+from ._systems._emps_fit import EMPSOpenLoopLoss as EMPSOpenLoopLoss
+from ._systems._emps_fit import fit_emps_open_loop as fit_emps_open_loop
+from ._systems._emps_fit import predict_emps_open_loop as predict_emps_open_loop
+from ._systems._emps_fit import score_emps_open_loop as score_emps_open_loop
+from ._systems._emps_fit import split_emps_record as split_emps_record
