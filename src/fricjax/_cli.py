@@ -323,20 +323,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    from ._compare import CompareError
+
     if args.command == "demo":
         out = pathlib.Path(args.out)
         try:
-            out.mkdir(parents=True, exist_ok=True)
-            probe = out / ".write-test"
-            probe.write_text("")
-            probe.unlink()
-        except OSError as err:
-            print(f"fricjax demo: cannot write to --out {out}: {err.strerror}", file=sys.stderr)
+            _check_writable(out)
+        except CompareError as err:
+            print(f"fricjax demo: {err}", file=sys.stderr)
             return 2
         run_demo(out, figure=not args.no_figure)
         return 0
-    from ._compare import CompareError
-
     try:
         return run_compare(args)
     except CompareError as err:
