@@ -80,7 +80,7 @@ def parameter_errors(fitted: Any, truth: Any) -> dict[str, float]:
     return out
 
 
-def bench(name: str, steps: int, nm_evals: int, adam_steps: int = 600) -> dict[str, Any]:
+def bench(name: str, steps: int, nm_evals: int, adam_steps: int = 300) -> dict[str, Any]:
     truth, start, eps = models(name)
     motion = excitation(steps)
     data = fj.FrictionData(motion, fj.simulate(truth, motion))
@@ -133,9 +133,9 @@ def bench(name: str, steps: int, nm_evals: int, adam_steps: int = 600) -> dict[s
         # subtracting the time of the first call's compile-only run)
         solver = optax.adam(3e-2)
         t0 = time.perf_counter()
-        fj.fit(start, data, solver=solver, steps=10, eval_every=10, compute_std=False)  # compile
+        fj.fit(start, data, solver=solver, steps=5, eval_every=5, compute_std=False)  # compile
         first = time.perf_counter() - t0
-        result = fj.fit(start, data, solver=solver, steps=adam_steps, eval_every=10, compute_std=False)
+        result = fj.fit(start, data, solver=solver, steps=adam_steps, eval_every=5, compute_std=False)
         fj_time = result.wall_time
         method = f"adam(3e-2), {adam_steps} steps"
         hits = np.flatnonzero(result.history["train_loss"] <= nm_loss)
