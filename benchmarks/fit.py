@@ -27,7 +27,6 @@ import equinox as eqx  # noqa: E402
 import jax.flatten_util  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
-import optax  # noqa: E402
 import scipy  # noqa: E402
 import scipy.optimize  # noqa: E402
 
@@ -80,8 +79,9 @@ def parameter_errors(fitted: Any, truth: Any) -> dict[str, float]:
     return out
 
 
-def bench(name: str, steps: int, nm_evals: int, adam_steps: int = 300) -> dict[str, Any]:
+def bench(name: str, steps: int, nm_evals: int) -> dict[str, Any]:
     truth, start, eps = models(name)
+    max_lm_steps = 200 if name == "lugre" else 64
     motion = excitation(steps)
     data = fj.FrictionData(motion, fj.simulate(truth, motion))
     start = fj.with_smoothing(start, fj.Smooth(eps))
@@ -107,40 +107,25 @@ def bench(name: str, steps: int, nm_evals: int, adam_steps: int = 300) -> dict[s
     nm_loss = float(nm.fun)
     nm_model = eqx.combine(unravel(jnp.asarray(nm.x)), static)
 
-    if name == "lugre":
-        # Levenberg-Marquardt; time to reach Nelder-Mead's final loss from LM runs of growing max_steps, each
-        # timed on its second (compiled) call
-        solver = fj.levenberg_marquardt()
+    # Levenberg-Marquardt; time to reach Nelder-Mead's final loss from LM runs of growing max_steps, each timed
+    # on its second (compiled) call
+    solver = fj.levenberg_marquardt()
+    t0 = time.perf_counter()
+    result = fj.fit(start, data, solver=solver, steps=max_lm_steps, compute_std=False)
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    result = fj.fit(start, data, solver=solver, steps=max_lm_steps, compute_std=False)
+    fj_time = time.perf_counter() - t0
+    method = f"LevenbergMarquardt (max {max_lm_steps} steps)"
+    reach_time, reach_steps = (fj_time, result.evaluations) if result.train_loss <= nm_loss else (None, None)
+    for max_steps in (1, 2, 4, 8, 16, 32):
+        fj.fit(start, data, solver=solver, steps=max_steps, compute_std=False)  # compile
         t0 = time.perf_counter()
-        result = fj.fit(start, data, solver=solver, steps=200, compute_std=False)
-        first = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        result = fj.fit(start, data, solver=solver, steps=200, compute_std=False)
-        fj_time = time.perf_counter() - t0
-        method = "LevenbergMarquardt"
-        reach_time, reach_steps = (fj_time, result.evaluations) if result.train_loss <= nm_loss else (None, None)
-        for max_steps in (1, 2, 4, 8, 16, 32):
-            fj.fit(start, data, solver=solver, steps=max_steps, compute_std=False)  # compile
-            t0 = time.perf_counter()
-            partial = fj.fit(start, data, solver=solver, steps=max_steps, compute_std=False)
-            elapsed = time.perf_counter() - t0
-            if partial.train_loss <= nm_loss:
-                reach_time, reach_steps = elapsed, max_steps
-                break
-    else:
-        # GMS: Adam (Levenberg-Marquardt stalls on the stick/slip landscape from this start); the time to reach
-        # Nelder-Mead's loss is read from the fit history (wall time at each check, compilation excluded by
-        # subtracting the time of the first call's compile-only run)
-        solver = optax.adam(3e-2)
-        t0 = time.perf_counter()
-        fj.fit(start, data, solver=solver, steps=5, eval_every=5, compute_std=False)  # compile
-        first = time.perf_counter() - t0
-        result = fj.fit(start, data, solver=solver, steps=adam_steps, eval_every=5, compute_std=False)
-        fj_time = result.wall_time
-        method = f"adam(3e-2), {adam_steps} steps"
-        hits = np.flatnonzero(result.history["train_loss"] <= nm_loss)
-        reach_time = float(result.history["time"][hits[0]]) if hits.size else None
-        reach_steps = int(result.history["step"][hits[0]]) if hits.size else None
+        partial = fj.fit(start, data, solver=solver, steps=max_steps, compute_std=False)
+        elapsed = time.perf_counter() - t0
+        if partial.train_loss <= nm_loss:
+            reach_time, reach_steps = elapsed, max_steps
+            break
     fj_loss = result.train_loss
     nm_reach = next((t for t, v in trace if v <= fj_loss), None)
     speedup = nm_time / reach_time if reach_time else None

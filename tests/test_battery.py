@@ -153,3 +153,23 @@ def test_sample_then_fit_smoke(name):
         p, state, _ = update(p, state)
     last = float(loss(p, static))
     assert np.isfinite(last) and last < 0.7 * first, (name, first, last)
+
+
+@pytest.mark.parametrize("curve", ["exponential", "rational"])
+def test_stribeck_gradients_finite_for_large_exponents(curve):
+    """An optimiser trying a large shape exponent must not get inf * 0 = NaN gradients (|v/vs|**delta overflow)."""
+
+    def value(log_exponent, v):
+        exponent = jnp.exp(log_exponent)
+        if curve == "exponential":
+            s = fj.ExponentialStribeck(1.0, 1.5, 1e-3, delta=exponent)
+        else:
+            s = fj.RationalStribeck(1.0, 1.5, 1e-3, mu=exponent)
+        return s(v)
+
+    velocities = jnp.array([0.0, 1e-4, 1e-3, 6e-3, 1.0])
+    for exponent in (2.0, 50.0, 400.0, 5000.0):
+        grads = jax.vmap(jax.grad(value), in_axes=(None, 0))(jnp.log(exponent), velocities)
+        values = jax.vmap(value, in_axes=(None, 0))(jnp.log(exponent), velocities)
+        assert np.all(np.isfinite(grads)), (exponent, grads)
+        assert np.all(np.isfinite(values)) and np.all((values >= 1.0 - 1e-12) & (values <= 1.5 + 1e-12))

@@ -13,10 +13,15 @@ from ._constraints import ParamLike, model_dtype, positive, unwrap
 
 
 def abs_pow(u: ArrayLike, p: ArrayLike) -> Array:
-    """|u|**p with finite value and gradient (also w.r.t. p) at u = 0."""
+    """|u|**p with finite value and gradient (also w.r.t. p) at u = 0, capped at exp(50) ~ 5e21.
+
+    The cap keeps `exp(-|u|**p)` and `1 / (1 + |u|**p)` (already 0 to double precision there) free of
+    inf * 0 = NaN in their gradients when an optimiser tries a large exponent.
+    """
     au = jnp.abs(u)
     nonzero = au > 0
-    return jnp.where(nonzero, jnp.exp(jnp.asarray(p) * jnp.log(jnp.where(nonzero, au, 1.0))), 0.0)
+    log_power = jnp.asarray(p) * jnp.log(jnp.where(nonzero, au, 1.0))
+    return jnp.where(nonzero, jnp.exp(jnp.minimum(log_power, 50.0)), 0.0)
 
 
 class AbstractStribeck(eqx.Module):
