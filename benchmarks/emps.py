@@ -22,7 +22,6 @@ import argparse
 import json
 import os
 import pathlib
-import platform
 import sys
 import time
 from typing import Any
@@ -32,11 +31,11 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import equinox as eqx  # noqa: E402
-import jaxlib  # noqa: E402
 import numpy as np  # noqa: E402
 import optimistix  # noqa: E402
 
 import fricjax as fj  # noqa: E402
+from _environment import environment as shared_environment  # noqa: E402
 
 LAWS = {
     "CoulombViscous": fj.CoulombViscous,
@@ -56,31 +55,8 @@ def data_dir() -> pathlib.Path:
     return path
 
 
-def cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
 def environment() -> dict[str, Any]:
-    device = jax.devices()[0]
-    return {
-        "device": f"{device.platform}:{getattr(device, 'device_kind', '')}",
-        "jax": jax.__version__,
-        "jaxlib": jaxlib.__version__,
-        "equinox": eqx.__version__,
-        "optimistix": optimistix.__version__,
-        "numpy": np.__version__,
-        "python": platform.python_version(),
-        "cpu": cpu_model(),
-        "cores": os.cpu_count(),
-        "loadavg_1min": round(os.getloadavg()[0], 2),
-    }
+    return {**shared_environment(optimistix=optimistix.__version__), "loadavg_1min": round(os.getloadavg()[0], 2)}
 
 
 def emit(record: dict[str, Any]) -> None:

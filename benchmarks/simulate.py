@@ -20,7 +20,6 @@ import argparse
 import json
 import math
 import os
-import platform
 import statistics
 import sys
 import time
@@ -33,12 +32,12 @@ jax.config.update("jax_enable_x64", True)
 
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
-import jaxlib  # noqa: E402
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
 import fricjax as fj  # noqa: E402
+from _environment import environment as shared_environment  # noqa: E402
 from fricjax._simulate import DEFAULT_UNROLL  # noqa: E402
 
 DT = 1e-3
@@ -56,30 +55,8 @@ TARGET_GRAD_RATIO = 5.0  # value_and_grad time <= 5 x forward time
 # --------------------------------------------------------------------------------------------------------------
 
 
-def cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
 def environment() -> dict[str, Any]:
-    device = jax.devices()[0]
-    return {
-        "device": f"{device.platform}:{getattr(device, 'device_kind', '')}",
-        "jax": jax.__version__,
-        "jaxlib": jaxlib.__version__,
-        "equinox": eqx.__version__,
-        "numpy": np.__version__,
-        "numba": numba.__version__,
-        "python": platform.python_version(),
-        "cpu": cpu_model(),
-        "cores": os.cpu_count(),
-    }
+    return shared_environment(numba=numba.__version__)
 
 
 ENV: dict[str, Any] = {}

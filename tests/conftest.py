@@ -24,3 +24,19 @@ def data_dir() -> pathlib.Path:
 @pytest.fixture(scope="session")
 def rng() -> np.random.Generator:
     return np.random.default_rng(0)
+
+
+@pytest.fixture(scope="session")
+def train(data_dir):
+    """The EMPS estimation record (DATA_EMPS.mat)."""
+    from fricjax import load_emps
+
+    return load_emps(data_dir / "emps" / "DATA_EMPS.mat")
+
+
+@pytest.fixture(scope="session")
+def test_record(data_dir):
+    """The EMPS test record (DATA_EMPS_PULSES.mat)."""
+    from fricjax import load_emps
+
+    return load_emps(data_dir / "emps" / "DATA_EMPS_PULSES.mat")

@@ -16,7 +16,6 @@ import scipy.io
 from fricjax._data._emps import (
     EMPSIDMData,
     EMPSIDMResult,
-    EMPSRecord,
     emps_idm_data,
     fit_emps_idm,
     load_emps,
@@ -41,16 +40,6 @@ LAWS = [CoulombViscous, Threlfall, Tustin, BoPavelescu]
 
 def reference_plant() -> EMPSPlant:
     return EMPSPlant(REFERENCE["M"], CoulombViscous(Fc=REFERENCE["Fc"], Fv=REFERENCE["Fv"], offset=REFERENCE["offset"]))
-
-
-@pytest.fixture(scope="module")
-def train(data_dir) -> EMPSRecord:
-    return load_emps(data_dir / "emps" / "DATA_EMPS.mat")
-
-
-@pytest.fixture(scope="module")
-def test_record(data_dir) -> EMPSRecord:
-    return load_emps(data_dir / "emps" / "DATA_EMPS_PULSES.mat")
 
 
 @pytest.fixture(scope="module")

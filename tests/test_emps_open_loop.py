@@ -13,7 +13,7 @@ import pytest
 
 import fricjax as fj
 from fricjax._data._dataset import FrictionData
-from fricjax._data._emps import EMPSRecord, load_emps
+from fricjax._data._emps import EMPSRecord
 from fricjax._models._static import CoulombViscous
 from fricjax._smoothing import Smooth, exact
 from fricjax._systems._emps import EMPSPlant, emps_open_loop_rmse_mm, simulate_open_loop
@@ -135,16 +135,6 @@ def test_fit_with_a_held_out_tail(record):
 
 
 # --- real data ----------------------------------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def train(data_dir) -> EMPSRecord:
-    return load_emps(data_dir / "emps" / "DATA_EMPS.mat")
-
-
-@pytest.fixture(scope="module")
-def test_record(data_dir) -> EMPSRecord:
-    return load_emps(data_dir / "emps" / "DATA_EMPS_PULSES.mat")
 
 
 def test_reference_parameters_official_score(test_record):

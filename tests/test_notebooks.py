@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import pathlib
 
 import pytest
@@ -22,5 +21,4 @@ def test_notebook_runs_in_smoke_size(path, data_dir, monkeypatch):
     client = nbclient.NotebookClient(
         notebook, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}
     )
-    client.execute()
-    assert os.environ.get("FRICJAX_SMOKE") == "1"
+    client.execute()  # raises CellExecutionError when a cell (the final metric assertion included) fails

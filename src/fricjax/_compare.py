@@ -29,7 +29,7 @@ from ._models._lugre import LuGre
 from ._models._maxwell_slip import MaxwellSlip
 from ._models._static import BoPavelescu
 from ._simulate import simulate
-from ._smoothing import Smooth, exact, with_smoothing
+from ._smoothing import Smooth, exact
 from ._stribeck import ExponentialStribeck
 
 
@@ -222,14 +222,16 @@ class ModelScore:
     result: str
     model: Any
     prediction: np.ndarray
+    full_prediction: np.ndarray | None = None
 
 
 def score(model: Any, split: Split) -> tuple[float, float, np.ndarray]:
     """Exact-mode NMSE [%] and normalised MAX error of `model` on the test part (simulated from the record's
-    start), and its test-part prediction."""
-    prediction = np.asarray(simulate(exact(model), split.full.motion))[split.validation_end :]  # type: ignore[arg-type]
+    start), and its prediction over the whole record."""
+    full_prediction = np.asarray(simulate(exact(model), split.full.motion))  # type: ignore[arg-type]
+    prediction = full_prediction[split.validation_end :]
     measured = np.asarray(split.full.force)[split.validation_end :]
-    return float(nmse(measured, prediction)), float(max_error(measured, prediction)), prediction
+    return float(nmse(measured, prediction)), float(max_error(measured, prediction)), full_prediction
 
 
 def count_parameters(model: Any) -> int:
@@ -262,7 +264,7 @@ def fit_and_score(
         result = spec.fit(spec.build(scales), split, seed, progress)
         elapsed = time.perf_counter() - start_time
         model = result.model
-        test_nmse, test_max, prediction = score(model, split)
+        test_nmse, test_max, full_prediction = score(model, split)
         rows.append(
             ModelScore(
                 name,
@@ -273,14 +275,12 @@ def fit_and_score(
                 count_parameters(model),
                 result.result,
                 model,
-                prediction,
+                full_prediction[split.validation_end :],
+                full_prediction,
             )
         )
         log(f"  {spec.label}: test NMSE {test_nmse:.3f} %, MAX {test_max:.3f}, {elapsed:.1f} s ({result.result})")
     return rows
-
-
-__all__ = ["DataScales", "ModelScore", "default_models", "fit_and_score", "score", "with_smoothing"]
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -381,7 +381,10 @@ def add_ensembles(rows: list[ModelScore], split: Split) -> list[ModelScore]:
         return []
     members = [row.model for row in rows]
     full = split.full
-    predictions = np.stack([np.asarray(simulate(exact(m), full.motion)) for m in members])  # type: ignore[arg-type]
+    # the members' whole-record predictions were already simulated while scoring them
+    predictions = np.stack(
+        [row.full_prediction if row.full_prediction is not None else score(row.model, split)[2] for row in rows]
+    )
     val = slice(split.train_end, split.validation_end)
     test = slice(split.validation_end, full.length)
     measured = np.asarray(full.force)

@@ -327,12 +327,11 @@ def fit(
             done = 0
             while done < budget and not stop:
                 n = min(chunk, budget - done)
-                states, opt_states, bad, values = _run_chunk(solver, problem, states, opt_states, static, n)
+                states, opt_states, bad, _ = _run_chunk(solver, problem, states, opt_states, static, n)
                 done += n
                 step_count += n
                 evaluations += n
                 diverged |= np.asarray(bad)
-                values = np.asarray(values)
                 train_now, val_now = map(np.asarray, _batched_losses(problem, states, static))
                 scores = val_now if validation is not None else train_now
                 scores = np.where(np.isfinite(scores) & ~diverged, scores, np.inf)
@@ -346,7 +345,7 @@ def fit(
                     bar.set_postfix(loss=f"{np.nanmin(train_now):.3g}", val=f"{np.nanmin(val_now):.3g}")
                 if diverged.all():
                     stop, result_code = True, "diverged"
-                    message = _divergence_message(values)
+                    message = _DIVERGENCE_MESSAGE
                 elif patience is not None and validation is not None and stall >= patience:
                     stop, result_code = True, "early_stopped"
                     message = f"validation loss did not improve for {patience} evaluations (step {step_count})"
@@ -632,11 +631,10 @@ def _split(total: int, parts: int) -> list[int]:
     return base
 
 
-def _divergence_message(values: np.ndarray) -> str:
-    return (
-        "the loss or the parameters became non-finite for every start; the last good parameters were kept "
-        "(lower the learning rate, check the data scale, or start closer)"
-    )
+_DIVERGENCE_MESSAGE = (
+    "the loss or the parameters became non-finite for every start; the last good parameters were kept "
+    "(lower the learning rate, check the data scale, or start closer)"
+)
 
 
 def _progress_bar(progress: bool, steps: int, kind: str) -> Any:
