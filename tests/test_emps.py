@@ -13,20 +13,21 @@ import numpy as np
 import pytest
 import scipy.io
 
-from fricjax._data._emps import (
+from fricjax import (
+    BoPavelescu,
+    CoulombViscous,
     EMPSIDMData,
     EMPSIDMResult,
-    emps_idm_data,
-    fit_emps_idm,
-    load_emps,
-)
-from fricjax._data._preprocessing import butter_filtfilt
-from fricjax._models._static import BoPavelescu, CoulombViscous, Threlfall, Tustin
-from fricjax._smoothing import Smooth
-from fricjax._systems._emps import (
     EMPSPlant,
     EMPSSimulation,
+    Smooth,
+    Threlfall,
+    Tustin,
+    butter_filtfilt,
+    emps_idm_data,
     emps_open_loop_rmse_mm,
+    fit_emps_idm,
+    load_emps,
     simulate_closed_loop,
     simulate_open_loop,
 )

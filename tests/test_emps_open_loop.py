@@ -12,17 +12,20 @@ import numpy as np
 import pytest
 
 import fricjax as fj
-from fricjax._data._dataset import FrictionData
-from fricjax._data._emps import EMPSRecord
-from fricjax._models._static import CoulombViscous
-from fricjax._smoothing import Smooth, exact
-from fricjax._systems._emps import EMPSPlant, emps_open_loop_rmse_mm, simulate_open_loop
-from fricjax._systems._emps_fit import (
+from fricjax import (
+    CoulombViscous,
     EMPSOpenLoopFit,
     EMPSOpenLoopLoss,
+    EMPSPlant,
+    EMPSRecord,
+    FrictionData,
+    Smooth,
+    emps_open_loop_rmse_mm,
+    exact,
     fit_emps_open_loop,
     predict_emps_open_loop,
     score_emps_open_loop,
+    simulate_open_loop,
     split_emps_record,
 )
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import fricjax as fj
-from fricjax._models._ensemble import AverageEnsemble, WeightedEnsemble, select_forward
+from fricjax import AverageEnsemble, WeightedEnsemble, select_forward
 
 DT = 1e-3
 N_SAMPLES = 1200

@@ -20,7 +20,7 @@ import optimistix as optx
 import pytest
 
 import fricjax as fj
-from fricjax._fitting._fit import _draw_starts
+from fricjax._estimation._fit import _draw_starts
 from fricjax._simulate import motion_samples
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -7,14 +7,7 @@ import numpy as np
 import pytest
 import scipy.signal as ss
 
-from fricjax._data._preprocessing import (
-    Normaliser,
-    butter_filtfilt,
-    central_difference,
-    decimate,
-    detrend_linear,
-    normalise,
-)
+from fricjax import Normaliser, butter_filtfilt, central_difference, decimate, detrend_linear, normalise
 
 DT = 1e-3
 

@@ -11,9 +11,14 @@ import pytest
 import scipy.signal as ss
 
 import fricjax as fj
-from fricjax._data._differentiators import al_alaoui_coefficients, al_alaoui_derivative
-from fricjax._data._tribometer import TribometerData, default_tribometer_model, make_tribometer
-from fricjax._motion import MotionSample
+from fricjax import (
+    MotionSample,
+    TribometerData,
+    al_alaoui_coefficients,
+    al_alaoui_derivative,
+    default_tribometer_model,
+    make_tribometer,
+)
 
 REGIMES = ("presliding", "mixed", "sliding")
 

@@ -249,7 +249,7 @@ def _compare_emps(out: pathlib.Path, args: argparse.Namespace) -> int:
 
 
 def _check_writable(out: pathlib.Path) -> None:
-    from ._compare import CompareError
+    from ._protocols._compare import CompareError
 
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -323,7 +323,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from ._compare import CompareError
+    from ._protocols._compare import CompareError
 
     if args.command == "demo":
         out = pathlib.Path(args.out)

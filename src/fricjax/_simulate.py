@@ -10,8 +10,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ._constraints import unwrap
+from ._inputs import Motion, MotionSample, position_from_velocity, velocity_from_position
 from ._models._base import AbstractFrictionModel
-from ._motion import Motion, MotionSample, position_from_velocity, velocity_from_position
 
 # Loop unrolling of the scan: measured by benchmarks/simulate.py on the 2-core CPU (see benchmarks/README.md).
 DEFAULT_UNROLL = 2

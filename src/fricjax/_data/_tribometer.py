@@ -23,16 +23,16 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._constraints import unwrap
+from .._inputs import Motion, MotionSample
 from .._models._base import AbstractFrictionModel
-from .._models._dahl import Dahl
-from .._models._gms import GMS
-from .._models._lugre import LuGre
-from .._models._maxwell_slip import MaxwellSlip, SpringForces
-from .._motion import Motion, MotionSample
+from .._models.physics._dahl import Dahl
+from .._models.physics._gms import GMS
+from .._models.physics._lugre import LuGre
+from .._models.physics._maxwell_slip import MaxwellSlip, SpringForces
+from .._models.physics._stribeck import ExponentialStribeck
 from .._simulate import motion_samples, simulate
-from .._stribeck import ExponentialStribeck
-from ._dataset import FrictionData
 from ._differentiators import al_alaoui_derivative
+from ._record import FrictionData
 
 # ---------------------------------------------------------------------------------------------------------------
 # Regimes and the excitation

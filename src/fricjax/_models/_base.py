@@ -8,7 +8,7 @@ from typing import Any, ClassVar
 import equinox as eqx
 from jaxtyping import Array
 
-from .._motion import MotionSample
+from .._inputs import MotionSample
 
 
 class AbstractFrictionModel(eqx.Module):

@@ -43,7 +43,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._constraints import ParamLike, as_float_array, model_dtype, positive, real, unwrap
-from .._models._static import AbstractStaticFriction
+from .._models.physics._static import AbstractStaticFriction
 from .._smoothing import is_concrete
 
 

@@ -19,11 +19,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._constraints import Fixed, ParamLike, as_float_array, model_dtype, positive, real, unwrap
-from .._motion import MotionSample
-from .._smoothing import AbstractSmoothing, Exact, is_concrete
-from .._stribeck import abs_pow
-from ._base import AbstractFrictionModel
+from ..._constraints import Fixed, ParamLike, as_float_array, model_dtype, positive, real, unwrap
+from ..._inputs import MotionSample
+from ..._smoothing import AbstractSmoothing, Exact, is_concrete
+from .._base import AbstractFrictionModel
+from ._stribeck import abs_pow
 
 
 def _coefficient(value: ParamLike, name: str, *, is_positive: bool, dtype: Any = None) -> Any:

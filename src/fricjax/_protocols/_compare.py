@@ -20,17 +20,17 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from ._data._dataset import FrictionData
-from ._fitting._fit import Continuation, MultiStart, fit, levenberg_marquardt
-from ._fitting._result import FitResult
-from ._metrics import max_error, nmse
-from ._models._gms import GMS
-from ._models._lugre import LuGre
-from ._models._maxwell_slip import MaxwellSlip
-from ._models._static import BoPavelescu
-from ._simulate import simulate
-from ._smoothing import Smooth, exact
-from ._stribeck import ExponentialStribeck
+from .._data._record import FrictionData
+from .._estimation._fit import Continuation, MultiStart, fit, levenberg_marquardt
+from .._estimation._result import FitResult
+from .._metrics import max_error, nmse
+from .._models.physics._gms import GMS
+from .._models.physics._lugre import LuGre
+from .._models.physics._maxwell_slip import MaxwellSlip
+from .._models.physics._static import BoPavelescu
+from .._models.physics._stribeck import ExponentialStribeck
+from .._simulate import simulate
+from .._smoothing import Smooth, exact
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,7 +52,7 @@ class DataScales:
 
     @classmethod
     def from_data(cls, data: FrictionData) -> DataScales:
-        from ._simulate import motion_samples
+        from .._simulate import motion_samples
 
         samples = motion_samples(data.motion)
         x, v = np.asarray(samples.x), np.asarray(samples.v)
@@ -238,7 +238,7 @@ def count_parameters(model: Any) -> int:
     import equinox as eqx
     import jax
 
-    from ._constraints import trainable_filter
+    from .._constraints import trainable_filter
 
     params = eqx.filter(model, trainable_filter(model))
     return int(sum(np.size(leaf) for leaf in jax.tree_util.tree_leaves(params)))
@@ -297,7 +297,7 @@ def load_split(spec: str, *, seed: int = 0) -> tuple[Split, dict[str, Any], Any]
     `v`, and `force`. **Returns:** `(split, data card, true model or None)`."""
     import pathlib
 
-    from ._data._tribometer import make_tribometer
+    from .._data._tribometer import make_tribometer
 
     if spec.startswith("tribometer"):
         regime = spec.split(":", 1)[1] if ":" in spec else "mixed"
@@ -337,7 +337,7 @@ def _read_columns(path: Any) -> dict[str, np.ndarray]:
 
 
 def _record_from_columns(columns: dict[str, np.ndarray], path: Any) -> FrictionData:
-    from ._motion import Motion
+    from .._inputs import Motion
 
     if "force" not in columns:
         raise CompareError(f"--data {path}: missing column 'force' (found: {', '.join(sorted(columns))})")
@@ -375,7 +375,7 @@ def _record_from_columns(columns: dict[str, np.ndarray], path: Any) -> FrictionD
 def add_ensembles(rows: list[ModelScore], split: Split) -> list[ModelScore]:
     """Average and least-squares-weighted ensembles (weights with intercept fitted on the validation part,
     parlitz2004 §IV-H, emps-ensemble §3.3), and the PRESS forward selection of worden2007 §7."""
-    from ._models._ensemble import AverageEnsemble, WeightedEnsemble, select_forward
+    from .._models.combine._ensemble import AverageEnsemble, WeightedEnsemble, select_forward
 
     if len(rows) < 2:
         return []

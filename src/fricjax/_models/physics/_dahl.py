@@ -8,10 +8,10 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .._constraints import ParamLike, model_dtype, positive, real, unwrap
-from .._motion import MotionSample
-from .._smoothing import AbstractSmoothing, Exact
-from ._base import AbstractFrictionModel
+from ..._constraints import ParamLike, model_dtype, positive, real, unwrap
+from ..._inputs import MotionSample
+from ..._smoothing import AbstractSmoothing, Exact
+from .._base import AbstractFrictionModel
 
 
 class DahlState(eqx.Module):

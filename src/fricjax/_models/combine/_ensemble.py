@@ -26,12 +26,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._constraints import as_float_array, model_dtype, real, unwrap
-from .._data._dataset import FrictionData
-from .._motion import Motion, MotionSample
-from .._simulate import simulate
-from .._smoothing import is_concrete
-from ._base import AbstractFrictionModel
+from ..._constraints import as_float_array, model_dtype, real, unwrap
+from ..._data._record import FrictionData
+from ..._inputs import Motion, MotionSample
+from ..._simulate import simulate
+from ..._smoothing import is_concrete
+from .._base import AbstractFrictionModel
 
 
 def _as_members(members: Any, where: str) -> tuple[AbstractFrictionModel, ...]:

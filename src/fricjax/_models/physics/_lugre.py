@@ -10,11 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._constraints import ParamLike, model_dtype, positive, real, unwrap
-from .._motion import MotionSample
-from .._smoothing import AbstractSmoothing, Exact, is_concrete
-from .._stribeck import AbstractStribeck
-from ._base import AbstractFrictionModel
+from ..._constraints import ParamLike, model_dtype, positive, real, unwrap
+from ..._inputs import MotionSample
+from ..._smoothing import AbstractSmoothing, Exact, is_concrete
+from .._base import AbstractFrictionModel
+from ._stribeck import AbstractStribeck
 
 
 def phi1(h: Array) -> Array:

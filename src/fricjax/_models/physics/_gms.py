@@ -10,12 +10,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._constraints import ParamLike, Simplex, as_float_array, model_dtype, positive, real, unwrap
-from .._motion import MotionSample
-from .._smoothing import AbstractSmoothing, Exact, is_concrete
-from .._stribeck import AbstractStribeck
-from ._base import AbstractFrictionModel
+from ..._constraints import ParamLike, Simplex, as_float_array, model_dtype, positive, real, unwrap
+from ..._inputs import MotionSample
+from ..._smoothing import AbstractSmoothing, Exact, is_concrete
+from .._base import AbstractFrictionModel
 from ._lugre import relax
+from ._stribeck import AbstractStribeck
 
 
 class GMSState(eqx.Module):

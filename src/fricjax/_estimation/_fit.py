@@ -23,7 +23,7 @@ import optax
 import optimistix as optx
 
 from .._constraints import AbstractUnwrappable, Fixed, Positive, trainable_filter, unwrap
-from .._data._dataset import FrictionData
+from .._data._record import FrictionData
 from .._simulate import motion_samples, scan_samples
 from .._smoothing import Smooth, exact, with_smoothing
 from ._losses import AbstractLoss, SimulationLoss

@@ -16,8 +16,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._constraints import unwrap
-from .._data._dataset import FrictionData
-from .._motion import MotionSample
+from .._data._record import FrictionData
+from .._inputs import MotionSample
 from .._simulate import motion_samples, scan_samples
 
 

@@ -9,7 +9,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._constraints import as_float_array
-from .._motion import Motion
+from .._inputs import Motion
 from .._smoothing import is_concrete
 
 

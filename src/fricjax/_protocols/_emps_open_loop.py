@@ -42,13 +42,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._data._emps import EMPSIDMResult, EMPSRecord, fit_emps_idm
-from .._fitting._fit import Continuation, fit, levenberg_marquardt
-from .._fitting._losses import AbstractLoss
-from .._fitting._result import FitResult
-from .._models._static import AbstractStaticFriction, CoulombViscous
+from .._data._emps import EMPSRecord
+from .._estimation._fit import Continuation, fit, levenberg_marquardt
+from .._estimation._losses import AbstractLoss
+from .._estimation._result import FitResult
+from .._models.physics._static import AbstractStaticFriction, CoulombViscous
 from .._smoothing import Smooth, with_smoothing
-from ._emps import EMPSPlant, EMPSSimulation, _open_loop, emps_open_loop_rmse_mm
+from .._systems._emps import EMPSPlant, EMPSSimulation, _open_loop, emps_open_loop_rmse_mm
+from ._emps_idm import EMPSIDMResult, fit_emps_idm
 
 INIT_WINDOW = 20
 """Samples of the official state-initialisation window (`nonlinear_benchmarks.EMPS`)."""

@@ -9,7 +9,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from ._constraints import ParamLike, model_dtype, positive, unwrap
+from ..._constraints import ParamLike, model_dtype, positive, unwrap
 
 
 def abs_pow(u: ArrayLike, p: ArrayLike) -> Array:

@@ -14,10 +14,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._constraints import Fixed, ParamLike, as_float_array, model_dtype, positive, real, unwrap
-from .._motion import MotionSample
-from .._smoothing import AbstractSmoothing, Exact
-from ._base import AbstractFrictionModel
+from ..._constraints import Fixed, ParamLike, as_float_array, model_dtype, positive, real, unwrap
+from ..._inputs import MotionSample
+from ..._smoothing import AbstractSmoothing, Exact
+from .._base import AbstractFrictionModel
 
 
 class MaxwellSlipState(eqx.Module):

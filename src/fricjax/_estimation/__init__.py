@@ -1,0 +1,1 @@
+"""Estimation: the fit driver, losses, strategies, least squares / selection / covariance, results, model files."""

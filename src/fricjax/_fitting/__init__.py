@@ -1,1 +1,0 @@
-"""Fitting: losses, the `fit` driver, separable least squares, multi-start, continuation, results."""

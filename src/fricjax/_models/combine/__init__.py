@@ -1,0 +1,1 @@
+"""Models built from other models: ensembles (and grey-box + black-box hybrids)."""

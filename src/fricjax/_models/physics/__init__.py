@@ -1,0 +1,1 @@
+"""Physics-based (grey-box) friction models: Stribeck curves, static laws, Dahl, LuGre, GMS, Maxwell-slip."""
