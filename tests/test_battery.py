@@ -43,11 +43,11 @@ def test_shape_dtype_finite(name, mode):
 def test_step_loop_equals_simulate_and_no_jit(name):
     model = smooth(name, MODELS[name])
     motion = presliding_to_sliding(60)
-    samples = fj._simulate.motion_samples(motion)
+    samples = motion.samples(model.requires)
     state = model.init_state()
     forces = []
     for k in range(motion.length):
-        sample = fj.MotionSample(x=samples.x[k], v=samples.v[k], dx=samples.dx[k], dt=samples.dt)
+        sample = jax.tree_util.tree_map(lambda a, k=k: a[k], samples)
         state, force = model.step(state, sample)
         forces.append(force)
     scan_force = fj.simulate(model, motion)

@@ -83,11 +83,11 @@ def test_weighted_simulate_equals_combination_and_step_loop(setup):
     force = fj.simulate(ensemble, motion)
     np.testing.assert_allclose(force, expected, rtol=1e-12, atol=1e-13)
     # the state is the tuple of the members' states; a Python loop over `step` gives the scan's result
-    samples = fj._simulate.motion_samples(motion)
+    samples = motion.samples(ensemble.requires)
     step = eqx.filter_jit(ensemble.step)  # one compile instead of 50 eager steps
     state, looped = ensemble.init_state(), []
     for k in range(50):
-        sample = fj.MotionSample(x=samples.x[k], v=samples.v[k], dx=samples.dx[k], dt=samples.dt)
+        sample = jax.tree_util.tree_map(lambda a, k=k: a[k], samples)
         state, f = step(state, sample)
         looped.append(f)
     assert len(state) == len(members)

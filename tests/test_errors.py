@@ -75,7 +75,7 @@ def test_invalid_parameters(build, match):
 
 def test_wrong_types():
     motion = fj.Motion.from_position(X, dt=1e-3)
-    with pytest.raises(TypeError, match="friction model"):
+    with pytest.raises(TypeError, match="must be a fricjax model"):
         fj.simulate("lugre", motion)
     with pytest.raises(TypeError, match="fricjax.Motion"):
         fj.simulate(fj.Coulomb(1.0), X)

@@ -21,7 +21,6 @@ import pytest
 
 import fricjax as fj
 from fricjax._estimation._fit import _draw_starts
-from fricjax._simulate import motion_samples
 
 # ----------------------------------------------------------------------------------------------------------------
 # shared problems
@@ -78,14 +77,12 @@ def tree_finite(tree: Any) -> bool:
 def state_trajectory(model: Any, motion: fj.Motion) -> Any:
     """The state after every sample, from a scan of `model.step` written here (independent of the losses)."""
     model = fj.unwrap(model)
-    samples = motion_samples(motion)
 
-    def body(state: Any, xs: Any) -> Any:
-        x, v, dx = xs
-        state, _ = model.step(state, fj.MotionSample(x=x, v=v, dx=dx, dt=samples.dt))
+    def body(state: Any, sample: Any) -> Any:
+        state, _ = model.step(state, sample)
         return state, state
 
-    _, states = jax.lax.scan(body, model.init_state(), (samples.x, samples.v, samples.dx))
+    _, states = jax.lax.scan(body, model.init_state(), motion.samples(model.requires))
     return states
 
 
@@ -116,7 +113,7 @@ def least_squares_values(model: Any, paths: list[str], data: fj.FrictionData) ->
 
 
 class ARX(fj.AbstractFrictionModel):
-    """A toy first-order ARX friction model, `F_k = a F_{k-1} + b v_k`, with a one-step predictor."""
+    """A toy first-order ARX friction model, `F_k = a F_{k-1} + b v_k`, feeding back its output."""
 
     a: jax.Array
     b: Any  # positive, stored through fj.Positive
@@ -135,10 +132,8 @@ class ARX(fj.AbstractFrictionModel):
         force = p.a * state + p.b * sample.v
         return force, force
 
-    def predict_one_step(self, motion: fj.Motion, force: jax.Array) -> jax.Array:
-        p = fj.unwrap(self)
-        past = jnp.concatenate([jnp.zeros_like(force[:1]), force[:-1]])
-        return p.a * past + p.b * motion.v
+    def feedback(self, state: jax.Array, y_measured: jax.Array) -> jax.Array:
+        return y_measured  # the state is the past output: teacher forcing replaces it by the measurement
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -206,10 +201,10 @@ def test_multiple_shooting_loss_rejects_bad_segments(lugre_problem):
         loss.residuals(model, None, data)
 
 
-def test_one_step_loss_needs_predict_one_step():
-    with pytest.raises(TypeError, match="predict_one_step"):
+def test_one_step_loss_needs_feedback():
+    with pytest.raises(TypeError, match="feeds back no outputs"):
         fj.OneStepLoss().residuals(TRUTH, None, DATA)
-    with pytest.raises(TypeError, match="CoulombViscous has no `predict_one_step`"):
+    with pytest.raises(TypeError, match="CoulombViscous feeds back no outputs"):
         fj.fit(START, DATA, loss=fj.OneStepLoss(), steps=1)
 
 

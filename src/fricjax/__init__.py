@@ -11,6 +11,7 @@ from ._constraints import Positive as Positive
 from ._constraints import Simplex as Simplex
 from ._constraints import trainable_filter as trainable_filter
 from ._constraints import unwrap as unwrap
+from ._inputs import InputRecord as InputRecord
 from ._inputs import Motion as Motion
 from ._inputs import MotionSample as MotionSample
 from ._metrics import fit_percent as fit_percent
@@ -20,6 +21,8 @@ from ._metrics import nrmse as nrmse
 from ._metrics import relative_error as relative_error
 from ._metrics import rmse as rmse
 from ._models._base import AbstractFrictionModel as AbstractFrictionModel
+from ._models._base import AbstractModel as AbstractModel
+from ._models._base import AbstractSystem as AbstractSystem
 from ._models.physics._dahl import Dahl as Dahl
 from ._models.physics._dahl import DahlState as DahlState
 from ._models.physics._gms import GMS as GMS
@@ -97,6 +100,8 @@ from ._protocols._emps_open_loop import fit_emps_open_loop as fit_emps_open_loop
 from ._protocols._emps_open_loop import predict_emps_open_loop as predict_emps_open_loop
 from ._protocols._emps_open_loop import score_emps_open_loop as score_emps_open_loop
 from ._protocols._emps_open_loop import split_emps_record as split_emps_record
+from ._systems._emps import EMPSClosedLoop as EMPSClosedLoop
+from ._systems._emps import EMPSOpenLoop as EMPSOpenLoop
 from ._systems._emps import EMPSPlant as EMPSPlant
 from ._systems._emps import EMPSSimulation as EMPSSimulation
 from ._systems._emps import emps_open_loop_rmse_mm as emps_open_loop_rmse_mm

@@ -122,7 +122,7 @@ def run_compare(args: argparse.Namespace) -> int:
 
     import fricjax as fj
 
-    from . import _compare as cmp
+    from ._protocols import _compare as cmp
 
     out = pathlib.Path(args.out)
     unknown = [m for m in args.models if m not in MODEL_NAMES]
@@ -202,7 +202,7 @@ def _compare_emps(out: pathlib.Path, args: argparse.Namespace) -> int:
 
     import fricjax as fj
 
-    from . import _compare as cmp
+    from ._protocols import _compare as cmp
 
     root = pathlib.Path(os.environ.get("FRICJAX_DATA", pathlib.Path.cwd().parent / "shared" / "data")) / "emps"
     train_path, test_path = root / "DATA_EMPS.mat", root / "DATA_EMPS_PULSES.mat"

@@ -1,4 +1,5 @@
-"""`Motion`: a record of displacement and/or velocity with its sample time, and the per-step sample."""
+"""Model inputs: `Motion` (displacement, velocity, acceleration, normal load, sample time), `InputRecord` (the
+input signals of a system model), the per-step samples a model's `step` sees, and the derived signals."""
 
 from __future__ import annotations
 
@@ -14,19 +15,25 @@ from ._smoothing import is_concrete
 
 
 class MotionSample(NamedTuple):
-    """What a model's `step` sees at sample k (all scalars).
+    """What a friction model's `step` sees at sample k (all scalars).
 
     `x` displacement [m]; `v` the velocity at t_k [m/s]; `dx = x_k - x_{k-1}` the displacement increment over
     the step [m] (`dx_0 = 0`); `dt` the sample time [s]. The dynamic models integrate over the step
     `(t_{k-1}, t_k]` with the velocity held at the step's mean `dx / dt` (so a record given as velocity, whose
     displacement is built by zero-order hold, integrates `v_k` itself); `v` enters instantaneous terms
-    (viscous friction, static curves).
+    (viscous friction, static curves). `a` acceleration [m/s^2] and `normal_force` [N] are present (not `None`)
+    only for models that declare them in `requires` ("a", "normal_force").
+
+    Stacked along time (every field of shape `(T,)`, `dt` broadcast) it is what `simulate` scans over:
+    `Motion.samples(requires)`.
     """
 
     x: Array
     v: Array
     dx: Array
     dt: Array
+    a: Array | None = None
+    normal_force: Array | None = None
 
 
 class Motion(eqx.Module):
@@ -41,6 +48,8 @@ class Motion(eqx.Module):
     - `x`: displacement [m], or `None`.
     - `v`: velocity [m/s], or `None`.
     - `dt`: sample time [s], or `None` when only a static velocity curve will be evaluated.
+    - `a`: acceleration [m/s^2], or `None` (derived from `v` by central differences for models that need it).
+    - `normal_force`: normal load [N], or `None` (required by models that declare it).
 
     ```python
     >>> import numpy as np, fricjax as fj
@@ -53,17 +62,31 @@ class Motion(eqx.Module):
     x: Float[Array, "... T"] | None
     v: Float[Array, "... T"] | None
     dt: Float[Array, ""] | None
+    a: Float[Array, "... T"] | None
+    normal_force: Float[Array, "... T"] | None
 
-    def __init__(self, x: ArrayLike | None = None, v: ArrayLike | None = None, dt: ArrayLike | None = None):
+    def __init__(
+        self,
+        x: ArrayLike | None = None,
+        v: ArrayLike | None = None,
+        dt: ArrayLike | None = None,
+        a: ArrayLike | None = None,
+        normal_force: ArrayLike | None = None,
+    ):
         if x is None and v is None:
             raise ValueError("Motion: give at least one of `x` (displacement, m) or `v` (velocity, m/s).")
         self.x = None if x is None else _as_signal(x, "x")
         self.v = None if v is None else _as_signal(v, "v")
-        if self.x is not None and self.v is not None and self.x.shape != self.v.shape:
-            raise ValueError(
-                f"Motion: `x` and `v` must have the same shape, got {self.x.shape} and {self.v.shape}; "
-                "trim or resample one of them."
-            )
+        self.a = None if a is None else _as_signal(a, "a")
+        self.normal_force = None if normal_force is None else _as_signal(normal_force, "normal_force")
+        shape = (self.x if self.x is not None else self.v).shape  # type: ignore[union-attr]
+        for name in ("x", "v", "a", "normal_force"):
+            signal = getattr(self, name)
+            if signal is not None and signal.shape != shape:
+                raise ValueError(
+                    f"Motion: every signal must have the same shape; `{name}` has {signal.shape}, the record "
+                    f"{shape}. Trim or resample it."
+                )
         if dt is None:
             self.dt = None
         else:
@@ -83,6 +106,37 @@ class Motion(eqx.Module):
         signal = self.x if self.x is not None else self.v
         return int(signal.shape[-1])  # type: ignore[union-attr]
 
+    def samples(self, requires: frozenset[str] | tuple[str, ...] = ()) -> MotionSample:
+        """The per-step signals along time: a `MotionSample` whose fields have shape `(..., T)` (`dt` broadcast).
+
+        Missing signals are derived once, before any scan: `v` from `x` by central differences, `x` from `v`
+        by zero-order hold, `a` from `v` by central differences (only when `"a"` is in `requires`);
+        `normal_force` is included when `"normal_force"` is in `requires` (it cannot be derived).
+        """
+        dt = self.dt
+        x, v = self.x, self.v
+        if v is None:
+            assert x is not None  # __init__ guarantees one of the two
+            v = velocity_from_position(x, dt) if dt is not None else jnp.zeros_like(x)
+        if x is None:
+            x = position_from_velocity(v, dt) if dt is not None else jnp.zeros_like(v)
+        dx = jnp.diff(x, axis=-1, prepend=x[..., :1])
+        dt_steps = jnp.broadcast_to(jnp.ones((), x.dtype) if dt is None else dt[..., None], x.shape)
+        a = None
+        if "a" in requires:
+            if self.a is not None:
+                a = self.a
+            elif dt is not None:
+                a = velocity_from_position(v, dt)
+            else:
+                raise ValueError("Motion: the model needs the acceleration `a`; pass Motion(a=...) or `dt`.")
+        normal_force = None
+        if "normal_force" in requires:
+            if self.normal_force is None:
+                raise ValueError("Motion: the model needs the normal load; pass Motion(..., normal_force=...) [N].")
+            normal_force = self.normal_force
+        return MotionSample(x=x, v=v, dx=dx, dt=dt_steps, a=a, normal_force=normal_force)
+
     @classmethod
     def from_position(cls, x: ArrayLike, dt: ArrayLike) -> Motion:
         """Build a motion from displacement; `v` by central differences (one-sided at the ends)."""
@@ -99,7 +153,7 @@ class Motion(eqx.Module):
 def velocity_from_position(x: Array, dt: Array) -> Array:
     """Central differences (second order inside, first order at the two ends) along the last axis."""
     if x.shape[-1] < 2:
-        raise ValueError("Motion: need at least 2 samples of `x` to differentiate it.")
+        raise ValueError("Motion: need at least 2 samples to differentiate a signal.")
     return jnp.asarray(jnp.gradient(x, axis=-1)) / dt
 
 
@@ -121,3 +175,42 @@ def _as_signal(value: ArrayLike, name: str) -> Array:
             f"Motion: `{name}` contains NaN or inf (first at flat index {bad}); clean or interpolate the record."
         )
     return array
+
+
+class InputRecord(eqx.Module):
+    """The input signals of a system model (a plant with its controller): named signals of shape `(T,)` and the
+    sample time `dt` [s]. `simulate` scans over them as a dict `{name: value_k, ..., "dt": dt}`.
+
+    ```python
+    >>> import numpy as np, fricjax as fj
+    >>> record = fj.InputRecord(dt=1e-3, vir=np.zeros(100))
+    >>> record.length
+    100
+    ```
+    """
+
+    signals: dict[str, Array]
+    dt: Array
+
+    def __init__(self, dt: ArrayLike, **signals: ArrayLike):
+        if not signals:
+            raise ValueError("InputRecord: give at least one named signal, e.g. InputRecord(dt=1e-3, vir=...).")
+        arrays = {name: _as_signal(value, name) for name, value in signals.items()}
+        shapes = {array.shape for array in arrays.values()}
+        if len(shapes) != 1:
+            raise ValueError(f"InputRecord: every signal must have the same shape, got {sorted(shapes)}.")
+        self.signals = arrays
+        dtype = next(iter(arrays.values())).dtype
+        self.dt = jnp.asarray(dt, dtype)
+        if is_concrete(self.dt) and not (self.dt.ndim == 0 and float(self.dt) > 0 and np.isfinite(float(self.dt))):
+            raise ValueError(f"InputRecord: `dt` must be a positive, finite scalar sample time in seconds, got {dt!r}.")
+
+    @property
+    def length(self) -> int:
+        """Number of samples T."""
+        return int(next(iter(self.signals.values())).shape[-1])
+
+    def samples(self) -> dict[str, Array]:
+        """The per-step signals, each `(..., T)`, with `dt` broadcast to the same shape."""
+        first = next(iter(self.signals.values()))
+        return {**self.signals, "dt": jnp.broadcast_to(self.dt[..., None], first.shape)}

@@ -1,4 +1,9 @@
-"""`simulate`: the one driver that runs any friction model over a motion record as a `lax.scan`."""
+"""`simulate`: the one driver that runs any fricjax model over an input record as a `lax.scan`.
+
+Free run (simulation, "NOE"), one-step-ahead prediction (teacher forcing through the model's `feedback`) and
+k-step-ahead prediction all go through `run`, the only scan over time for models in the package: losses,
+ensembles, systems, data generators and protocols call `simulate` or `run`, never a scan of their own.
+"""
 
 from __future__ import annotations
 
@@ -7,34 +12,50 @@ from typing import Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+import numpy as np
 
 from ._constraints import unwrap
-from ._inputs import Motion, MotionSample, position_from_velocity, velocity_from_position
-from ._models._base import AbstractFrictionModel
+from ._models._base import AbstractModel
 
 # Loop unrolling of the scan: measured by benchmarks/simulate.py on the 2-core CPU (see benchmarks/README.md).
 DEFAULT_UNROLL = 2
 
 
 def simulate(
-    model: AbstractFrictionModel, motion: Motion, state0: Any = None, *, unroll: int = DEFAULT_UNROLL
-) -> Float[Array, "T"]:
-    """Simulate the friction force [N] of `model` along `motion`: one jit-compiled `lax.scan`.
+    model: AbstractModel,
+    inputs: Any,
+    state0: Any = None,
+    *,
+    measured: Any = None,
+    horizon: int | None = None,
+    unroll: int = DEFAULT_UNROLL,
+) -> Any:
+    """Run `model` along `inputs`: one jit-compiled `lax.scan` over time.
 
-    Works under `jax.vmap` / `eqx.filter_vmap` over batches of models (parameter sets) and of motions, and is
-    differentiable with respect to every parameter. Structure is checked on every call; values (NaN, `dt`) are
-    checked when `Motion` is built.
+    Three modes (the vocabulary of system identification):
+
+    - free run (default): the model runs on its own outputs from `state0`: simulation, output error (NOE);
+    - one-step-ahead (`measured=y`): after each step the model's fed-back output is replaced by the measured
+      one (`model.feedback(state, y_k)`), so sample k is predicted from measurements up to k-1;
+    - k-step-ahead (`measured=y, horizon=k`): each sample t is predicted by a free run of k steps from the
+      teacher-forced state at t-k (the first k-1 samples by the free run from `state0`). `horizon=1` is the
+      one-step prediction.
+
+    For a model without fed-back outputs (every physics model) the three modes coincide. Works under
+    `jax.vmap` / `eqx.filter_vmap` over batches of models and of inputs, and is differentiable with respect to
+    every parameter. Structure is checked on every call; values (NaN, `dt`) when the inputs are built.
 
     **Arguments:**
 
-    - `model`: any fricjax friction model (`LuGre`, `GMS`, `MaxwellSlip`, `Dahl`, a static curve, ...).
-    - `motion`: a `Motion`; the signals the model needs are derived when missing (velocity from displacement by
-      central differences, displacement from velocity under zero-order hold, both need `motion.dt`).
+    - `model`: any fricjax model (`LuGre`, `GMS`, `MaxwellSlip`, an ensemble, a system, your own).
+    - `inputs`: a `Motion` for friction models (signals the model needs are derived when missing), an
+      `InputRecord` for systems.
     - `state0`: the initial state; `None` means `model.init_state()` (at rest).
+    - `measured`: the measured outputs, shaped like the output (for a friction model the force, `(T,)`).
+    - `horizon`: prediction horizon k >= 1 (needs `measured`).
     - `unroll`: scan unrolling (performance only).
 
-    **Returns:** the friction force, shape `(T,)`.
+    **Returns:** the outputs along time: the friction force `(T,)` for friction models.
 
     ```python
     >>> import numpy as np, fricjax as fj
@@ -44,74 +65,85 @@ def simulate(
     (500,)
     ```
     """
-    _check_structure(model, motion)
-    return _simulate(model, motion, state0, unroll)
-
-
-def _check_structure(model: Any, motion: Any) -> None:
-    if not isinstance(model, AbstractFrictionModel):
-        raise TypeError(f"simulate: `model` must be a fricjax friction model, got {type(model).__name__}.")
-    if not isinstance(motion, Motion):
+    if not isinstance(model, AbstractModel):
         raise TypeError(
-            f"simulate: `motion` must be a fricjax.Motion, got {type(motion).__name__}; "
-            "wrap your arrays as fj.Motion(x=..., v=..., dt=...)."
+            f"simulate: `model` must be a fricjax model (an fj.AbstractModel: fj.LuGre, fj.GMS, ...), "
+            f"got {type(model).__name__}."
         )
-    name = type(model).__name__
-    needs = model.requires
-    if "dt" in needs and motion.dt is None:
-        raise ValueError(f"simulate: {name} integrates in time and needs the sample time; pass Motion(..., dt=...).")
-    if "x" in needs and motion.x is None and motion.dt is None:
-        raise ValueError(
-            f"simulate: {name} needs the displacement `x`; the motion has only `v` and no `dt` to integrate it. "
-            "Pass Motion(x=...) or Motion(v=..., dt=...)."
-        )
-    if "v" in needs and motion.v is None and motion.dt is None:
-        raise ValueError(
-            f"simulate: {name} needs the velocity `v`; the motion has only `x` and no `dt` to differentiate it. "
-            "Pass Motion(v=...) or Motion(x=..., dt=...)."
-        )
-
-
-def motion_samples(motion: Motion) -> MotionSample:
-    """The per-step signals (x, v, dx) of `motion`, shape `(..., T)` each, deriving what is missing."""
-    dt = motion.dt
-    x, v = motion.x, motion.v
-    if v is None:
-        assert x is not None  # Motion guarantees one of the two
-        v = velocity_from_position(x, dt) if dt is not None else jnp.zeros_like(x)
-    if x is None:
-        x = position_from_velocity(v, dt) if dt is not None else jnp.zeros_like(v)
-    dx = jnp.diff(x, axis=-1, prepend=x[..., :1])
-    dt_array = jnp.ones((), x.dtype) if dt is None else dt
-    return MotionSample(x=x, v=v, dx=dx, dt=dt_array)
-
-
-def scan_samples(
-    model: AbstractFrictionModel, samples: MotionSample, state: Any, unroll: int = DEFAULT_UNROLL
-) -> tuple[Any, Array]:
-    """Run `model.step` over per-step signals `samples` (x, v, dx of shape (T,), scalar dt) from `state`.
-
-    The building block of `simulate`, of the fitting losses (multiple-shooting segments) and of the system
-    simulators; `model` must be unwrapped (`fj.unwrap`). **Returns:** `(final_state, force (T,))`.
-    """
-    dt = samples.dt
-
-    def body(carry: Any, xs: tuple[Array, Array, Array]) -> tuple[Any, Array]:
-        x, v, dx = xs
-        return model.step(carry, MotionSample(x=x, v=v, dx=dx, dt=dt))
-
-    return jax.lax.scan(body, state, (samples.x, samples.v, samples.dx), unroll=unroll)
+    model.check_inputs(inputs)
+    if horizon is not None:
+        if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
+            raise ValueError(f"simulate: `horizon` must be an integer >= 1 (steps ahead), got {horizon!r}.")
+        if measured is None:
+            raise ValueError("simulate: `horizon` needs the measured outputs: pass `measured=` (teacher forcing).")
+        horizon = int(horizon)
+    return _simulate(model, inputs, state0, measured, horizon, unroll)
 
 
 @eqx.filter_jit
-def _simulate(model: AbstractFrictionModel, motion: Motion, state0: Any, unroll: int) -> Array:
+def _simulate(model: AbstractModel, inputs: Any, state0: Any, measured: Any, horizon: int | None, unroll: int) -> Any:
     model = unwrap(model)
-    samples = motion_samples(motion)
-    if samples.x.ndim != 1:
-        raise ValueError(
-            f"simulate: the motion's signals must have shape (T,), got {samples.x.shape}; "
-            "for a batch of motions use jax.vmap(lambda m: fj.simulate(model, m))(motions)."
-        )
+    samples = model.samples(inputs)
+    length = _length(samples)
+    if measured is not None:
+        measured = jax.tree_util.tree_map(jnp.asarray, measured)
+        for leaf in jax.tree_util.tree_leaves(measured):
+            if leaf.shape[:1] != (length,):
+                raise ValueError(
+                    f"simulate: `measured` must have one value per sample ({length}), got shape {leaf.shape}."
+                )
     state = model.init_state() if state0 is None else state0
-    _, force = scan_samples(model, samples, state, unroll)
-    return force
+    if horizon is None or horizon == 1:
+        _, outputs = run(model, samples, state, measured, unroll=unroll)
+        return outputs
+    return _k_step(model, samples, state, measured, min(horizon, length), unroll)
+
+
+def run(
+    model: AbstractModel,
+    samples: Any,
+    state: Any,
+    measured: Any = None,
+    *,
+    unroll: int = DEFAULT_UNROLL,
+    return_states: bool = False,
+) -> tuple[Any, Any]:
+    """The scan itself (not jitted, no checks): `model` must be unwrapped (`fj.unwrap`), `samples` the model's
+    per-step signals (`model.samples(inputs)`, leading axis time). With `measured`, each step is followed by
+    `model.feedback(state, measured_k)`.
+
+    **Returns:** `(final_state, outputs)`, or `(final_state, (outputs, states))` with `return_states=True`
+    (the state after every sample, feedback applied).
+    """
+
+    def body(carry: Any, xs: tuple[Any, Any]) -> tuple[Any, Any]:
+        sample, y_measured = xs
+        carry, y = model.step(carry, sample)
+        if y_measured is not None:
+            carry = model.feedback(carry, y_measured)
+        return carry, ((y, carry) if return_states else y)
+
+    return jax.lax.scan(body, state, (samples, measured), unroll=unroll)
+
+
+def _k_step(model: AbstractModel, samples: Any, state0: Any, measured: Any, k: int, unroll: int) -> Any:
+    """k-step-ahead prediction: free runs of k samples from every teacher-forced state (see `simulate`)."""
+    length = _length(samples)
+    _, (_, forced) = run(model, samples, state0, measured, unroll=unroll, return_states=True)
+    # the state entering sample j: state0 for j = 0, the teacher-forced state after sample j-1 otherwise
+    entering = jax.tree_util.tree_map(lambda s0, s: jnp.concatenate([jnp.asarray(s0)[None], s[:-1]]), state0, forced)
+    starts = jnp.arange(length - k + 1)
+
+    def window(j: jax.Array) -> Any:
+        start = jax.tree_util.tree_map(lambda s: s[j], entering)
+        part = jax.tree_util.tree_map(lambda a: jax.lax.dynamic_slice_in_dim(a, j, k), samples)
+        return run(model, part, start, unroll=unroll)[1]
+
+    windows = jax.vmap(window)(starts)  # (T - k + 1, k, ...)
+    head = jax.tree_util.tree_map(lambda w: w[0, : k - 1], windows)  # free run from state0
+    tail = jax.tree_util.tree_map(lambda w: w[:, -1], windows)
+    return jax.tree_util.tree_map(lambda h, t: jnp.concatenate([h, t]), head, tail)
+
+
+def _length(samples: Any) -> int:
+    return int(jax.tree_util.tree_leaves(samples)[0].shape[0])

@@ -30,7 +30,7 @@ from .._models.physics._gms import GMS
 from .._models.physics._lugre import LuGre
 from .._models.physics._maxwell_slip import MaxwellSlip, SpringForces
 from .._models.physics._stribeck import ExponentialStribeck
-from .._simulate import motion_samples, simulate
+from .._simulate import simulate
 from ._differentiators import al_alaoui_derivative
 from ._record import FrictionData
 
@@ -193,25 +193,25 @@ def _offset(model: AbstractFrictionModel) -> float:
     return 0.0 if offset is None else float(offset)
 
 
-@eqx.filter_jit
-def _slip_scan(model: AbstractFrictionModel, motion: Motion) -> Array:
-    """Per sample and element: 1.0 where the element slips (GMS: its slip indicator; Maxwell-slip: the clip is
-    active), shape `(T, N)`."""
-    p = unwrap(model)
-    samples = motion_samples(motion)
+class _SlipIndicator(AbstractFrictionModel):
+    """Wraps a GMS or Maxwell-slip model: the same state, and as output 1.0 per element where it slips (GMS: its
+    slip indicator; Maxwell-slip: the clip is active), so `simulate` gives the slip pattern `(T, N)`."""
 
-    def body(state: Any, xs: tuple[Array, Array, Array]) -> tuple[Any, Array]:
-        x, v, dx = xs
-        sample = MotionSample(x=x, v=v, dx=dx, dt=samples.dt)
-        new_state, _ = p.step(state, sample)
-        if isinstance(p, GMS):
-            slipping = new_state.slipping
-        else:  # MaxwellSlip
-            slipping = (jnp.abs(state.delta + dx) > unwrap(p.thresholds)).astype(dx.dtype)
-        return new_state, slipping
+    model: GMS | MaxwellSlip
 
-    _, slipping = jax.lax.scan(body, p.init_state(), (samples.x, samples.v, samples.dx))
-    return slipping
+    @property
+    def requires(self) -> frozenset[str]:  # type: ignore[override]
+        return self.model.requires
+
+    def init_state(self) -> Any:
+        return self.model.init_state()
+
+    def step(self, state: Any, sample: MotionSample) -> tuple[Any, Array]:
+        new_state, _ = self.model.step(state, sample)
+        if isinstance(self.model, GMS):
+            return new_state, new_state.slipping  # type: ignore[union-attr]
+        slipping = jnp.abs(state.delta + sample.dx) > unwrap(self.model.thresholds)
+        return new_state, slipping.astype(sample.dx.dtype)
 
 
 def slipping_elements(model: AbstractFrictionModel, motion: Motion) -> np.ndarray | None:
@@ -222,7 +222,7 @@ def slipping_elements(model: AbstractFrictionModel, motion: Motion) -> np.ndarra
     """
     if not isinstance(model, (GMS, MaxwellSlip)):
         return None
-    return np.asarray(_slip_scan(model, motion)) > 0.5
+    return np.asarray(simulate(_SlipIndicator(model), motion)) > 0.5
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ import optimistix as optx
 
 from .._constraints import AbstractUnwrappable, Fixed, Positive, trainable_filter, unwrap
 from .._data._record import FrictionData
-from .._simulate import motion_samples, scan_samples
+from .._simulate import run, simulate
 from .._smoothing import Smooth, exact, with_smoothing
 from ._losses import AbstractLoss, SimulationLoss
 from ._result import FitResult
@@ -130,7 +130,7 @@ def _physical_spec(model: Any, spec: Any) -> Any:
 
 def _simulate_force(model: Any, data: FrictionData) -> jax.Array:
     model = unwrap(model)
-    _, force = scan_samples(model, motion_samples(data.motion), model.init_state())
+    _, force = run(model, model.samples(data.motion), model.init_state())
     return force
 
 
@@ -166,8 +166,6 @@ def _check_linear(model: Any, linear_spec: Any, data: FrictionData, paths: Seque
     theta = jnp.asarray(rng.normal(size=flat.shape) * (np.abs(np.asarray(flat)) + 1.0), flat.dtype)
 
     def f(t: jax.Array) -> np.ndarray:
-        from .._simulate import simulate
-
         return np.asarray(simulate(eqx.combine(unravel(t), rest), probe.motion))
 
     f0, f1, f2 = f(jnp.zeros_like(flat)), f(theta), f(2 * theta)

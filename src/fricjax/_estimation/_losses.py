@@ -17,8 +17,8 @@ from jaxtyping import Array, Float
 
 from .._constraints import unwrap
 from .._data._record import FrictionData
-from .._inputs import MotionSample
-from .._simulate import motion_samples, scan_samples
+from .._models._base import feeds_back
+from .._simulate import run
 
 
 class AbstractLoss(eqx.Module):
@@ -66,16 +66,17 @@ class SimulationLoss(AbstractLoss):
 
     def residuals(self, model: Any, extra: Any, data: FrictionData) -> Array:
         model = unwrap(model)
-        _, force = scan_samples(model, motion_samples(data.motion), model.init_state())
+        _, force = run(model, model.samples(data.motion), model.init_state())
         return (force - data.force)[self.burn_in :] / self._scale(data)
 
 
 class OneStepLoss(AbstractLoss):
-    """One-step-ahead (teacher-forced) error for models whose regressors include measured past outputs.
+    """One-step-ahead (teacher-forced, equation-error) loss for models that feed back their own outputs.
 
-    The model must provide `predict_one_step(motion, force) -> force_hat`, the prediction of each sample from
-    measured data up to the previous one (NARX-type models; a pure friction simulator has no past outputs in
-    its regressors, so use `SimulationLoss` for it).
+    The prediction of each sample from measured data up to the previous one: `fj.simulate(model, motion,
+    measured=force)`, i.e. the model's `feedback(state, y_measured)` replaces its fed-back output after every
+    step (NARX-type models). A model without fed-back outputs (every physics model) has no one-step
+    prediction different from its simulation: use `SimulationLoss` for it (this loss refuses it).
 
     **Arguments:** `burn_in` samples not scored; `normalise` as `SimulationLoss`.
     """
@@ -84,14 +85,14 @@ class OneStepLoss(AbstractLoss):
     normalise: bool = eqx.field(static=True, default=True)
 
     def residuals(self, model: Any, extra: Any, data: FrictionData) -> Array:
-        model = unwrap(model)
-        predict = getattr(model, "predict_one_step", None)
-        if predict is None:
+        if not feeds_back(model):
             raise TypeError(
-                f"OneStepLoss: {type(model).__name__} has no `predict_one_step` (its regressors contain no measured "
-                "past outputs); use fj.SimulationLoss() or fj.MultipleShootingLoss(...) for it."
+                f"OneStepLoss: {type(model).__name__} feeds back no outputs (it has no `feedback`), so its one-step "
+                "prediction is its simulation; use fj.SimulationLoss() or fj.MultipleShootingLoss(...) for it."
             )
-        return (predict(data.motion, data.force) - data.force)[self.burn_in :] / self._scale(data)
+        model = unwrap(model)
+        _, force = run(model, model.samples(data.motion), model.init_state(), data.force)
+        return (force - data.force)[self.burn_in :] / self._scale(data)
 
 
 class MultipleShootingLoss(AbstractLoss):
@@ -116,8 +117,10 @@ class MultipleShootingLoss(AbstractLoss):
         if self.continuity_weight < 0:
             raise ValueError(f"MultipleShootingLoss: `continuity_weight` must be >= 0, got {self.continuity_weight}.")
 
-    def _segments(self, data: FrictionData) -> tuple[MotionSample, Array, int]:
-        samples = motion_samples(data.motion)
+    def _segments(self, model: Any, data: FrictionData) -> tuple[Any, Any, Array, int]:
+        """The model's per-step samples of the whole record and of its K segments (leaves `(K, L, ...)`), the
+        segmented force, and K."""
+        samples = model.samples(data.motion)
         count = data.length // self.segment_length
         if count < 2:
             raise ValueError(
@@ -127,34 +130,24 @@ class MultipleShootingLoss(AbstractLoss):
         used = count * self.segment_length
 
         def cut(a: Array) -> Array:
-            return a[:used].reshape(count, self.segment_length)
+            return a[:used].reshape((count, self.segment_length) + a.shape[1:])
 
-        segments = MotionSample(x=cut(samples.x), v=cut(samples.v), dx=cut(samples.dx), dt=samples.dt)
-        return segments, cut(data.force), count
+        return samples, jax.tree_util.tree_map(cut, samples), cut(data.force), count
 
     def init_extra(self, model: Any, data: FrictionData) -> Any:
         """Initial states of segments 2..K: the states a simulation of the whole record passes through."""
         model = unwrap(model)
-        segments, _, count = self._segments(data)
-
-        def run(state: Any, segment: tuple[Array, Array, Array]) -> tuple[Any, Any]:
-            x, v, dx = segment
-            final, _ = scan_samples(model, MotionSample(x=x, v=v, dx=dx, dt=segments.dt), state)
-            return final, final
-
-        _, finals = jax.lax.scan(run, model.init_state(), (segments.x, segments.v, segments.dx))
-        return jax.tree_util.tree_map(lambda leaf: leaf[:-1], finals)
+        samples, _, _, count = self._segments(model, data)
+        _, (_, states) = run(model, samples, model.init_state(), return_states=True)
+        ends = jnp.arange(1, count) * self.segment_length - 1  # the state after the last sample of segments 1..K-1
+        return jax.tree_util.tree_map(lambda leaf: leaf[ends], states)
 
     def residuals(self, model: Any, extra: Any, data: FrictionData) -> Array:
         model = unwrap(model)
-        segments, force, count = self._segments(data)
+        _, segments, force, count = self._segments(model, data)
         first = model.init_state()
-        starts = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), first, extra)
-
-        def run(state: Any, x: Array, v: Array, dx: Array) -> tuple[Any, Array]:
-            return scan_samples(model, MotionSample(x=x, v=v, dx=dx, dt=segments.dt), state)
-
-        finals, predicted = jax.vmap(run)(starts, segments.x, segments.v, segments.dx)
+        starts = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([jnp.asarray(a)[None], b]), first, extra)
+        finals, predicted = jax.vmap(lambda state, part: run(model, part, state))(starts, segments)
         errors = ((predicted - force) / self._scale(data)).reshape(-1)
         gaps = []
         for final, start in zip(jax.tree_util.tree_leaves(finals), jax.tree_util.tree_leaves(extra), strict=True):

@@ -1,4 +1,12 @@
-"""Abstract interfaces shared by every friction model."""
+"""The model contract shared by every fricjax model: physics, black-box, combinations and systems.
+
+A model is an `equinox.Module` whose array leaves are its parameters. It never stores state: `init_state()`
+gives the state at rest and `step(state, sample) -> (state, y)` advances one sample. A model whose state holds
+its own past outputs (NARX-type models) overrides `feedback(state, y_measured) -> state`, which replaces the
+fed-back prediction by the measurement (teacher forcing); for every other model it is the identity.
+`samples(inputs)` turns an input record into the per-step signals (leading axis: time) that `fj.simulate`
+scans over, deriving what the model declares in `requires` once, before the scan.
+"""
 
 from __future__ import annotations
 
@@ -8,24 +16,117 @@ from typing import Any, ClassVar
 import equinox as eqx
 from jaxtyping import Array
 
-from .._inputs import MotionSample
+from .._inputs import InputRecord, Motion, MotionSample
 
 
-class AbstractFrictionModel(eqx.Module):
-    """A friction model: parameters as array leaves, state threaded explicitly.
+class AbstractModel(eqx.Module):
+    """Any model `fj.simulate` can run: `init_state`, `step`, optionally `feedback`, and `samples`.
 
-    `init_state()` gives the state at rest; `step(state, sample) -> (state, force)` advances one sample of a
-    `MotionSample` (x, v, dx, dt) and returns the friction force [N] at the end of the step. A model never
-    stores state. `requires` names the signals `step` reads: `"x"` (displacement or its increment),
-    `"v"` (velocity), `"dt"` (the sample time, for time integration).
+    - `init_state()`: the state at rest (a pytree of arrays).
+    - `step(state, sample) -> (state, y)`: one sample; `y` the model output (a scalar force for friction
+      models, any pytree for systems).
+    - `feedback(state, y_measured) -> state`: replace the model's own past output held in `state` by the
+      measured one (one-step / k-step-ahead prediction). The identity unless the model feeds back outputs.
+    - `samples(inputs)`: the per-step signals of an input record, each leaf with a leading time axis.
+    - `requires`: the signals `step` reads (checked once, at the entry point).
     """
 
-    requires: ClassVar[frozenset[str]]
+    requires: ClassVar[frozenset[str]] = frozenset()
 
     @abc.abstractmethod
     def init_state(self) -> Any:
         """The state at rest (a pytree of arrays)."""
 
     @abc.abstractmethod
+    def step(self, state: Any, sample: Any) -> tuple[Any, Any]:
+        """One sample: `(state_k-1, sample_k) -> (state_k, y_k)`."""
+
+    def feedback(self, state: Any, y_measured: Any) -> Any:
+        """Teacher forcing: the state with the fed-back output replaced by `y_measured` (identity by default)."""
+        return state
+
+    @abc.abstractmethod
+    def samples(self, inputs: Any) -> Any:
+        """The per-step signals of `inputs` (each leaf of shape `(T, ...)`)."""
+
+    @abc.abstractmethod
+    def check_inputs(self, inputs: Any) -> None:
+        """Raise a clear error when `inputs` lacks what `step` needs (structure only, never values)."""
+
+
+def feeds_back(model: AbstractModel) -> bool:
+    """True when `model` overrides `feedback` (its state holds past outputs, so teacher forcing changes it)."""
+    return type(model).feedback is not AbstractModel.feedback
+
+
+class AbstractFrictionModel(AbstractModel):
+    """A friction model: motion in (`fj.Motion`), friction force [N] out.
+
+    `step(state, sample: MotionSample) -> (state, force)` advances one sample and returns the friction force at
+    the end of the step. `requires` names the signals `step` reads: `"x"` (displacement or its increment),
+    `"v"` (velocity), `"dt"` (the sample time, for time integration), `"a"` (acceleration), `"normal_force"`.
+    """
+
+    @abc.abstractmethod
     def step(self, state: Any, sample: MotionSample) -> tuple[Any, Array]:
         """One sample: `(state_k-1, sample_k) -> (state_k, force_k)`."""
+
+    def samples(self, inputs: Motion) -> MotionSample:
+        return inputs.samples(self.requires)
+
+    def check_inputs(self, inputs: Any) -> None:
+        name = type(self).__name__
+        if not isinstance(inputs, Motion):
+            raise TypeError(
+                f"simulate: {name} takes a fricjax.Motion, got {type(inputs).__name__}; "
+                "wrap your arrays as fj.Motion(x=..., v=..., dt=...)."
+            )
+        signal = inputs.x if inputs.x is not None else inputs.v
+        if signal is not None and signal.ndim != 1:
+            raise ValueError(
+                f"simulate: the motion's signals must have shape (T,), got {signal.shape}; "
+                "for a batch of motions use jax.vmap(lambda m: fj.simulate(model, m))(motions)."
+            )
+        needs = self.requires
+        if "dt" in needs and inputs.dt is None:
+            raise ValueError(
+                f"simulate: {name} integrates in time and needs the sample time; pass Motion(..., dt=...)."
+            )
+        if "x" in needs and inputs.x is None and inputs.dt is None:
+            raise ValueError(
+                f"simulate: {name} needs the displacement `x`; the motion has only `v` and no `dt` to integrate it. "
+                "Pass Motion(x=...) or Motion(v=..., dt=...)."
+            )
+        if "v" in needs and inputs.v is None and inputs.dt is None:
+            raise ValueError(
+                f"simulate: {name} needs the velocity `v`; the motion has only `x` and no `dt` to differentiate it. "
+                "Pass Motion(v=...) or Motion(x=..., dt=...)."
+            )
+        if "a" in needs and inputs.a is None and inputs.dt is None:
+            raise ValueError(f"simulate: {name} needs the acceleration; pass Motion(a=...) or Motion(..., dt=...).")
+        if "normal_force" in needs and inputs.normal_force is None:
+            raise ValueError(f"simulate: {name} needs the normal load; pass Motion(..., normal_force=...) [N].")
+
+
+class AbstractSystem(AbstractModel):
+    """A system model (a plant with its controller and friction): an `fj.InputRecord` in, any pytree out.
+
+    `requires` names the input signals `step` reads; each step sees a dict `{name: value_k, "dt": dt}`.
+    """
+
+    def samples(self, inputs: InputRecord) -> dict[str, Array]:
+        return inputs.samples()
+
+    def check_inputs(self, inputs: Any) -> None:
+        name = type(self).__name__
+        if not isinstance(inputs, InputRecord):
+            raise TypeError(
+                f"simulate: {name} takes a fricjax.InputRecord(dt=..., "
+                + ", ".join(f"{signal}=..." for signal in sorted(self.requires))
+                + f"), got {type(inputs).__name__}."
+            )
+        missing = sorted(set(self.requires) - set(inputs.signals))
+        if missing:
+            raise ValueError(
+                f"simulate: {name} needs the input signals {missing}; the record has {sorted(inputs.signals)}."
+            )

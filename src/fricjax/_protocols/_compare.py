@@ -52,9 +52,7 @@ class DataScales:
 
     @classmethod
     def from_data(cls, data: FrictionData) -> DataScales:
-        from .._simulate import motion_samples
-
-        samples = motion_samples(data.motion)
+        samples = data.motion.samples()
         x, v = np.asarray(samples.x), np.asarray(samples.v)
         force = np.asarray(data.force)
         force = force - np.median(force)

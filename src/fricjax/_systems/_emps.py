@@ -34,7 +34,7 @@ one `lax.scan`, jit-compiled and differentiable with respect to every plant para
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
@@ -43,7 +43,10 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._constraints import ParamLike, as_float_array, model_dtype, positive, real, unwrap
+from .._inputs import InputRecord
+from .._models._base import AbstractSystem
 from .._models.physics._static import AbstractStaticFriction
+from .._simulate import simulate
 from .._smoothing import is_concrete
 
 
@@ -133,51 +136,81 @@ def _advance(plant: EMPSPlant, q: Array, v: Array, force: Array, h: Array, subst
     return jax.lax.fori_loop(0, substeps, one, (q, v))
 
 
-@eqx.filter_jit
+class EMPSOpenLoop(AbstractSystem):
+    """The EMPS plant driven by a recorded command (no controller), as a model for `fj.simulate`.
+
+    Input record: `fj.InputRecord(dt=..., vir=...)` (drive command [V], held over each sample). State:
+    `(q, q')` [m, m/s]. Output at sample k: `(q(k), q'(k))`, then the plant is advanced to k+1 with the force
+    `gtau * vir(k)` (`substeps` exponential-Euler steps; see the module docstring).
+
+    **Arguments:** `plant` an `EMPSPlant`; `gtau` drive gain [N/V] (35.15 on EMPS); `substeps` integration steps
+    per sample (static, default 1).
+    """
+
+    plant: EMPSPlant
+    gtau: Float[Array, ""]
+    substeps: int = eqx.field(static=True, default=1)
+
+    requires: ClassVar[frozenset[str]] = frozenset({"vir"})
+
+    def init_state(self) -> tuple[Array, Array]:
+        zero = jnp.zeros((), jnp.result_type(self.gtau))
+        return zero, zero
+
+    def step(self, state: tuple[Array, Array], sample: dict[str, Array]) -> tuple[Any, tuple[Array, Array]]:
+        q, v = state
+        force = self.gtau * sample["vir"]
+        return _advance(self.plant, q, v, force, sample["dt"] / self.substeps, self.substeps), (q, v)
+
+
+class EMPSClosedLoop(AbstractSystem):
+    """The EMPS under its PD position controller, as a model for `fj.simulate`.
+
+    Input record: `fj.InputRecord(dt=..., qg=..., disturbance=...)` (reference position [m], voltage [V]
+    added after the saturation). State: `(q(k), q'(k), q(k-1), q(k-2))`. Output at sample k: `(q(k), q'(k),
+    vir(k))` with `vir(k) = clip(kp kv (qg(k) - q(k)) - kv (qf(k) - qf(k-1)) / dt, -vmax, vmax) +
+    disturbance(k)`, `qf(k) = (q(k) + q(k-1)) / 2` (Janot et al. 2019, §1.3); `vir(k)` is held while the plant
+    advances to k+1. The state at rest is `(q0, 0, q0, q0)`: build it with `EMPSClosedLoop.rest_state(q0, qd0)`.
+
+    **Arguments:** `plant`; `gtau` [N/V], `kp` [1/s], `kv` [V s/m] (on EMPS 35.15, 160.18, 243.45); `vmax`
+    command saturation [V]; `substeps` (static).
+    """
+
+    plant: EMPSPlant
+    gtau: Float[Array, ""]
+    kp: Float[Array, ""]
+    kv: Float[Array, ""]
+    vmax: Float[Array, ""]
+    substeps: int = eqx.field(static=True, default=1)
+
+    requires: ClassVar[frozenset[str]] = frozenset({"qg", "disturbance"})
+
+    def init_state(self) -> tuple[Array, Array, Array, Array]:
+        return self.rest_state(jnp.zeros((), jnp.result_type(self.gtau)))
+
+    @staticmethod
+    def rest_state(q0: ArrayLike, qd0: ArrayLike = 0.0) -> tuple[Array, Array, Array, Array]:
+        """The state `(q0, qd0, q0, q0)`: before `t_0` the position is `q0` (the velocity estimate starts at 0)."""
+        q0 = jnp.asarray(q0)
+        return q0, jnp.asarray(qd0, q0.dtype), q0, q0
+
+    def step(self, state: tuple[Array, Array, Array, Array], sample: dict[str, Array]) -> tuple[Any, Any]:
+        q, v, q_prev, q_prev2 = state  # q(k), q'(k), q(k-1), q(k-2)
+        dt = sample["dt"]
+        # (qf(k) - qf(k-1)) / dt with qf(k) = (q(k) + q(k-1)) / 2
+        velocity_estimate = 0.5 * (q - q_prev2) / dt
+        nu = self.kp * self.kv * (sample["qg"] - q) - self.kv * velocity_estimate
+        vir = jnp.clip(nu, -self.vmax, self.vmax) + sample["disturbance"]
+        q_next, v_next = _advance(self.plant, q, v, self.gtau * vir, dt / self.substeps, self.substeps)
+        return (q_next, v_next, q, q_prev), (q, v, vir)
+
+
 def _open_loop(
     plant: EMPSPlant, vir: Array, gtau: Array, dt: Array, q0: Array, qd0: Array, substeps: int
 ) -> EMPSSimulation:
-    p = unwrap(plant)
-    h = dt / substeps
-
-    def body(state: tuple[Array, Array], vir_k: Array) -> tuple[tuple[Array, Array], tuple[Array, Array]]:
-        q, v = state
-        return _advance(p, q, v, gtau * vir_k, h, substeps), (q, v)
-
-    _, (q, qd) = jax.lax.scan(body, (q0, qd0), vir)
-    return EMPSSimulation(q=q, qd=qd, vir=vir)
-
-
-@eqx.filter_jit
-def _closed_loop(
-    plant: EMPSPlant,
-    qg: Array,
-    disturbance: Array,
-    gtau: Array,
-    kp: Array,
-    kv: Array,
-    dt: Array,
-    q0: Array,
-    qd0: Array,
-    vmax: Array,
-    substeps: int,
-) -> EMPSSimulation:
-    p = unwrap(plant)
-    h = dt / substeps
-
-    State = tuple[Array, Array, Array, Array]
-
-    def body(state: State, inputs: tuple[Array, Array]) -> tuple[State, tuple[Array, Array, Array]]:
-        q, v, q_prev, q_prev2 = state  # q(k), q'(k), q(k-1), q(k-2)
-        qg_k, disturbance_k = inputs
-        # (qf(k) - qf(k-1)) / dt with qf(k) = (q(k) + q(k-1)) / 2
-        velocity_estimate = 0.5 * (q - q_prev2) / dt
-        nu = kp * kv * (qg_k - q) - kv * velocity_estimate
-        vir = jnp.clip(nu, -vmax, vmax) + disturbance_k
-        q_next, v_next = _advance(p, q, v, gtau * vir, h, substeps)
-        return (q_next, v_next, q, q_prev), (q, v, vir)
-
-    _, (q, qd, vir) = jax.lax.scan(body, (q0, qd0, q0, q0), (qg, disturbance))
+    """Open-loop simulation through `fj.simulate` (checked inputs; used by the public function and the fit)."""
+    system = EMPSOpenLoop(plant, gtau, substeps)
+    q, qd = simulate(system, InputRecord(dt, vir=vir), (q0, qd0))
     return EMPSSimulation(q=q, qd=qd, vir=vir)
 
 
@@ -326,19 +359,21 @@ def simulate_closed_loop(
             raise ValueError(
                 f"`disturbance` has shape {disturbance.shape} but `qg` has {qg.shape}; give one value per sample."
             )
-    return _closed_loop(
+    system = EMPSClosedLoop(
         plant,
-        qg,
-        disturbance,
         _scalar(gtau, "gtau", dtype, unit="N/V", positive_only=True),
         _scalar(kp, "kp", dtype, unit="1/s", positive_only=True),
         _scalar(kv, "kv", dtype, unit="V s/m", positive_only=True),
-        _scalar(dt, "dt", dtype, unit="s", positive_only=True),
-        _scalar(q0, "q0", dtype, unit="m", positive_only=False),
-        _scalar(qd0, "qd0", dtype, unit="m/s", positive_only=False),
         _scalar(vmax, "vmax", dtype, unit="V", positive_only=True),
         _substeps(substeps),
     )
+    record = InputRecord(_scalar(dt, "dt", dtype, unit="s", positive_only=True), qg=qg, disturbance=disturbance)
+    state0 = system.rest_state(
+        _scalar(q0, "q0", dtype, unit="m", positive_only=False),
+        _scalar(qd0, "qd0", dtype, unit="m/s", positive_only=False),
+    )
+    q, qd, vir = simulate(system, record, state0)
+    return EMPSSimulation(q=q, qd=qd, vir=vir)
 
 
 def emps_open_loop_rmse_mm(y_true: ArrayLike, y_sim: ArrayLike, *, skip: int = 20) -> Array:
