@@ -72,8 +72,6 @@ from ._data._tribometer import TribometerData as TribometerData
 from ._data._tribometer import default_tribometer_model as default_tribometer_model
 from ._data._tribometer import make_tribometer as make_tribometer
 from ._data._tribometer import model_parameters as model_parameters
-from ._estimation._fit import Continuation as Continuation
-from ._estimation._fit import MultiStart as MultiStart
 from ._estimation._fit import fit as fit
 from ._estimation._fit import levenberg_marquardt as levenberg_marquardt
 from ._estimation._fit import solve_linear as solve_linear
@@ -85,6 +83,9 @@ from ._estimation._result import RESULT_CODES as RESULT_CODES
 from ._estimation._result import FitResult as FitResult
 from ._estimation._result import load_model as load_model
 from ._estimation._result import save_model as save_model
+from ._estimation._strategies import Continuation as Continuation
+from ._estimation._strategies import MultiStart as MultiStart
+from ._estimation._strategies import ParameterScaling as ParameterScaling
 from ._models.combine._ensemble import AbstractEnsemble as AbstractEnsemble
 from ._models.combine._ensemble import AverageEnsemble as AverageEnsemble
 from ._models.combine._ensemble import ForwardSelection as ForwardSelection

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import equinox as eqx
@@ -28,82 +28,51 @@ from .._simulate import run, simulate
 from .._smoothing import Smooth, exact, with_smoothing
 from ._losses import AbstractLoss, SimulationLoss
 from ._result import FitResult
-
-
-@dataclasses.dataclass(frozen=True)
-class MultiStart:
-    """`count` starts drawn around the initial model, fitted together in one vmap-ed program.
-
-    Positive (log-stored) parameters are multiplied by `exp(spread * N(0, 1))`; real ones get
-    `spread * (|value| + 1e-12) * N(0, 1)` added. The first start is the initial model itself. The best start is
-    chosen by validation loss (training loss without validation data).
-    """
-
-    count: int
-    spread: float = 0.5
-
-    def __post_init__(self) -> None:
-        if self.count < 1:
-            raise ValueError(f"MultiStart: `count` must be >= 1, got {self.count}.")
-        if not self.spread >= 0:
-            raise ValueError(f"MultiStart: `spread` must be >= 0, got {self.spread}.")
-
-
-@dataclasses.dataclass(frozen=True)
-class Continuation:
-    """Smoothing continuation: the model is fitted in smooth mode with `eps` annealed geometrically from
-    `eps_start` to `eps_end` in `stages` stages (steps split evenly); the result is also scored in exact mode.
-    `eps` is in the units each model documents (m/s for LuGre / Dahl / static curves, m for GMS, a fraction of
-    the thresholds for Maxwell-slip)."""
-
-    eps_start: float
-    eps_end: float
-    stages: int = 5
-
-    def __post_init__(self) -> None:
-        if not (self.eps_start > 0 and self.eps_end > 0):
-            raise ValueError(f"Continuation: eps_start and eps_end must be > 0, got {self.eps_start}, {self.eps_end}.")
-        if self.stages < 1:
-            raise ValueError(f"Continuation: `stages` must be >= 1, got {self.stages}.")
-
-    def schedule(self) -> np.ndarray:
-        return np.geomspace(self.eps_start, self.eps_end, self.stages)
-
+from ._strategies import Continuation, MultiStart, ParameterScaling, where_from_path
 
 # ----------------------------------------------------------------------------------------------------------------
 # parameter selection
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def _node(model: Any, path: str) -> Any:
-    node = model
-    for part in path.split("."):
-        if not hasattr(node, part):
-            fields = [f.name for f in dataclasses.fields(node)] if dataclasses.is_dataclass(node) else []
-            raise ValueError(
-                f"fit: {path!r} is not a field path of {type(model).__name__} ('{part}' not found"
-                + (f"; fields of {type(node).__name__}: {', '.join(fields)}" if fields else "")
-                + "). Use dotted names such as 'sigma1' or 'stribeck.Fc'."
+Selector = str | Callable[[Any], Any] | Sequence[str]
+
+
+def _where(selector: Any, model: Any, argument: str) -> list[tuple[str, Callable[[Any], Any]]]:
+    """`(label, where)` pairs for a selector: a dotted path, a `where` callable, or a sequence of paths /
+    callables. Each is checked against `model`: it must address nodes holding arrays."""
+    if selector is None:
+        return []
+    items = [selector] if isinstance(selector, str) or callable(selector) else list(selector)
+    out = []
+    for item in items:
+        if callable(item):
+            label, where = getattr(item, "__name__", "where"), item
+        elif isinstance(item, str):
+            label, where = item, where_from_path(item)
+        else:
+            raise TypeError(
+                f"fit: `{argument}` takes dotted field paths ('stribeck.Fc', 'mlp.layers.0') or callables "
+                f"(lambda m: m.sigma2), got {type(item).__name__}."
             )
-        node = getattr(node, part)
-    return node
+        try:
+            nodes = where(model)
+        except (AttributeError, IndexError, KeyError, TypeError) as err:
+            fields = [f.name for f in dataclasses.fields(model)] if dataclasses.is_dataclass(model) else []
+            raise ValueError(
+                f"fit: {label!r} in `{argument}` is not a field path of {type(model).__name__} ({err}); fields: "
+                + ", ".join(fields)
+                + ". Use dotted names such as 'sigma1', 'stribeck.Fc' or 'layers.0.weight', or a callable."
+            ) from None
+        if not jax.tree_util.tree_leaves(nodes):
+            raise ValueError(f"fit: {label!r} in `{argument}` of {type(model).__name__} holds no array to select.")
+        out.append((label, where))
+    return out
 
 
-def _getter(path: str) -> Any:
-    def get(tree: Any) -> Any:
-        for part in path.split("."):
-            tree = getattr(tree, part)
-        return tree
-
-    return get
-
-
-def _set_spec(spec: Any, model: Any, paths: Sequence[str], value: bool) -> Any:
-    for path in paths:
-        node = _node(model, path)
-        if not jax.tree_util.tree_leaves(node):
-            raise ValueError(f"fit: field {path!r} of {type(model).__name__} holds no array to train or freeze.")
-        spec = eqx.tree_at(_getter(path), spec, replace_fn=lambda sub: jax.tree_util.tree_map(lambda _: value, sub))
+def _set_spec(spec: Any, model: Any, selector: Any, value: bool, argument: str) -> Any:
+    for _, where in _where(selector, model, argument):
+        spec = eqx.tree_at(where, spec, replace_fn=lambda sub: jax.tree_util.tree_map(lambda _: value, sub))
     return spec
 
 
@@ -191,15 +160,17 @@ def fit(
     steps: int = 1000,
     validation: Any = None,
     validation_burn_in: int | None = None,
-    freeze: Sequence[str] = (),
+    train: Selector | None = None,
+    freeze: Selector = (),
     separable: Sequence[str] = (),
+    scaling: ParameterScaling | None = None,
     multistart: MultiStart | int | None = None,
     continuation: Continuation | None = None,
     eval_every: int | None = None,
     patience: int | None = None,
     progress: bool = False,
     seed: int = 0,
-    compute_std: bool = True,
+    compute_std: bool = False,
 ) -> FitResult:
     """Fit the parameters of `model` to `data` by gradients through the simulator.
 
@@ -207,7 +178,7 @@ def fit(
 
     - `model`: the initial model (any fricjax model, or any equinox Module the loss can evaluate, such as an
       `EMPSPlant` with `EMPSOpenLoopLoss`); every floating leaf is trained except `Fixed` ones and smoothing
-      widths.
+      widths (narrow it with `train` / `freeze`).
     - `data`: training data (`FrictionData` for the friction losses; the loss's `data_type` otherwise).
     - `loss`: `SimulationLoss()` (default), `MultipleShootingLoss(L)`, `OneStepLoss()`.
     - `solver`: an optax transformation (default `optax.adam(1e-2)`; parameters are in log space for positive
@@ -218,18 +189,25 @@ def fit(
     - `validation_burn_in`: samples of `validation` simulated but not scored. For hysteretic models pass the
       record from its start up to the end of the validation part, with `validation_burn_in` = the length of
       the part before it, so the model enters the validation part in the state its history gives it.
-    - `freeze`: dotted field paths not to train, e.g. `("sigma2", "stribeck.vs")`.
+    - `train`: train only these parameters: a dotted field path (`"stribeck.Fc"`, `"mlp.layers.0"`), a `where`
+      callable (`lambda m: (m.sigma0, m.stribeck)`), or a sequence of them. Default: every trainable leaf.
+    - `freeze`: parameters not to train, in the same forms, e.g. `("sigma2", "stribeck.vs")`.
     - `separable`: dotted paths of real fields that enter the force linearly (offsets, FIR coefficients,
       LuGre `sigma1` / `sigma2`, static `Fv`): solved exactly by least squares inside every evaluation
       (`SimulationLoss` only).
+    - `scaling`: a `ParameterScaling()`: the optimiser sees real parameters divided by their initial magnitude
+      (for physical models whose real parameters span decades). Default: none, parameters as they are stored
+      (positive ones as logs).
     - `multistart`: a `MultiStart(count, spread)` or a count.
     - `continuation`: a `Continuation(eps_start, eps_end, stages)`.
     - `eval_every`: optax steps between checks (validation, divergence, progress); default steps / 50.
     - `patience`: evaluations without validation improvement before stopping (default: never).
     - `progress`: show a tqdm progress bar. `seed`: for the multi-start draws (results are deterministic).
-    - `compute_std`: Gauss-Newton standard deviations of the trained physical parameters.
+    - `compute_std`: Gauss-Newton standard deviations of the trained physical parameters (a dense Jacobian
+      over them: for physical models, not for networks with thousands of weights).
 
-    **Returns:** a `FitResult` (never raises on divergence: see its `result` and `message`).
+    **Returns:** a `FitResult` (never raises on divergence: see its `result` and `message`). The returned
+    model is never worse than the start (scored as the starts are chosen: validation loss, else training loss).
 
     ```python
     >>> import numpy as np, fricjax as fj
@@ -253,24 +231,33 @@ def fit(
         multistart = MultiStart(multistart)
     count = 1 if multistart is None else multistart.count
     val_loss_fn = loss.validation_loss() if validation_burn_in is None else SimulationLoss(burn_in=validation_burn_in)
+    if validation is not None and getattr(val_loss_fn, "burn_in", 0) >= validation.length:
+        raise ValueError(
+            f"fit: the validation burn-in ({getattr(val_loss_fn, 'burn_in', 0)} samples) leaves nothing to score "
+            f"in a validation record of {validation.length} samples; lower `validation_burn_in` or pass more data."
+        )
 
     if continuation is not None:  # smooth from the start, so every stage shares one tree structure
         model = with_smoothing(model, Smooth(jnp.asarray(continuation.eps_start, dtype=float)))
     # which leaves the optimiser moves, which are solved linearly
-    spec = _set_spec(trainable_filter(model), model, freeze, False)
+    spec = trainable_filter(model)
+    if train is not None:
+        selected = _set_spec(jax.tree_util.tree_map(lambda _: False, spec), model, train, True, "train")
+        spec = jax.tree_util.tree_map(lambda a, b: bool(a) and bool(b), spec, selected)
+    spec = _set_spec(spec, model, freeze, False, "freeze")
     linear_spec = None
     if separable:
         if not isinstance(loss, SimulationLoss):
             raise ValueError("fit: `separable` needs a SimulationLoss (the linear solve is on the simulated force).")
-        for path in separable:
-            node = _node(model, path)
+        for path, where in _where(separable, model, "separable"):
+            node = where(model)
             if isinstance(node, AbstractUnwrappable) or not eqx.is_inexact_array(node):
                 raise ValueError(
                     f"fit: separable field {path!r} is reparametrised or not a real array; only real fields "
                     "(offsets, FIR coefficients, sigma1 / sigma2, Fv) can be solved linearly."
                 )
-        linear_spec = _set_spec(jax.tree_util.tree_map(lambda _: False, spec), model, separable, True)
-        spec = _set_spec(spec, model, separable, False)
+        linear_spec = _set_spec(jax.tree_util.tree_map(lambda _: False, spec), model, separable, True, "separable")
+        spec = _set_spec(spec, model, separable, False, "separable")
         _check_linear(model, linear_spec, data, separable)
     if not any(jax.tree_util.tree_leaves(spec)) and linear_spec is None:
         raise ValueError("fit: nothing to train: every parameter is frozen.")
@@ -278,16 +265,15 @@ def fit(
     eps_schedule = [None] if continuation is None else list(continuation.schedule())
     params0, static0 = eqx.partition(model, spec)
 
-    # the optimiser sees real parameters divided by their initial magnitude (log-stored positive ones as they
-    # are), so one learning rate suits stiffnesses of 1e8 N/m and offsets of 1e-2 N alike
-    scales = _parameter_scales(params0)
+    scales = None if scaling is None else scaling.scales(params0)
 
     problem = _Problem(
         loss=loss, linear_spec=linear_spec, scales=scales, data=data, validation=validation, val_loss=val_loss_fn
     )
     extra0 = loss.init_extra(model, data)
     starts = _draw_starts(params0, count, 0.0 if multistart is None else multistart.spread, seed)
-    starts = jax.tree_util.tree_map(lambda p, c: p / c, starts, scales)
+    if scales is not None:
+        starts = jax.tree_util.tree_map(lambda p, c: p / c, starts, scales)
     extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + e.shape), extra0)
     states = (starts, extras)
 
@@ -388,8 +374,21 @@ def fit(
     if result_code not in ("diverged",) and diverged.any() and not diverged.all():
         message += f" ({int(diverged.sum())} of {count} starts diverged and were discarded)"
 
-    final_static = static
-    fitted = problem.materialise(chosen[0], final_static)
+    if result_code == "max_steps" and kind == "optax":
+        message = _budget_message(steps, [row[best] for row in history["train_loss"]])
+    # never worse than the start: the initial model, scored as the starts are chosen, in the final setting
+    start = jax.tree_util.tree_map(lambda a: a[:1], (starts, extras))
+    if linear_only:  # the least-squares solve is the fit: nothing to compare
+        start = None
+    if start is not None:
+        pair = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), chosen, start)
+        pair_train, pair_val = map(np.asarray, _batched_losses(problem, pair, static))
+        pair_scores = pair_val if validation is not None else pair_train
+        if np.isfinite(pair_scores[1]) and not pair_scores[0] <= pair_scores[1]:
+            chosen = jax.tree_util.tree_map(lambda a: a[0], start)
+            message += "; no step improved on the start, so the start is returned"
+
+    fitted = problem.materialise(chosen[0], static)
     train_loss = float(_evaluate(loss, fitted, chosen[1], data))
     val_loss = float(_evaluate(val_loss_fn, fitted, None, validation)) if validation is not None else float("nan")
     exact_val = (
@@ -481,20 +480,6 @@ def _draw_starts(params: Any, count: int, spread: float, seed: int) -> Any:
     return jax.tree_util.tree_unflatten(treedef, out)
 
 
-def _parameter_scales(params: Any) -> Any:
-    """1 for log/softplus-stored leaves, |initial value| (or 1 where it is 0) for real leaves."""
-
-    def scale(node: Any) -> Any:
-        if isinstance(node, AbstractUnwrappable):
-            return jax.tree_util.tree_map(lambda a: jnp.ones_like(a) if eqx.is_inexact_array(a) else a, node)
-        if eqx.is_inexact_array(node):
-            magnitude = jnp.abs(node)
-            return jnp.where(magnitude > 0, magnitude, jnp.ones_like(node))
-        return node
-
-    return jax.tree_util.tree_map(scale, params, is_leaf=lambda n: isinstance(n, AbstractUnwrappable))
-
-
 @eqx.filter_jit
 def _optax_init(solver: Any, states: Any) -> Any:
     return jax.vmap(solver.init)(states)
@@ -521,7 +506,9 @@ class _Problem(eqx.Module):
     val_loss: AbstractLoss
 
     def materialise(self, params: Any, static: Any) -> Any:
-        m = eqx.combine(jax.tree_util.tree_map(lambda u, c: u * c, params, self.scales), static)
+        if self.scales is not None:
+            params = jax.tree_util.tree_map(lambda u, c: u * c, params, self.scales)
+        m = eqx.combine(params, static)
         if self.linear_spec is None:
             return m
         return solve_linear(m, self.linear_spec, self.data, getattr(self.loss, "burn_in", 0))
@@ -627,6 +614,21 @@ def _split(total: int, parts: int) -> list[int]:
     for i in range(total - sum(base)):
         base[i] += 1
     return base
+
+
+def _budget_message(steps: int, losses: list[Any]) -> str:
+    """Why an optax fit stopped at its budget, in a sentence: still improving, or levelled off."""
+    finite = [float(x) for x in losses if np.isfinite(x)]
+    if len(finite) < 2:
+        return f"ran the full budget of {steps} steps (no convergence test for optax solvers)"
+    previous, last = finite[-2], finite[-1]
+    change = (previous - last) / max(abs(previous), 1e-300)
+    if change > 1e-3:
+        return (
+            f"stopped at the step budget ({steps} steps) while the loss was still falling ({100 * change:.2g} % over "
+            "the last check): not converged; raise `steps` to go on"
+        )
+    return f"ran the full budget of {steps} steps; the loss had levelled off (change {100 * change:.2g} % at the end)"
 
 
 _DIVERGENCE_MESSAGE = (

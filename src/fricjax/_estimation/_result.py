@@ -16,7 +16,8 @@ from .._constraints import unwrap
 
 RESULT_CODES = {
     "successful": "the solver converged (or ran all steps without a better validation point being missed)",
-    "max_steps": "the step budget ran out before the solver's own convergence test held",
+    "max_steps": "the step budget ran out before a convergence test held: the best model seen is returned, but it "
+    "may not be converged (the message says whether the loss was still falling)",
     "early_stopped": "the validation loss stopped improving (patience exhausted); the best model was kept",
     "diverged": "a loss or parameter became non-finite; the last good model was kept",
     "solver_failed": "the optimistix solver reported a failure; the best model seen was kept",
@@ -73,17 +74,25 @@ class FitResult:
         stds = _flat_paths(exact(self.std)) if self.std is not None else {}
         return {path: (value, stds.get(path)) for path, value in values.items()}
 
-    def summary(self) -> str:
-        """A short human-readable report."""
+    def summary(self, max_parameters: int = 20) -> str:
+        """A short human-readable report: result, losses, and at most `max_parameters` parameter lines (arrays of
+        more than 8 entries are summarised by shape and range)."""
         lines = [
             f"fit: {self.result} after {self.evaluations} evaluations in {self.wall_time:.2f} s: {self.message}",
             f"train loss {self.train_loss:.4g}, validation loss {self.val_loss:.4g} (exact {self.exact_val_loss:.4g})",
         ]
-        for path, (value, std) in self.parameters().items():
-            text = np.array2string(np.asarray(value), formatter={"float_kind": lambda x: f"{x:.6g}"})
+        parameters = list(self.parameters().items())
+        for path, (value, std) in parameters[:max_parameters]:
+            value = np.asarray(value)
+            if value.size > 8:
+                lines.append(f"  {path}: shape {value.shape}, range [{value.min():.4g}, {value.max():.4g}]")
+                continue
+            text = np.array2string(value, formatter={"float_kind": lambda x: f"{x:.6g}"})
             if std is not None and np.all(np.isfinite(std)):
                 text += " ± " + np.array2string(np.asarray(std), formatter={"float_kind": lambda x: f"{x:.3g}"})
             lines.append(f"  {path} = {text}")
+        if len(parameters) > max_parameters:
+            lines.append(f"  ... and {len(parameters) - max_parameters} more parameter arrays (FitResult.parameters())")
         return "\n".join(lines)
 
 

@@ -21,8 +21,9 @@ import numpy as np
 import optax
 
 from .._data._record import FrictionData
-from .._estimation._fit import Continuation, MultiStart, fit, levenberg_marquardt
+from .._estimation._fit import fit, levenberg_marquardt
 from .._estimation._result import FitResult
+from .._estimation._strategies import Continuation, MultiStart, ParameterScaling
 from .._metrics import max_error, nmse
 from .._models.physics._gms import GMS
 from .._models.physics._lugre import LuGre
@@ -110,6 +111,7 @@ def _lm(separable: tuple[str, ...], starts: int, steps: int = 40) -> Callable[..
         return fit(
             start,
             split.train,
+            scaling=ParameterScaling(),
             validation=split.until_validation_end,
             validation_burn_in=split.train_end,
             solver=levenberg_marquardt(),
@@ -130,6 +132,7 @@ def _gms_fit(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
     coarse = fit(
         start,
         train,
+        scaling=ParameterScaling(),
         validation=validation,
         validation_burn_in=split.train_end,
         solver=optax.adam(3e-2),
@@ -142,6 +145,7 @@ def _gms_fit(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
     polished = fit(
         coarse.model,
         train,
+        scaling=ParameterScaling(),
         validation=validation,
         validation_burn_in=split.train_end,
         solver=levenberg_marquardt(),

@@ -43,9 +43,10 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._data._emps import EMPSRecord
-from .._estimation._fit import Continuation, fit, levenberg_marquardt
+from .._estimation._fit import fit, levenberg_marquardt
 from .._estimation._losses import AbstractLoss
 from .._estimation._result import FitResult
+from .._estimation._strategies import Continuation, ParameterScaling
 from .._models.physics._static import AbstractStaticFriction, CoulombViscous
 from .._smoothing import Smooth, with_smoothing
 from .._systems._emps import EMPSPlant, EMPSSimulation, _open_loop, emps_open_loop_rmse_mm
@@ -428,6 +429,7 @@ def fit_emps_open_loop(
     result = fit(
         smooth_start,
         train,
+        scaling=ParameterScaling(),
         loss=loss,
         solver=levenberg_marquardt() if solver is None else solver,
         steps=steps,

@@ -1,0 +1,115 @@
+"""Fit strategies: explicit, opt-in objects that `fj.fit` applies only when asked (none is applied silently).
+
+`MultiStart` (vmap-ed global search), `Continuation` (smoothing annealed towards the exact model),
+`ParameterScaling` (the optimiser sees real parameters divided by a scale).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._constraints import AbstractUnwrappable
+
+
+@dataclasses.dataclass(frozen=True)
+class MultiStart:
+    """`count` starts drawn around the initial model, fitted together in one vmap-ed program.
+
+    Positive (log-stored) parameters are multiplied by `exp(spread * N(0, 1))`; real ones get
+    `spread * (|value| + 1e-12) * N(0, 1)` added. The first start is the initial model itself. The best start is
+    chosen by validation loss (training loss without validation data).
+    """
+
+    count: int
+    spread: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.count < 1:
+            raise ValueError(f"MultiStart: `count` must be >= 1, got {self.count}.")
+        if not self.spread >= 0:
+            raise ValueError(f"MultiStart: `spread` must be >= 0, got {self.spread}.")
+
+
+@dataclasses.dataclass(frozen=True)
+class Continuation:
+    """Smoothing continuation: the model is fitted in smooth mode with `eps` annealed geometrically from
+    `eps_start` to `eps_end` in `stages` stages (steps split evenly); the result is also scored in exact mode.
+    `eps` is in the units each model documents (m/s for LuGre / Dahl / static curves, m for GMS, a fraction of
+    the thresholds for Maxwell-slip)."""
+
+    eps_start: float
+    eps_end: float
+    stages: int = 5
+
+    def __post_init__(self) -> None:
+        if not (self.eps_start > 0 and self.eps_end > 0):
+            raise ValueError(f"Continuation: eps_start and eps_end must be > 0, got {self.eps_start}, {self.eps_end}.")
+        if self.stages < 1:
+            raise ValueError(f"Continuation: `stages` must be >= 1, got {self.stages}.")
+
+    def schedule(self) -> np.ndarray:
+        return np.geomspace(self.eps_start, self.eps_end, self.stages)
+
+
+@dataclasses.dataclass(frozen=True)
+class ParameterScaling:
+    """The optimiser sees every real (not log/softplus-stored) parameter divided by a scale: its initial
+    magnitude (`|value|`, 1 where it is 0), or `scale` where given per dotted field path.
+
+    One learning rate then suits stiffnesses of 1e8 N/m and offsets of 1e-2 N alike (physical models with
+    parameters over many decades). Positive parameters are stored as logs and need no scaling. Leave it off
+    for black-box models whose weights are initialised near 0 (it would slow their small weights down).
+
+    **Arguments:** `scale`: optional `{path: value}` overrides (e.g. `{"z0": 1e-6}` for a state in metres
+    initialised at 0).
+    """
+
+    scale: dict[str, float] = dataclasses.field(default_factory=dict)
+
+    def scales(self, params: Any) -> Any:
+        """The scale of every trained leaf of `params` (a tree shaped like it; 1 for log/softplus leaves)."""
+
+        def leaf_scale(node: Any) -> Any:
+            if isinstance(node, AbstractUnwrappable):
+                return jax.tree_util.tree_map(lambda a: jnp.ones_like(a) if eqx.is_inexact_array(a) else a, node)
+            if eqx.is_inexact_array(node):
+                magnitude = jnp.abs(node)
+                return jnp.where(magnitude > 0, magnitude, jnp.ones_like(node))
+            return node
+
+        scales = jax.tree_util.tree_map(leaf_scale, params, is_leaf=lambda n: isinstance(n, AbstractUnwrappable))
+        for path, value in self.scale.items():
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"ParameterScaling: the scale of {path!r} must be a positive number, got {value!r}.")
+            scales = eqx.tree_at(where_from_path(path), scales, replace_fn=_constant(value))
+        return scales
+
+
+def _constant(value: float) -> Any:
+    def replace(array: Any) -> Any:
+        return jnp.full_like(array, value)
+
+    return replace
+
+
+def where_from_path(path: str) -> Any:
+    """A `where` callable for a dotted field path: names are attributes, integers index tuples and lists
+    (`"mlp.layers.0.weight"`), other keys index dicts."""
+
+    def where(tree: Any) -> Any:
+        for part in path.split("."):
+            if isinstance(tree, (tuple, list)) and part.lstrip("-").isdigit():
+                tree = tree[int(part)]
+            elif isinstance(tree, dict):
+                tree = tree[part]
+            else:
+                tree = getattr(tree, part)
+        return tree
+
+    return where
