@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import fricjax as fj
-from fricjax._cli import main
-from fricjax._protocols._compare import DataScales, Split, add_ensembles, fit_and_score, load_split
+from fricjax import main
+from fricjax.compare import DataScales, Split, add_ensembles, fit_and_score, load_split
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +53,7 @@ def test_best_ensemble_no_worse_than_best_single_and_gms_near_truth():
     best_single = min(r.nmse for r in rows)
     best_ensemble = min(r.nmse for r in ensembles if r.name != "ensemble_average")
     assert best_ensemble <= best_single + 1e-9
-    from fricjax._protocols._compare import score
+    from fricjax.compare import score
 
     true_nmse = score(truth, split)[0]
     gms = next(r for r in rows if r.name == "gms")

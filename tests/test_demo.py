@@ -2,7 +2,7 @@
 
 import json
 
-from fricjax._cli import main
+from fricjax import main
 
 
 def test_demo_writes_summary_and_figure(tmp_path, capsys):

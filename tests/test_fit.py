@@ -20,7 +20,6 @@ import optimistix as optx
 import pytest
 
 import fricjax as fj
-from fricjax._estimation._fit import _draw_starts
 
 # ----------------------------------------------------------------------------------------------------------------
 # shared problems
@@ -545,7 +544,7 @@ def test_multistart_chooses_lowest_validation_loss(multistart_fits, split_data):
     train, val = split_data
     first = multistart_fits[0]
     params, static = eqx.partition(START, fj.trainable_filter(START))
-    starts = _draw_starts(params, 4, 0.5, 0)
+    starts = fj.MultiStart(4, 0.5).draw(params, seed=0)
     val_losses = []
     for i in range(4):
         model = eqx.combine(jax.tree_util.tree_map(lambda a, i=i: a[i], starts), static)

@@ -56,10 +56,14 @@ try:
 except PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0.0.0"
 
+from . import compare as compare  # noqa: E402 - the public `fj.compare` namespace
+from ._cli import main as main  # noqa: E402 - the command line, callable: fj.main(["compare", ...])
 from ._data._differentiators import al_alaoui_coefficients as al_alaoui_coefficients
 from ._data._differentiators import al_alaoui_derivative as al_alaoui_derivative
 from ._data._emps import EMPSRecord as EMPSRecord
 from ._data._emps import load_emps as load_emps
+from ._data._io import RecordError as RecordError
+from ._data._io import load_record as load_record
 from ._data._preprocessing import Normaliser as Normaliser
 from ._data._preprocessing import butter_filtfilt as butter_filtfilt
 from ._data._preprocessing import central_difference as central_difference

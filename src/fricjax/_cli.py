@@ -122,6 +122,7 @@ def run_compare(args: argparse.Namespace) -> int:
 
     import fricjax as fj
 
+    from ._plot import plot_prediction_errors, plot_test_loops
     from ._protocols import _compare as cmp
 
     out = pathlib.Path(args.out)
@@ -157,8 +158,8 @@ def run_compare(args: argparse.Namespace) -> int:
         (staging / "models").mkdir()
         for row in rows:
             fj.save_model(staging / "models" / f"{row.name}.pkl", row.model)
-        cmp.plot_errors(rows, split, staging / "test_errors.png")
-        cmp.plot_loops(rows, split, staging / "hysteresis_loops.png")
+        plot_prediction_errors(rows, split, staging / "test_errors.png")
+        plot_test_loops(rows, split, staging / "hysteresis_loops.png")
         report = {
             "fricjax": fj.__version__,
             "versions": _versions(),

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -50,3 +50,51 @@ def plot_loops(
     if title:
         fig.suptitle(title)
     return fig
+
+
+def plot_prediction_errors(rows: Sequence[Any], split: Any, path: Any) -> None:
+    """Test-set prediction errors per model, one panel each (parlitz2004 Fig. 6 layout). `rows`: scored models
+    with `label`, `nmse`, `max_error`, `prediction`; `split`: the record and its split (`fj.compare.Split`)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    ordered = sorted(rows, key=lambda r: r.nmse)
+    measured = np.asarray(split.full.force)[split.validation_end :]
+    t = np.arange(measured.size) * float(np.asarray(split.full.motion.dt))
+    fig, axes = plt.subplots(len(ordered) + 1, 1, figsize=(10, 1.4 * (len(ordered) + 1)), sharex=True)
+    axes[0].plot(t, measured, "k", lw=0.7)
+    axes[0].set_ylabel("F [N]")
+    axes[0].set_title("test set: measured force (top) and prediction errors e = F_hat - F per model")
+    limit = max(float(np.max(np.abs(r.prediction - measured))) for r in ordered)
+    for ax, r in zip(axes[1:], ordered, strict=True):
+        ax.plot(t, r.prediction - measured, lw=0.6)
+        ax.set_ylim(-limit, limit)
+        ax.text(0.01, 0.8, f"{r.label}: NMSE {r.nmse:.3g} %, MAX {r.max_error:.3g}", transform=ax.transAxes, fontsize=8)
+        ax.set_ylabel("e [N]")
+    axes[-1].set_xlabel("time in the test set [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_test_loops(rows: Sequence[Any], split: Any, path: Any) -> None:
+    """Measured vs predicted friction-displacement loops on the test set, best four models."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    ordered = sorted(rows, key=lambda r: r.nmse)[:4]
+    x = np.asarray(split.full.motion.x)[split.validation_end :] * 1e6
+    measured = np.asarray(split.full.force)[split.validation_end :]
+    fig, axes = plt.subplots(1, len(ordered), figsize=(4 * len(ordered), 3.8), squeeze=False)
+    for ax, r in zip(axes[0], ordered, strict=True):
+        ax.plot(x, measured, color="0.6", lw=0.8, label="measured")
+        ax.plot(x, r.prediction, "r", lw=0.6, label="predicted")
+        ax.set(title=f"{r.label}\nNMSE {r.nmse:.3g} %", xlabel="x [µm]", ylabel="F [N]")
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

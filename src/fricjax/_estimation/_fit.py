@@ -22,7 +22,7 @@ import numpy as np
 import optax
 import optimistix as optx
 
-from .._constraints import AbstractUnwrappable, Fixed, Positive, trainable_filter, unwrap
+from .._constraints import AbstractUnwrappable, Fixed, trainable_filter, unwrap
 from .._data._record import FrictionData
 from .._simulate import run, simulate
 from .._smoothing import Smooth, exact, with_smoothing
@@ -271,7 +271,7 @@ def fit(
         loss=loss, linear_spec=linear_spec, scales=scales, data=data, validation=validation, val_loss=val_loss_fn
     )
     extra0 = loss.init_extra(model, data)
-    starts = _draw_starts(params0, count, 0.0 if multistart is None else multistart.spread, seed)
+    starts = (MultiStart(1, 0.0) if multistart is None else multistart).draw(params0, seed)
     if scales is not None:
         starts = jax.tree_util.tree_map(lambda p, c: p / c, starts, scales)
     extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + e.shape), extra0)
@@ -457,27 +457,6 @@ def _solver_kind(solver: Any) -> str:
 def levenberg_marquardt(rtol: float = 1e-10, atol: float = 1e-12) -> optx.LevenbergMarquardt:
     """A Levenberg-Marquardt solver with tolerances suited to friction fits (an optimistix solver)."""
     return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-
-
-def _draw_starts(params: Any, count: int, spread: float, seed: int) -> Any:
-    leaves, treedef = jax.tree_util.tree_flatten(params, is_leaf=lambda n: isinstance(n, Positive))
-    key = jax.random.PRNGKey(seed)
-    out = []
-    for leaf in leaves:
-        key, sub = jax.random.split(key)
-        if isinstance(leaf, Positive) and leaf.raw is not None:
-            raw = leaf.raw
-            noise = spread * jax.random.normal(sub, (count,) + raw.shape, raw.dtype)
-            noise = noise.at[0].set(0.0)
-            out.append(eqx.tree_at(lambda p: p.raw, leaf, raw[None] + noise))
-        elif eqx.is_inexact_array(leaf):
-            noise = spread * jax.random.normal(sub, (count,) + leaf.shape, leaf.dtype) * (jnp.abs(leaf) + 1e-12)
-            out.append(leaf[None] + noise.at[0].set(0.0))
-        elif isinstance(leaf, Positive):  # frozen: partitioned out
-            out.append(leaf)
-        else:
-            out.append(leaf)
-    return jax.tree_util.tree_unflatten(treedef, out)
 
 
 @eqx.filter_jit

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._constraints import AbstractUnwrappable
+from .._constraints import AbstractUnwrappable, Positive
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,6 +34,26 @@ class MultiStart:
             raise ValueError(f"MultiStart: `count` must be >= 1, got {self.count}.")
         if not self.spread >= 0:
             raise ValueError(f"MultiStart: `spread` must be >= 0, got {self.spread}.")
+
+    def draw(self, params: Any, seed: int = 0) -> Any:
+        """`count` starts around `params` (trainable leaves; a leading axis of size `count` is added to each);
+        start 0 is `params` itself. Deterministic for a `seed`."""
+        leaves, treedef = jax.tree_util.tree_flatten(params, is_leaf=lambda n: isinstance(n, Positive))
+        key = jax.random.PRNGKey(seed)
+        count, spread = self.count, self.spread
+        out = []
+        for leaf in leaves:
+            key, sub = jax.random.split(key)
+            if isinstance(leaf, Positive) and leaf.raw is not None:
+                raw = leaf.raw
+                noise = spread * jax.random.normal(sub, (count,) + raw.shape, raw.dtype)
+                out.append(eqx.tree_at(lambda p: p.raw, leaf, raw[None] + noise.at[0].set(0.0)))
+            elif eqx.is_inexact_array(leaf):
+                noise = spread * jax.random.normal(sub, (count,) + leaf.shape, leaf.dtype) * (jnp.abs(leaf) + 1e-12)
+                out.append(leaf[None] + noise.at[0].set(0.0))
+            else:  # frozen (partitioned out) or not an array
+                out.append(leaf)
+        return jax.tree_util.tree_unflatten(treedef, out)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from .._data._io import _read_columns, _record_from_columns
 from .._data._record import FrictionData
 from .._estimation._fit import fit, levenberg_marquardt
 from .._estimation._result import FitResult
@@ -312,61 +313,14 @@ def load_split(spec: str, *, seed: int = 0) -> tuple[Split, dict[str, Any], Any]
     path = pathlib.Path(spec)
     if not path.is_file():
         raise CompareError(f"--data {spec}: no such file (use tribometer:presliding|mixed|sliding, emps, or a file)")
-    columns = _read_columns(path)
-    full = _record_from_columns(columns, path)
+    try:
+        columns = _read_columns(path)
+        full = _record_from_columns(columns, path)
+    except ValueError as err:
+        raise CompareError(f"--data {err}") from err
     n = full.length
     card = {"source": str(path), "samples": n, "columns": sorted(columns), "dt_s": float(np.asarray(full.motion.dt))}
     return Split(full, int(0.6 * n), int(0.8 * n)), card, None
-
-
-def _read_columns(path: Any) -> dict[str, np.ndarray]:
-    suffix = path.suffix.lower()
-    try:
-        if suffix == ".npz":
-            with np.load(path) as archive:
-                return {key.lower(): np.asarray(archive[key], dtype=float).reshape(-1) for key in archive.files}
-        if suffix == ".csv":
-            table = np.genfromtxt(path, delimiter=",", names=True, dtype=float)
-            if table.dtype.names is None:
-                raise CompareError(f"--data {path}: the CSV needs a header row naming its columns")
-            return {name.lower(): np.asarray(table[name], dtype=float).reshape(-1) for name in table.dtype.names}
-    except CompareError:
-        raise
-    except Exception as err:  # noqa: BLE001 - any parse failure becomes one line
-        detail = " ".join(str(err).split())  # one line
-        raise CompareError(f"--data {path}: cannot read the file ({type(err).__name__}: {detail})") from err
-    raise CompareError(f"--data {path}: unsupported file type {suffix!r}; use .npz or .csv")
-
-
-def _record_from_columns(columns: dict[str, np.ndarray], path: Any) -> FrictionData:
-    from .._inputs import Motion
-
-    if "force" not in columns:
-        raise CompareError(f"--data {path}: missing column 'force' (found: {', '.join(sorted(columns))})")
-    if "x" not in columns and "v" not in columns:
-        raise CompareError(f"--data {path}: need a displacement column 'x' and/or a velocity column 'v'")
-    if "dt" in columns:
-        dt = float(columns["dt"].reshape(-1)[0])
-    elif "t" in columns:
-        steps = np.diff(columns["t"])
-        if steps.size == 0 or not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
-            raise CompareError(f"--data {path}: column 't' must be uniformly sampled (or give 'dt')")
-        dt = float(steps[0])
-    else:
-        raise CompareError(f"--data {path}: need a time column 't' or a sample-time column 'dt'")
-    force = columns["force"]
-    if force.size < 100:
-        raise CompareError(f"--data {path}: only {force.size} samples; need at least 100")
-    try:
-        x, v = columns.get("x"), columns.get("v")
-        if x is not None:
-            motion = Motion(x=x, v=v, dt=dt) if v is not None else Motion.from_position(x, dt)
-        else:
-            assert v is not None
-            motion = Motion.from_velocity(v, dt)
-        return FrictionData(motion, force)
-    except (ValueError, TypeError) as err:
-        raise CompareError(f"--data {path}: {err}") from err
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -431,50 +385,3 @@ def format_table(rows: list[ModelScore]) -> str:
             f"{r.label:44s} {r.num_parameters:6d} {r.nmse:9.4f} {r.max_error:7.3f} {r.fit_time:7.1f}  {r.result}"
         )
     return "\n".join(lines)
-
-
-def plot_errors(rows: list[ModelScore], split: Split, path: Any) -> None:
-    """Test-set prediction errors per model, one panel each (parlitz2004 Fig. 6 layout)."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    ordered = sorted(rows, key=lambda r: r.nmse)
-    measured = np.asarray(split.full.force)[split.validation_end :]
-    t = np.arange(measured.size) * float(np.asarray(split.full.motion.dt))
-    fig, axes = plt.subplots(len(ordered) + 1, 1, figsize=(10, 1.4 * (len(ordered) + 1)), sharex=True)
-    axes[0].plot(t, measured, "k", lw=0.7)
-    axes[0].set_ylabel("F [N]")
-    axes[0].set_title("test set: measured force (top) and prediction errors e = F_hat - F per model")
-    limit = max(float(np.max(np.abs(r.prediction - measured))) for r in ordered)
-    for ax, r in zip(axes[1:], ordered, strict=True):
-        ax.plot(t, r.prediction - measured, lw=0.6)
-        ax.set_ylim(-limit, limit)
-        ax.text(0.01, 0.8, f"{r.label}: NMSE {r.nmse:.3g} %, MAX {r.max_error:.3g}", transform=ax.transAxes, fontsize=8)
-        ax.set_ylabel("e [N]")
-    axes[-1].set_xlabel("time in the test set [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-def plot_loops(rows: list[ModelScore], split: Split, path: Any) -> None:
-    """Measured vs predicted friction-displacement loops on the test set, best four models."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    ordered = sorted(rows, key=lambda r: r.nmse)[:4]
-    x = np.asarray(split.full.motion.x)[split.validation_end :] * 1e6
-    measured = np.asarray(split.full.force)[split.validation_end :]
-    fig, axes = plt.subplots(1, len(ordered), figsize=(4 * len(ordered), 3.8), squeeze=False)
-    for ax, r in zip(axes[0], ordered, strict=True):
-        ax.plot(x, measured, color="0.6", lw=0.8, label="measured")
-        ax.plot(x, r.prediction, "r", lw=0.6, label="predicted")
-        ax.set(title=f"{r.label}\nNMSE {r.nmse:.3g} %", xlabel="x [µm]", ylabel="F [N]")
-    axes[0][0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
