@@ -1,0 +1,117 @@
+"""The architecture holds: dependencies point one way (no import cycles), one scan over time, public-only tests."""
+
+from __future__ import annotations
+
+import ast
+import pathlib
+import re
+
+import fricjax as fj
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "src" / "fricjax"
+
+# the layers of DESIGN.md, lowest first: a module may import only from its own layer or lower ones
+LAYERS = [
+    {"_smoothing", "_constraints", "_inputs", "_metrics"},
+    {"_models"},
+    {"_simulate"},
+    {"_systems", "_data"},
+    {"_estimation"},
+    {"_protocols", "_plot"},
+    {"_cli", "compare", "__init__", "__main__"},
+]
+
+
+def _module_name(path: pathlib.Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _imports(path: pathlib.Path) -> set[str]:
+    """Modules of fricjax imported at module level (deferred imports inside functions are not counted)."""
+    name = _module_name(path)
+    package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    found = set()
+    for node in ast.parse(path.read_text()).body:
+        if isinstance(node, ast.ImportFrom) and node.level > 0:
+            base = package[: len(package) - node.level + 1]
+            target = ".".join([*base, *([node.module] if node.module else [])])
+            if node.module is None:  # from . import x
+                found.update(f"{target}.{alias.name}" for alias in node.names)
+            else:
+                found.add(target)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("fricjax"):
+            found.add(node.module)
+    return found
+
+
+def _graph() -> dict[str, set[str]]:
+    modules = {_module_name(p): p for p in PACKAGE.rglob("*.py")}
+    graph = {}
+    for name, path in modules.items():
+        graph[name] = {m for m in _imports(path) if m in modules and m != name}
+    return graph
+
+
+def _layer(module: str) -> int:
+    top = module.split(".")[1] if "." in module else "__init__"
+    for index, layer in enumerate(LAYERS):
+        if top in layer:
+            return index
+    raise AssertionError(f"{module} is in no layer of the design; add it to LAYERS")
+
+
+def test_no_import_cycles():
+    graph = _graph()
+    state: dict[str, int] = {}
+
+    def visit(node: str, trail: list[str]) -> None:
+        state[node] = 1
+        for nxt in sorted(graph[node]):
+            if state.get(nxt) == 1:
+                raise AssertionError("import cycle: " + " -> ".join([*trail, node, nxt]))
+            if nxt not in state:
+                visit(nxt, [*trail, node])
+        state[node] = 2
+
+    for module in sorted(graph):
+        if module not in state:
+            visit(module, [])
+
+
+def test_dependencies_point_one_way():
+    wrong = [
+        f"{module} -> {target}"
+        for module, targets in _graph().items()
+        for target in targets
+        if _layer(target) > _layer(module)
+    ]
+    assert not wrong, "imports against the layering of DESIGN.md:\n" + "\n".join(sorted(wrong))
+
+
+def test_one_scan_over_time():
+    """`lax.scan` appears in `_simulate.py` (time) and in the fit driver (optimiser steps), nowhere else."""
+    users = sorted(
+        str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py") if re.search(r"lax\.scan\(", p.read_text())
+    )
+    assert users == ["_estimation/_fit.py", "_simulate.py"], users
+
+
+def test_tests_and_notebooks_import_public_names_only():
+    offenders = []
+    for path in [*ROOT.glob("tests/*.py"), *ROOT.glob("notebooks/*.ipynb")]:
+        if re.search(r"fricjax\._|fj\._", path.read_text()) and path.name != "test_architecture.py":
+            offenders.append(path.name)
+    assert not offenders, offenders
+
+
+def test_public_names_have_docstrings():
+    missing = [
+        name
+        for name in dir(fj)
+        if not name.startswith("_") and callable(getattr(fj, name)) and not (getattr(fj, name).__doc__ or "").strip()
+    ]
+    assert not missing, missing
