@@ -111,17 +111,17 @@ def bench(name: str, steps: int, nm_evals: int) -> dict[str, Any]:
     # on its second (compiled) call
     solver = fj.levenberg_marquardt()
     t0 = time.perf_counter()
-    result = fj.fit(start, data, solver=solver, steps=max_lm_steps, compute_std=False)
+    result = fj.fit(start, data, solver=solver, steps=max_lm_steps, scaling=fj.ParameterScaling(), compute_std=False)
     first = time.perf_counter() - t0
     t0 = time.perf_counter()
-    result = fj.fit(start, data, solver=solver, steps=max_lm_steps, compute_std=False)
+    result = fj.fit(start, data, solver=solver, steps=max_lm_steps, scaling=fj.ParameterScaling(), compute_std=False)
     fj_time = time.perf_counter() - t0
     method = f"LevenbergMarquardt (max {max_lm_steps} steps)"
     reach_time, reach_steps = (fj_time, result.evaluations) if result.train_loss <= nm_loss else (None, None)
     for max_steps in (1, 2, 4, 8, 16, 32):
-        fj.fit(start, data, solver=solver, steps=max_steps, compute_std=False)  # compile
+        fj.fit(start, data, solver=solver, steps=max_steps, scaling=fj.ParameterScaling(), compute_std=False)  # compile
         t0 = time.perf_counter()
-        partial = fj.fit(start, data, solver=solver, steps=max_steps, compute_std=False)
+        partial = fj.fit(start, data, solver=solver, steps=max_steps, scaling=fj.ParameterScaling(), compute_std=False)
         elapsed = time.perf_counter() - t0
         if partial.train_loss <= nm_loss:
             reach_time, reach_steps = elapsed, max_steps

@@ -46,7 +46,7 @@ def test_lugre_parameters_recovered_within_1_percent():
     truth = fj.LuGre(STRIBECK, sigma0=1e5, sigma1=300.0, sigma2=40.0)
     data = fj.FrictionData(motion, fj.simulate(truth, motion))
     start = fj.LuGre(START_STRIBECK, sigma0=5e4, sigma1=450.0, sigma2=20.0, smoothing=fj.Smooth(1e-6))
-    result = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=200)
+    result = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=200, scaling=fj.ParameterScaling())
     assert result.success, result.message
     errors = relative_errors(result.model, truth)
     assert max(errors.values()) < 0.01, errors
@@ -59,9 +59,14 @@ def test_gms_parameters_recovered_within_2_percent():
     truth = fj.GMS(STRIBECK, k=[6e4, 2.5e4, 1e4, 5e3], alpha=[0.1, 0.2, 0.3, 0.4], C=50.0, sigma2=40.0)
     data = fj.FrictionData(motion, fj.simulate(truth, motion))
     start = fj.GMS(START_STRIBECK, k=[9e4, 1.25e4, 1.5e4, 2.5e3], alpha=[0.25] * 4, C=75.0, sigma2=20.0)
-    coarse = fj.fit(start, data, solver=optax.adam(3e-2), steps=1000, continuation=fj.Continuation(1e-7, 1e-10, 3))
+    coarse = fj.fit(
+        start, data, solver=optax.adam(3e-2), steps=1000, continuation=fj.Continuation(1e-7, 1e-10, 3),
+        scaling=fj.ParameterScaling(),
+    )  # fmt: skip
     assert coarse.success, coarse.message
-    result = fj.fit(coarse.model, data, solver=fj.levenberg_marquardt(), steps=50)  # polish at eps = 1e-10 m
+    result = fj.fit(
+        coarse.model, data, solver=fj.levenberg_marquardt(), steps=50, scaling=fj.ParameterScaling()
+    )  # polish at eps = 1e-10 m
     errors = relative_errors(result.model, truth, reorder=True)
     assert max(errors.values()) < 0.02, errors
     assert float(fj.nmse(data.force, fj.simulate(result.exact_model, motion))) <= 0.01
