@@ -314,3 +314,31 @@ def test_wrong_input_kind_is_a_type_error(emps):
         fj.simulate(system, motion)
     with pytest.raises(TypeError, match="Motion"):
         fj.simulate(PolyNARX(jnp.asarray(THETA)), fj.InputRecord(dt=1e-3, vir=vir))
+
+
+def test_ensemble_of_narx_members_is_teacher_forced(narx):
+    v, motion, _, noisy = narx
+    model = PolyNARX(jnp.asarray(THETA))
+    ensemble = fj.AverageEnsemble([model, model, fj.Coulomb(Fc=1e-9)])  # the physics member ignores feedback
+    expected = (2 * numpy_one_step(THETA, v, noisy) + 1e-9 * np.sign(v)) / 3
+    np.testing.assert_allclose(fj.simulate(ensemble, motion, measured=noisy), expected, rtol=0, atol=1e-12)
+    loss = fj.OneStepLoss()(ensemble, None, fj.FrictionData(motion, noisy))
+    assert np.isfinite(float(loss))
+    with pytest.raises(TypeError, match="feeds back no outputs"):  # no member feeds back
+        fj.OneStepLoss()(fj.AverageEnsemble([fj.Coulomb(Fc=1.0)]), None, fj.FrictionData(motion, noisy))
+
+
+def test_split_keeps_acceleration_and_normal_load():
+    t = np.arange(200) * 1e-3
+    motion = fj.Motion(x=np.sin(t), v=np.cos(t), dt=1e-3, a=-np.sin(t), normal_force=10.0 + t)
+    head, tail = fj.FrictionData(motion, np.cos(t)).split(0.5)
+    np.testing.assert_array_equal(tail.motion.normal_force, 10.0 + t[100:])
+    np.testing.assert_array_equal(head.motion.a, -np.sin(t[:100]))
+
+
+def test_system_substeps_are_checked(emps):
+    plant, _ = emps
+    with pytest.raises(ValueError, match="substeps"):
+        fj.EMPSOpenLoop(plant, jnp.asarray(35.15), 0)
+    with pytest.raises(ValueError, match="substeps"):
+        fj.EMPSClosedLoop(plant, *(jnp.asarray(g) for g in (35.15, 160.18, 243.45, 10.0)), 0)

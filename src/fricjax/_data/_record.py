@@ -57,9 +57,11 @@ class FrictionData(eqx.Module):
                 "an empty split cannot be fitted or scored."
             )
         m = self.motion
-        motion = Motion(
-            x=None if m.x is None else m.x[..., start:stop], v=None if m.v is None else m.v[..., start:stop], dt=m.dt
-        )
+
+        def cut(signal: Array | None) -> Array | None:
+            return None if signal is None else signal[..., start:stop]
+
+        motion = Motion(x=cut(m.x), v=cut(m.v), dt=m.dt, a=cut(m.a), normal_force=cut(m.normal_force))
         return FrictionData(motion, self.force[..., start:stop])
 
     def split(self, *points: float | int) -> tuple[FrictionData, ...]:

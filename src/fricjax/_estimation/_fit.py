@@ -151,6 +151,10 @@ def _check_linear(model: Any, linear_spec: Any, data: FrictionData, paths: Seque
 # ----------------------------------------------------------------------------------------------------------------
 
 
+# one object, so that repeated fits with the default solver hit the same compilation
+DEFAULT_SOLVER = optax.adam(1e-2)
+
+
 def fit(
     model: Any,
     data: Any,
@@ -225,7 +229,7 @@ def fit(
     if not isinstance(loss, AbstractLoss):
         raise TypeError(f"fit: `loss` must be a fricjax loss (fj.SimulationLoss(), ...), got {type(loss).__name__}.")
     _validate(model, data, validation, steps, loss)
-    solver = optax.adam(1e-2) if solver is None else solver
+    solver = DEFAULT_SOLVER if solver is None else solver
     kind = _solver_kind(solver)
     if isinstance(multistart, int):
         multistart = MultiStart(multistart)

@@ -55,7 +55,11 @@ class AbstractModel(eqx.Module):
 
 
 def feeds_back(model: AbstractModel) -> bool:
-    """True when `model` overrides `feedback` (its state holds past outputs, so teacher forcing changes it)."""
+    """True when teacher forcing changes `model`'s state: it overrides `feedback` (its state holds past
+    outputs), or, for a model made of members (ensembles), one of its members does."""
+    members = getattr(model, "members", None)
+    if members is not None:
+        return any(feeds_back(member) for member in members)
     return type(model).feedback is not AbstractModel.feedback
 
 

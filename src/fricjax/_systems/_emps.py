@@ -153,6 +153,9 @@ class EMPSOpenLoop(AbstractSystem):
 
     requires: ClassVar[frozenset[str]] = frozenset({"vir"})
 
+    def __check_init__(self) -> None:
+        _substeps(self.substeps)
+
     def init_state(self) -> tuple[Array, Array]:
         zero = jnp.zeros((), jnp.result_type(self.gtau))
         return zero, zero
@@ -184,6 +187,9 @@ class EMPSClosedLoop(AbstractSystem):
     substeps: int = eqx.field(static=True, default=1)
 
     requires: ClassVar[frozenset[str]] = frozenset({"qg", "disturbance"})
+
+    def __check_init__(self) -> None:
+        _substeps(self.substeps)
 
     def init_state(self) -> tuple[Array, Array, Array, Array]:
         return self.rest_state(jnp.zeros((), jnp.result_type(self.gtau)))

@@ -80,6 +80,13 @@ class AbstractEnsemble(AbstractFrictionModel):
             forces.append(force)
         return tuple(states), unwrap(self).combine(jnp.stack(forces, axis=-1))
 
+    def feedback(self, state: tuple[Any, ...], y_measured: Array) -> tuple[Any, ...]:
+        """Teacher forcing of every member with the measured force (members without feedback are unchanged)."""
+        return tuple(
+            unwrap(member).feedback(member_state, y_measured)
+            for member, member_state in zip(self.members, state, strict=True)
+        )
+
     def predict(self, motion: Motion) -> Float[Array, "T"]:
         """The ensemble force along `motion`: shorthand for `fj.simulate(self, motion)`."""
         return simulate(self, motion)
