@@ -109,7 +109,8 @@ def load_model(path: str | pathlib.Path, *, classes: Iterable[type] = ()) -> Any
     The header is read first: a file that does not start with the fricjax magic line (a pickle, say) is
     refused before anything else is read. The tree is rebuilt from the JSON description without calling any
     constructor, for allowed classes only: every equinox Module defined in fricjax, plus `classes`. Arrays
-    (JAX or NumPy when saved) come back as JAX arrays, read without pickle.
+    (JAX or NumPy when saved) come back as JAX arrays of the saved dtype, read without pickle; a weakly typed
+    leaf such as `jnp.asarray(0.1)` comes back strongly typed, as with `equinox.tree_deserialise_leaves`.
 
     **Arguments:**
 
@@ -378,8 +379,9 @@ def _build_module(node: dict, allowed: dict[tuple[str, str], type], where: str, 
     cls = allowed.get((module_name, qualname))
     if cls is None:
         raise ValueError(
-            f"load_model: {path} holds a {module_name}.{qualname} (at `{where}`), which is not a fricjax class; "
-            f"if you trust the file, pass the class: fj.load_model(path, classes=({qualname.split('.')[-1]},))."
+            f"load_model: {path} holds a {module_name}.{qualname} (at `{where}`), which is neither a fricjax Module "
+            f"nor in `classes`; if you trust the file, pass the class: "
+            f"fj.load_model(path, classes=({qualname.split('.')[-1]},))."
         )
     if getattr(cls, "__abstractmethods__", None) or getattr(cls, "__abstractvars__", None):
         raise ValueError(f"load_model: {path} is damaged (`{where}` is of the abstract class {qualname}).")
