@@ -139,13 +139,20 @@ def test_float32_and_float64_models_keep_their_dtype(dtype, tmp_path):
     np.testing.assert_array_equal(np.asarray(fj.simulate(loaded, motion)), np.asarray(fj.simulate(model, motion)))
 
 
-def test_emps_plant_round_trips(tmp_path):
+def test_emps_plant_and_system_round_trip(tmp_path):
     friction = fj.CoulombViscous(Fc=(20.0, 21.0), Fv=200.0, offset=-3.0, smoothing=fj.Smooth(1e-3))
     plant = fj.EMPSPlant(95.1, friction, offset=0.5)
     loaded = round_trip(tmp_path, plant)
     vir = np.r_[np.full(50, 2.0), np.full(50, -2.0)]
     new, old = (fj.simulate_open_loop(p, vir, gtau=35.15, dt=1e-3) for p in (loaded, plant))
     np.testing.assert_array_equal(np.asarray(new.q), np.asarray(old.q))
+    # the open-loop system model: a static field (substeps) around the plant
+    system = fj.EMPSOpenLoop(plant, jnp.asarray(35.15), substeps=2)
+    loaded = round_trip(tmp_path, system)
+    assert loaded.substeps == 2
+    inputs = fj.InputRecord(dt=1e-3, vir=vir)
+    for new, old in zip(fj.simulate(loaded, inputs), fj.simulate(system, inputs), strict=True):
+        np.testing.assert_array_equal(np.asarray(new), np.asarray(old))
 
 
 def test_fitted_model_round_trips(tmp_path):
