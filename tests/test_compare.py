@@ -39,7 +39,7 @@ def test_compare_on_a_user_file_writes_a_complete_report(record_csv, tmp_path, c
     assert all(np.isfinite(nmses))
     assert (out / "test_errors.png").stat().st_size > 10_000
     assert (out / "hysteresis_loops.png").stat().st_size > 10_000
-    reloaded = fj.load_model(out / "models" / "nlr.pkl")
+    reloaded = fj.load_model(out / "models" / "nlr.eqx")
     assert isinstance(reloaded, fj.MaxwellSlip)
     assert "NMSE %" in printed and "Maxwell-slip NLR(5)" in printed
     assert not list(out.glob(".partial-*"))

@@ -686,7 +686,7 @@ def test_bad_friction_data():
 def test_save_load_round_trip(noisy_fits, tmp_path):
     _, fits = noisy_fits
     model = fits[N][1].model
-    path = tmp_path / "m.pkl"
+    path = tmp_path / "m.eqx"
     fj.save_model(path, model)
     loaded = fj.load_model(path)
     assert type(loaded) is type(model)
@@ -696,9 +696,9 @@ def test_save_load_round_trip(noisy_fits, tmp_path):
     )
     # a model with a state-holding family and nested wrappers round-trips too
     lugre_model = lugre()
-    fj.save_model(str(tmp_path / "lugre.pkl"), lugre_model)
+    fj.save_model(str(tmp_path / "lugre.eqx"), lugre_model)
     np.testing.assert_array_equal(
-        np.asarray(fj.simulate(fj.load_model(str(tmp_path / "lugre.pkl")), MOTION)),
+        np.asarray(fj.simulate(fj.load_model(str(tmp_path / "lugre.eqx")), MOTION)),
         np.asarray(fj.simulate(lugre_model, MOTION)),
     )
 
@@ -713,11 +713,11 @@ def test_load_rejects_non_model_files(tmp_path):
     with pytest.raises(ValueError, match="not a fricjax model file"):
         fj.load_model(foreign)
     with pytest.raises(ValueError, match="no file"):
-        fj.load_model(tmp_path / "missing.pkl")
+        fj.load_model(tmp_path / "missing.eqx")
 
 
 def test_save_to_unwritable_path(tmp_path):
     with pytest.raises(ValueError, match="cannot write"):
-        fj.save_model(tmp_path / "no_such_dir" / "m.pkl", TRUTH)
+        fj.save_model(tmp_path / "no_such_dir" / "m.eqx", TRUTH)
     with pytest.raises(ValueError, match="cannot write"):
         fj.save_model(tmp_path, TRUTH)  # a directory

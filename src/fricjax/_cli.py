@@ -157,7 +157,7 @@ def run_compare(args: argparse.Namespace) -> int:
     try:
         (staging / "models").mkdir()
         for row in rows:
-            fj.save_model(staging / "models" / f"{row.name}.pkl", row.model)
+            fj.save_model(staging / "models" / f"{row.name}.eqx", row.model)
         plot_prediction_errors(rows, split, staging / "test_errors.png")
         plot_test_loops(rows, split, staging / "hysteresis_loops.png")
         report = {

@@ -1,10 +1,8 @@
-"""`FitResult`, parameter tables, and saving / loading fitted models."""
+"""`FitResult`: what `fit` returns, with its parameter table and summary."""
 
 from __future__ import annotations
 
 import dataclasses
-import pathlib
-import pickle
 from typing import Any
 
 import equinox as eqx
@@ -103,38 +101,3 @@ def _flat_paths(tree: Any) -> dict[str, np.ndarray]:
             name = "".join(str(p) for p in path).lstrip(".")
             out[name] = np.asarray(leaf)
     return out
-
-
-_MAGIC = "fricjax-model-v1"
-
-
-def save_model(path: str | pathlib.Path, model: Any) -> None:
-    """Save a model (or any pytree of fricjax objects) to `path` (a pickle of NumPy leaves + a header).
-
-    Only load files you trust: the format is Python pickle.
-    """
-    from .. import __version__
-
-    numpy_tree = jax.tree_util.tree_map(lambda a: np.asarray(a) if eqx.is_array(a) else a, model)
-    payload = {"magic": _MAGIC, "fricjax": __version__, "model": numpy_tree}
-    path = pathlib.Path(path)
-    try:
-        with path.open("wb") as handle:
-            pickle.dump(payload, handle, protocol=pickle.HIGHEST_PROTOCOL)
-    except OSError as err:
-        raise ValueError(f"save_model: cannot write {path}: {err.strerror}; choose a writable path.") from err
-
-
-def load_model(path: str | pathlib.Path) -> Any:
-    """Load a model saved by `save_model` (leaves back as JAX arrays)."""
-    path = pathlib.Path(path)
-    if not path.is_file():
-        raise ValueError(f"load_model: no file at {path}.")
-    with path.open("rb") as handle:
-        try:
-            payload = pickle.load(handle)  # noqa: S301 - documented: trusted files only
-        except Exception as err:  # noqa: BLE001
-            raise ValueError(f"load_model: {path} is not a fricjax model file ({err}).") from err
-    if not isinstance(payload, dict) or payload.get("magic") != _MAGIC:
-        raise ValueError(f"load_model: {path} is not a fricjax model file (missing header).")
-    return jax.tree_util.tree_map(lambda a: jnp.asarray(a) if isinstance(a, np.ndarray) else a, payload["model"])
