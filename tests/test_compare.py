@@ -24,6 +24,7 @@ def record_csv(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 def test_compare_on_a_user_file_writes_a_complete_report(record_csv, tmp_path, capsys):
     out = tmp_path / "report"
     code = main(
@@ -45,6 +46,7 @@ def test_compare_on_a_user_file_writes_a_complete_report(record_csv, tmp_path, c
     assert not list(out.glob(".partial-*"))
 
 
+@pytest.mark.slow
 def test_best_ensemble_no_worse_than_best_single_and_gms_near_truth():
     """The issue's acceptance on the default synthetic regime, at reduced cost (mixed regime, seed 0)."""
     split, _, truth = load_split("tribometer:mixed", seed=0)

@@ -145,6 +145,7 @@ def test_reference_parameters_official_score(test_record):
     assert score_emps_open_loop(REFERENCE, test_record) == pytest.approx(8.49, abs=0.01)
 
 
+@pytest.mark.slow
 def test_open_loop_fit_beats_the_reference_on_the_test_file(train, test_record):
     # reduced budget (90 Levenberg-Marquardt steps over the 3 smoothing stages, not 300): 6.0 mm (6.1 with 300)
     fitted = fit_emps_open_loop(train, CoulombViscous, steps=90, compute_std=False)
