@@ -146,6 +146,32 @@ def _check_linear(model: Any, linear_spec: Any, data: FrictionData, paths: Seque
         )
 
 
+def _parameter_specs(model: Any, train: Any, freeze: Any, separable: Sequence[str], loss: Any, data: Any) -> Any:
+    """Which leaves the optimiser moves (`spec`) and which are solved by least squares (`linear_spec`)."""
+    spec = trainable_filter(model)
+    if train is not None:
+        selected = _set_spec(jax.tree_util.tree_map(lambda _: False, spec), model, train, True, "train")
+        spec = jax.tree_util.tree_map(lambda a, b: bool(a) and bool(b), spec, selected)
+    spec = _set_spec(spec, model, freeze, False, "freeze")
+    linear_spec = None
+    if separable:
+        if not isinstance(loss, SimulationLoss):
+            raise ValueError("fit: `separable` needs a SimulationLoss (the linear solve is on the simulated force).")
+        for path, where in _where(separable, model, "separable"):
+            node = where(model)
+            if isinstance(node, AbstractUnwrappable) or not eqx.is_inexact_array(node):
+                raise ValueError(
+                    f"fit: separable field {path!r} is reparametrised or not a real array; only real fields "
+                    "(offsets, FIR coefficients, sigma1 / sigma2, Fv) can be solved linearly."
+                )
+        linear_spec = _set_spec(jax.tree_util.tree_map(lambda _: False, spec), model, separable, True, "separable")
+        spec = _set_spec(spec, model, separable, False, "separable")
+        _check_linear(model, linear_spec, data, separable)
+    if not any(jax.tree_util.tree_leaves(spec)) and linear_spec is None:
+        raise ValueError("fit: nothing to train: every parameter is frozen.")
+    return spec, linear_spec
+
+
 # ----------------------------------------------------------------------------------------------------------------
 # the driver
 # ----------------------------------------------------------------------------------------------------------------
@@ -243,28 +269,7 @@ def fit(
 
     if continuation is not None:  # smooth from the start, so every stage shares one tree structure
         model = with_smoothing(model, Smooth(jnp.asarray(continuation.eps_start, dtype=float)))
-    # which leaves the optimiser moves, which are solved linearly
-    spec = trainable_filter(model)
-    if train is not None:
-        selected = _set_spec(jax.tree_util.tree_map(lambda _: False, spec), model, train, True, "train")
-        spec = jax.tree_util.tree_map(lambda a, b: bool(a) and bool(b), spec, selected)
-    spec = _set_spec(spec, model, freeze, False, "freeze")
-    linear_spec = None
-    if separable:
-        if not isinstance(loss, SimulationLoss):
-            raise ValueError("fit: `separable` needs a SimulationLoss (the linear solve is on the simulated force).")
-        for path, where in _where(separable, model, "separable"):
-            node = where(model)
-            if isinstance(node, AbstractUnwrappable) or not eqx.is_inexact_array(node):
-                raise ValueError(
-                    f"fit: separable field {path!r} is reparametrised or not a real array; only real fields "
-                    "(offsets, FIR coefficients, sigma1 / sigma2, Fv) can be solved linearly."
-                )
-        linear_spec = _set_spec(jax.tree_util.tree_map(lambda _: False, spec), model, separable, True, "separable")
-        spec = _set_spec(spec, model, separable, False, "separable")
-        _check_linear(model, linear_spec, data, separable)
-    if not any(jax.tree_util.tree_leaves(spec)) and linear_spec is None:
-        raise ValueError("fit: nothing to train: every parameter is frozen.")
+    spec, linear_spec = _parameter_specs(model, train, freeze, separable, loss, data)
 
     eps_schedule = [None] if continuation is None else list(continuation.schedule())
     params0, static0 = eqx.partition(model, spec)
@@ -281,83 +286,51 @@ def fit(
     extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + e.shape), extra0)
     states = (starts, extras)
 
-    history: dict[str, list[Any]] = {"step": [], "train_loss": [], "val_loss": [], "eps": [], "time": []}
-    best_states = states
-    best_scores = np.full(count, np.inf)
-    diverged = np.zeros(count, dtype=bool)
-    evaluations = 0
+    search = _Search(states, validation is not None, start_time, _progress_bar(progress, steps, kind))
     result_code, message = "max_steps", f"ran the full budget of {steps} steps"
-    bar = _progress_bar(progress, steps, kind)
     stop = False
     stage_steps = _split(steps, len(eps_schedule))
     static = static0
-    step_count = 0
-    stall = 0
     solver_codes: list[str] = []
 
     linear_only = not any(eqx.is_array(leaf) for leaf in jax.tree_util.tree_leaves(params0))
     if linear_only:  # only separable (linear) parameters: one least-squares solve is the whole fit
         stop, result_code, message = True, "successful", "only linear parameters: solved by least squares"
-        best_scores = np.zeros(count)
+        search.best_scores = np.zeros(count)
     for eps, budget in zip(eps_schedule, stage_steps, strict=True):
         if stop or budget == 0:
             continue
         if eps is not None:
             static = eqx.partition(with_smoothing(model, Smooth(jnp.asarray(eps, dtype=float))), spec)[1]
             # losses at different widths are not comparable: each stage starts its own best-so-far
-            train_now, val_now = map(np.asarray, _batched_losses(problem, states, static))
-            scores = val_now if validation is not None else train_now
-            best_states = states
-            best_scores = np.where(np.isfinite(scores) & ~diverged, scores, np.inf)
+            search.restart(*_batched_losses(problem, search.states, static))
         if kind == "optax":
             chunk = eval_every or max(1, steps // 50)
-            opt_states = _optax_init(solver, states)
+            opt_states = _optax_init(solver, search.states)
             done = 0
             while done < budget and not stop:
                 n = min(chunk, budget - done)
-                states, opt_states, bad, _ = _run_chunk(solver, problem, states, opt_states, static, n)
+                states, opt_states, bad, _ = _run_chunk(solver, problem, search.states, opt_states, static, n)
                 done += n
-                step_count += n
-                evaluations += n
-                diverged |= np.asarray(bad)
-                train_now, val_now = map(np.asarray, _batched_losses(problem, states, static))
-                scores = val_now if validation is not None else train_now
-                scores = np.where(np.isfinite(scores) & ~diverged, scores, np.inf)
-                improved = scores < best_scores
-                best_states = _where_batch(improved, states, best_states)
-                best_scores = np.where(improved, scores, best_scores)
-                stall = 0 if improved.any() else stall + 1
-                _record(history, step_count, train_now, val_now, eps, time.perf_counter() - start_time)
-                if bar is not None:
-                    bar.update(n)
-                    bar.set_postfix(loss=f"{np.nanmin(train_now):.3g}", val=f"{np.nanmin(val_now):.3g}")
-                if diverged.all():
-                    stop, result_code = True, "diverged"
-                    message = _DIVERGENCE_MESSAGE
-                elif patience is not None and validation is not None and stall >= patience:
+                search.observe(states, n, np.asarray(bad), *_batched_losses(problem, states, static), eps)
+                if search.diverged.all():
+                    stop, result_code, message = True, "diverged", _DIVERGENCE_MESSAGE
+                elif patience is not None and validation is not None and search.stall >= patience:
                     stop, result_code = True, "early_stopped"
-                    message = f"validation loss did not improve for {patience} evaluations (step {step_count})"
+                    message = f"validation loss did not improve for {patience} evaluations (step {search.step_count})"
         else:
-            states, codes, nsteps = _run_optimistix(solver, kind, problem, states, static, budget)
-            evaluations += int(np.max(nsteps))
-            step_count += int(np.max(nsteps))
-            solver_codes = codes
+            states, solver_codes, nsteps = _run_optimistix(solver, kind, problem, search.states, static, budget)
             train_now, val_now = map(np.asarray, _batched_losses(problem, states, static))
-            bad = ~np.isfinite(train_now)
-            diverged |= bad
-            scores = val_now if validation is not None else train_now
-            scores = np.where(np.isfinite(scores) & ~diverged, scores, np.inf)
-            improved = scores < best_scores
-            best_states = _where_batch(improved, states, best_states)
-            best_scores = np.where(improved, scores, best_scores)
-            _record(history, step_count, train_now, val_now, eps, time.perf_counter() - start_time)
-            if bar is not None:
-                bar.update(budget)
-                bar.set_postfix(loss=f"{np.nanmin(train_now):.3g}")
-            if diverged.all():
+            search.observe(states, int(np.max(nsteps)), ~np.isfinite(train_now), train_now, val_now, eps)
+            if search.diverged.all():
                 stop, result_code, message = True, "diverged", "the loss became non-finite for every start"
-    if bar is not None:
-        bar.close()
+    search.close()
+    best_states, best_scores, diverged, history = (
+        search.best_states,
+        search.best_scores,
+        search.diverged,
+        search.history,
+    )
 
     # choose the best start; keep its best snapshot
     if np.isfinite(best_scores).any():
@@ -416,7 +389,7 @@ def fit(
         train_loss=train_loss,
         val_loss=val_loss,
         exact_val_loss=exact_val,
-        evaluations=evaluations,
+        evaluations=search.evaluations,
         wall_time=time.perf_counter() - start_time,
         num_starts=count,
         best_start=best,
@@ -597,6 +570,49 @@ def _split(total: int, parts: int) -> list[int]:
     for i in range(total - sum(base)):
         base[i] += 1
     return base
+
+
+class _Search:
+    """The bookkeeping of a fit over a batch of starts: current and best states, scores (validation loss, else
+    training loss), which starts diverged, stalls for early stopping, the history and the progress bar."""
+
+    def __init__(self, states: Any, by_validation: bool, start_time: float, bar: Any):
+        count = jax.tree_util.tree_leaves(states)[0].shape[0] if jax.tree_util.tree_leaves(states) else 1
+        self.states = self.best_states = states
+        self.best_scores = np.full(count, np.inf)
+        self.diverged = np.zeros(count, dtype=bool)
+        self.by_validation, self.start_time, self.bar = by_validation, start_time, bar
+        self.step_count = self.evaluations = self.stall = 0
+        self.history: dict[str, list[Any]] = {"step": [], "train_loss": [], "val_loss": [], "eps": [], "time": []}
+
+    def _scores(self, train: Any, val: Any) -> np.ndarray:
+        scores = np.asarray(val if self.by_validation else train)
+        return np.where(np.isfinite(scores) & ~self.diverged, scores, np.inf)
+
+    def restart(self, train: Any, val: Any) -> None:
+        """A new continuation stage: its best-so-far starts from the current states."""
+        self.best_states, self.best_scores = self.states, self._scores(train, val)
+
+    def observe(self, states: Any, steps: int, bad: np.ndarray, train: Any, val: Any, eps: Any) -> None:
+        """After `steps` more solver steps: keep the best state of each start, record, update the bar."""
+        train, val = np.asarray(train), np.asarray(val)
+        self.states = states
+        self.step_count += steps
+        self.evaluations += steps
+        self.diverged |= bad
+        scores = self._scores(train, val)
+        improved = scores < self.best_scores
+        self.best_states = _where_batch(improved, states, self.best_states)
+        self.best_scores = np.where(improved, scores, self.best_scores)
+        self.stall = 0 if improved.any() else self.stall + 1
+        _record(self.history, self.step_count, train, val, eps, time.perf_counter() - self.start_time)
+        if self.bar is not None:
+            self.bar.update(steps)
+            self.bar.set_postfix(loss=f"{np.nanmin(train):.3g}", val=f"{np.nanmin(val):.3g}")
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
 def _budget_message(steps: int, losses: list[Any]) -> str:
