@@ -74,6 +74,12 @@ from ._estimation._fit import MultiStart as MultiStart
 from ._estimation._fit import fit as fit
 from ._estimation._fit import levenberg_marquardt as levenberg_marquardt
 from ._estimation._fit import solve_linear as solve_linear
+from ._estimation._linear import LstsqResult as LstsqResult
+from ._estimation._linear import TermSelection as TermSelection
+from ._estimation._linear import covariance as covariance
+from ._estimation._linear import lstsq as lstsq
+from ._estimation._linear import parameter_std as parameter_std
+from ._estimation._linear import select_terms as select_terms
 from ._estimation._losses import AbstractLoss as AbstractLoss
 from ._estimation._losses import MultipleShootingLoss as MultipleShootingLoss
 from ._estimation._losses import OneStepLoss as OneStepLoss
