@@ -69,6 +69,8 @@ from ._data._tribometer import TribometerData as TribometerData
 from ._data._tribometer import default_tribometer_model as default_tribometer_model
 from ._data._tribometer import make_tribometer as make_tribometer
 from ._data._tribometer import model_parameters as model_parameters
+from ._estimation._ensemble_fit import ForwardSelection as ForwardSelection
+from ._estimation._ensemble_fit import select_forward as select_forward
 from ._estimation._fit import Continuation as Continuation
 from ._estimation._fit import MultiStart as MultiStart
 from ._estimation._fit import fit as fit
@@ -90,9 +92,7 @@ from ._estimation._result import load_model as load_model
 from ._estimation._result import save_model as save_model
 from ._models.combine._ensemble import AbstractEnsemble as AbstractEnsemble
 from ._models.combine._ensemble import AverageEnsemble as AverageEnsemble
-from ._models.combine._ensemble import ForwardSelection as ForwardSelection
 from ._models.combine._ensemble import WeightedEnsemble as WeightedEnsemble
-from ._models.combine._ensemble import select_forward as select_forward
 from ._protocols._emps_idm import EMPSIDMData as EMPSIDMData
 from ._protocols._emps_idm import EMPSIDMResult as EMPSIDMResult
 from ._protocols._emps_idm import emps_idm_data as emps_idm_data
