@@ -198,7 +198,9 @@ def lstsq(
     problem, as `numpy.linalg.lstsq`); `ridge >= 0` is Tikhonov damping in the scaled coordinates, so it is
     dimensionless and independent of each parameter's units (e.g. `1e-12`: a guard against exact singularity that
     leaves well-posed solutions unchanged to ~1e-12). The SVD, not the normal equations, keeps the error at
-    `eps * cond(A_s)` instead of `eps * cond(A_s)^2`.
+    `eps * cond(A_s)` instead of `eps * cond(A_s)^2`. (On the NumPy path, when `cond(A_s) <= 1e6`, the SVD is
+    taken of the triangular factor of a CholeskyQR2 factorisation, as accurate and faster for the many small
+    solves of a separable least-squares search.)
 
     **Bounds.** `nonnegative` (`True` for all parameters, or a boolean mask of shape `(P,)`) constrains the
     marked parameters to `x_j >= 0` (stiffnesses, masses, friction amplitudes); the others stay free. The active
