@@ -76,9 +76,17 @@ from ._data._tribometer import TribometerData as TribometerData
 from ._data._tribometer import default_tribometer_model as default_tribometer_model
 from ._data._tribometer import make_tribometer as make_tribometer
 from ._data._tribometer import model_parameters as model_parameters
+from ._estimation._ensemble_fit import ForwardSelection as ForwardSelection
+from ._estimation._ensemble_fit import select_forward as select_forward
 from ._estimation._fit import fit as fit
 from ._estimation._fit import levenberg_marquardt as levenberg_marquardt
 from ._estimation._fit import solve_linear as solve_linear
+from ._estimation._linear import LstsqResult as LstsqResult
+from ._estimation._linear import TermSelection as TermSelection
+from ._estimation._linear import covariance as covariance
+from ._estimation._linear import lstsq as lstsq
+from ._estimation._linear import parameter_std as parameter_std
+from ._estimation._linear import select_terms as select_terms
 from ._estimation._losses import AbstractLoss as AbstractLoss
 from ._estimation._losses import MultipleShootingLoss as MultipleShootingLoss
 from ._estimation._losses import OneStepLoss as OneStepLoss
@@ -92,9 +100,7 @@ from ._estimation._strategies import MultiStart as MultiStart
 from ._estimation._strategies import ParameterScaling as ParameterScaling
 from ._models.combine._ensemble import AbstractEnsemble as AbstractEnsemble
 from ._models.combine._ensemble import AverageEnsemble as AverageEnsemble
-from ._models.combine._ensemble import ForwardSelection as ForwardSelection
 from ._models.combine._ensemble import WeightedEnsemble as WeightedEnsemble
-from ._models.combine._ensemble import select_forward as select_forward
 from ._protocols._emps_idm import EMPSIDMData as EMPSIDMData
 from ._protocols._emps_idm import EMPSIDMResult as EMPSIDMResult
 from ._protocols._emps_idm import emps_idm_data as emps_idm_data

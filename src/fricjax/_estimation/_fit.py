@@ -26,6 +26,7 @@ from .._constraints import AbstractUnwrappable, Fixed, trainable_filter, unwrap
 from .._data._record import FrictionData
 from .._simulate import run, simulate
 from .._smoothing import Smooth, exact, with_smoothing
+from ._linear import lstsq, parameter_std
 from ._losses import AbstractLoss, SimulationLoss
 from ._result import FitResult
 from ._strategies import Continuation, MultiStart, ParameterScaling, where_from_path
@@ -119,11 +120,7 @@ def solve_linear(model: Any, linear_spec: Any, data: FrictionData, burn_in: int 
     f0 = predict(zero)
     J = jax.jacfwd(predict)(zero)
     target = data.force[burn_in:] - f0
-    norms = jnp.sqrt(jnp.sum(J**2, axis=0)) + jnp.finfo(J.dtype).tiny
-    Js = J / norms
-    gram = Js.T @ Js
-    ridge = 1e-12 * jnp.trace(gram) / gram.shape[0]
-    theta = jnp.linalg.solve(gram + ridge * jnp.eye(gram.shape[0], dtype=gram.dtype), Js.T @ target) / norms
+    theta = lstsq(J, target, ridge=1e-12).x  # column-scaled, differentiable (the one least-squares kernel)
     return eqx.combine(unravel(theta), rest)
 
 
@@ -674,13 +671,9 @@ def _std_from_jacobian(params: Any, rest: Any, loss: AbstractLoss, extra: Any, d
 
     r = residuals(flat)
     J = jax.jacfwd(residuals)(flat) if flat.size <= 64 else jax.jacrev(residuals)(flat)
-    dof = max(int(r.size) - int(flat.size), 1)
-    s2 = jnp.sum(r**2) / dof
-    # columns scaled to unit norm first: physical parameters span many decades (sigma0 ~ 1e8, vs ~ 1e-3)
-    norms = jnp.sqrt(jnp.sum(J**2, axis=0))
-    norms = jnp.where(norms > 0, norms, 1.0)
-    Js = J / norms
-    cov = s2 * jnp.linalg.pinv(Js.T @ Js) / jnp.outer(norms, norms)
-    std_flat = jnp.sqrt(jnp.clip(jnp.diag(cov), 0.0))
+    # the cut-off of the former pinv of the Gram matrix (the figures in the docs were computed with it)
+    std_flat = parameter_std(
+        J, r, max(int(r.size) - int(flat.size), 1), rcond=float(np.sqrt(10 * flat.size * np.finfo(J.dtype).eps))
+    )
     nan_rest = jax.tree_util.tree_map(lambda a: jnp.full_like(a, jnp.nan) if eqx.is_inexact_array(a) else a, rest)
     return eqx.combine(unravel(std_flat), nan_rest)

@@ -331,7 +331,8 @@ def load_split(spec: str, *, seed: int = 0) -> tuple[Split, dict[str, Any], Any]
 def add_ensembles(rows: list[ModelScore], split: Split) -> list[ModelScore]:
     """Average and least-squares-weighted ensembles (weights with intercept fitted on the validation part,
     parlitz2004 §IV-H, emps-ensemble §3.3), and the PRESS forward selection of worden2007 §7."""
-    from .._models.combine._ensemble import AverageEnsemble, WeightedEnsemble, select_forward
+    from .._estimation._ensemble_fit import select_forward
+    from .._models.combine._ensemble import AverageEnsemble, WeightedEnsemble
 
     if len(rows) < 2:
         return []

@@ -27,6 +27,7 @@ import scipy.optimize
 
 from .._data._emps import EMPSRecord
 from .._data._preprocessing import _positive_int, butter_filtfilt, central_difference, decimate
+from .._estimation._linear import LstsqResult, covariance, lstsq
 from .._models.physics._static import AbstractStaticFriction, BoPavelescu, Coulomb, CoulombViscous, Threlfall, Tustin
 from .._smoothing import AbstractSmoothing, Exact
 from .._systems._emps import EMPSPlant
@@ -193,29 +194,17 @@ class _Problem:
                 columns.append(self._decimate(split)[:, None])
         return names, np.hstack(columns)
 
-    def solve(self, nl: dict[str, float]) -> tuple[list[tuple[str, int | None]], np.ndarray, np.ndarray, np.ndarray]:
+    def solve(self, nl: dict[str, float]) -> tuple[list[tuple[str, int | None]], np.ndarray, LstsqResult]:
         names, X = self.design(nl)
-        theta, *_ = np.linalg.lstsq(X, self.y, rcond=None)
-        return names, X, theta, self.y - X @ theta
+        return names, X, lstsq(X, self.y)
 
     def relative_error(self, nl: dict[str, float]) -> float:
-        """The search objective, `inf` where it cannot be evaluated.
-
-        It solves the normal equations of the column-normalised problem, which is accurate here (cond(X) < 100
-        on EMPS) and, unlike LAPACK's `gelsd`, fast for the thousands of small solves of a search; near-singular
-        designs (a Stribeck column that vanishes at a corner of the bounds) fall back to `lstsq`. The final fit
-        uses `solve`.
-        """
+        """The search objective `100 ||e|| / ||tau||` [%], `inf` where it cannot be evaluated (a design column
+        that overflows at a corner of the bounds)."""
         _, X = self.design(nl)
-        norms = np.linalg.norm(X, axis=0)
-        active = norms > 1e-12 * norms.max()
-        Xn = X[:, active] / norms[active]
-        gram = Xn.T @ Xn
-        if np.all(np.isfinite(gram)) and np.linalg.cond(gram) < 1e8:
-            theta = np.linalg.solve(gram, Xn.T @ self.y)
-        else:
-            theta, *_ = np.linalg.lstsq(Xn, self.y, rcond=None)
-        value = 100.0 * np.linalg.norm(self.y - Xn @ theta) / np.linalg.norm(self.y)
+        if not np.all(np.isfinite(X)):
+            return np.inf
+        value = 100.0 * np.linalg.norm(lstsq(X, self.y).residual) / np.linalg.norm(self.y)
         return float(value) if np.isfinite(value) else np.inf
 
 
@@ -392,24 +381,24 @@ def fit_emps_idm(
     problem = _Problem(spec, asymmetric, _as_idm_data(data, preprocessing))
 
     nl = _search(problem, spec, bounds, int(grid))
-    names, X, theta, error = problem.solve(nl)
+    names, X, solution = problem.solve(nl)
+    theta, error = solution.x, solution.residual
     n, p = X.shape
     dof = n - p - len(nl)
     if dof <= 0:
         raise ValueError(f"the IDM data has {n} samples, too few for {p + len(nl)} parameters.")
     sigma_e = float(np.linalg.norm(error) / np.sqrt(dof))
-    covariance = sigma_e**2 * np.linalg.inv(X.T @ X)
     return EMPSIDMResult(
         law=law,
         asymmetric=asymmetric,
         M=_pick(names, theta, "M"),  # type: ignore[arg-type]
         offset=_pick(names, theta, "offset", default=0.0),  # type: ignore[arg-type]
         params=_friction_params(spec, names, theta, nl),
-        std=_std(spec, names, covariance),
+        std=_std(spec, names, np.asarray(covariance(X, error, dof))),
         relative_error=float(100.0 * np.linalg.norm(error) / np.linalg.norm(problem.y)),
         error_norm=float(np.linalg.norm(error)),
         noise_std=sigma_e,
-        condition_number=float(np.linalg.cond(X)),
+        condition_number=float(np.linalg.cond(X)),  # of the unscaled X, as the reference script reports it
         n_samples=int(n),
         preprocessing=preprocessing,
     )
@@ -485,8 +474,8 @@ def _friction_params(
     return params
 
 
-def _std(spec: _LawSpec, names: Sequence[tuple[str, int | None]], covariance: np.ndarray) -> dict[str, Param]:
-    variance = np.diag(covariance)
+def _std(spec: _LawSpec, names: Sequence[tuple[str, int | None]], cov: np.ndarray) -> dict[str, Param]:
+    variance = np.diag(cov)
     std: dict[str, Param] = {}
     for name in ("M", "Fv", "Fc", "offset"):
         value = _pick(names, np.sqrt(variance), name)
@@ -497,7 +486,7 @@ def _std(spec: _LawSpec, names: Sequence[tuple[str, int | None]], covariance: np
 
         def fs_std(side: int | None) -> float:
             i, j = index[("Fc", side)], index[("dS", side)]
-            return float(np.sqrt(covariance[i, i] + covariance[j, j] + 2 * covariance[i, j]))
+            return float(np.sqrt(cov[i, i] + cov[j, j] + 2 * cov[i, j]))
 
         std["Fs"] = (fs_std(0), fs_std(1)) if ("Fc", 0) in index else fs_std(None)
     return std
