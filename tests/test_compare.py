@@ -62,6 +62,7 @@ def test_best_ensemble_no_worse_than_best_single_and_gms_near_truth():
     assert gms.nmse <= 2 * true_nmse, (gms.nmse, true_nmse)
 
 
+@pytest.mark.slow
 def test_compare_emps_table(data_dir, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("FRICJAX_DATA", str(data_dir))
     assert main(["compare", "--data", "emps", "--out", str(tmp_path)]) == 0

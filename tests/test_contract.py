@@ -253,6 +253,7 @@ def plain_loop(mlp_start, friction_record):
     return model, float(one_step_loss(model, friction_record))
 
 
+@pytest.mark.slow
 def test_mlp_narx_fit_matches_plain_optax(mlp_start, friction_record, plain_loop):
     start_loss = float(one_step_loss(mlp_start, friction_record))
     result = fj.fit(mlp_start, friction_record, loss=fj.OneStepLoss(), steps=MLP_STEPS)
@@ -265,6 +266,7 @@ def test_mlp_narx_fit_matches_plain_optax(mlp_start, friction_record, plain_loop
     assert result.train_loss == pytest.approx(float(one_step_loss(result.model, friction_record)), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_mlp_narx_freeze_by_path(mlp_start, friction_record):
     result = fj.fit(mlp_start, friction_record, loss=fj.OneStepLoss(), steps=30, freeze="mlp.layers.0")
     before, after = mlp_start.mlp.layers, result.model.mlp.layers

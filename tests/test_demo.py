@@ -2,9 +2,12 @@
 
 import json
 
+import pytest
+
 from fricjax import main
 
 
+@pytest.mark.slow
 def test_demo_writes_summary_and_figure(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path)]) == 0
     printed = capsys.readouterr().out

@@ -116,6 +116,7 @@ def test_float32_follows_the_record():
 # --- the fit ------------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_fit_recovers_a_known_plant(record):
     start = EMPSPlant(92.0, CoulombViscous(Fc=21.5, Fv=185.0, offset=-2.5))
     fitted = fit_emps_open_loop(record, start=start, eps=1e-3, steps=60)
@@ -131,6 +132,7 @@ def test_fit_recovers_a_known_plant(record):
     assert score_emps_open_loop(fitted.plant, record) < 5e-3
 
 
+@pytest.mark.slow
 def test_fit_with_a_held_out_tail(record):
     start = EMPSPlant(92.0, CoulombViscous(Fc=21.5, Fv=185.0, offset=-2.5))
     fitted = fit_emps_open_loop(record, start=start, eps=1e-3, steps=40, validation=0.3, compute_std=False)

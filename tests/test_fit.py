@@ -242,7 +242,7 @@ def test_one_step_loss_fit_recovers_toy_model(arx_data):
     "solver, steps, eval_every, codes",
     [
         pytest.param(optax.adam(3e-2), 1000, 1000, {"max_steps"}, id="optax-adam"),
-        pytest.param(optax.lbfgs(), 60, 60, {"max_steps"}, id="optax-lbfgs"),
+        pytest.param(optax.lbfgs(), 60, 60, {"max_steps"}, id="optax-lbfgs", marks=pytest.mark.slow),
         pytest.param(fj.levenberg_marquardt(), 50, None, {"successful"}, id="optimistix-lm"),
         pytest.param(optx.BFGS(rtol=1e-10, atol=1e-12), 200, None, {"successful"}, id="optimistix-bfgs"),
     ],
@@ -376,6 +376,7 @@ def independent_std(model: Any, paths: list[str], data: fj.FrictionData) -> np.n
     return np.sqrt(np.diag(cov)) * np.abs(np.asarray(theta))
 
 
+@pytest.mark.slow
 def test_gauss_newton_std_of_badly_scaled_parameters(lugre_problem):
     """LuGre with noise: sigma0 (1e5 N/m) and vs (1e-3 m/s) in one covariance."""
     model, clean = lugre_problem
@@ -445,6 +446,7 @@ def test_separable_lugre_sigma2_and_offset(lugre_problem):
     assert result.train_loss < 1e-10
 
 
+@pytest.mark.slow
 def test_separable_maxwell_slip_dnlrx_fir():
     motion = sine_motion(growing=True)
     thresholds = [2e-6, 2e-5]
