@@ -27,12 +27,22 @@ def record_csv(tmp_path_factory):
 @pytest.mark.slow
 def test_compare_on_a_user_file_writes_a_complete_report(record_csv, tmp_path, capsys):
     out = tmp_path / "report"
+    # files of the user's in --out: none may be deleted or changed by the run
+    mine = {out / "models" / "sub" / "thesis.csv": "a,b\n1,2\n", out / ".write-test": "keep", out / "notes.txt": "x"}
+    for path, text in mine.items():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
     code = main(
         ["compare", "--data", str(record_csv), "--models", "stribeck", "nlr", "--out", str(out), "--no-progress"]
     )
     assert code == 0
     printed = capsys.readouterr().out
-    report = json.loads((out / "report.json").read_text())
+    assert all(path.read_text() == text for path, text in mine.items())
+
+    def refuse(constant):
+        raise AssertionError(f"report.json is not strict JSON: {constant}")
+
+    report = json.loads((out / "report.json").read_text(), parse_constant=refuse)
     names = [m["name"] for m in report["models"]]
     assert {"stribeck", "nlr", "ensemble_average", "ensemble_weighted"} <= set(names)
     nmses = [m["nmse_percent"] for m in report["models"]]

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import pathlib
 import sys
+import tempfile
 import time
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -182,12 +185,13 @@ def run_compare(args: argparse.Namespace) -> int:
             ],
             "total_time_s": time.perf_counter() - started,
         }
-        (staging / "report.json").write_text(json.dumps(report, indent=2, default=_jsonable))
-        for item in staging.iterdir():
-            target = out / item.name
-            if target.is_dir():
-                shutil.rmtree(target)
-            item.replace(target)
+        (staging / "report.json").write_text(_strict_json(report))
+        # move in file by file (each an atomic rename); nothing in `out` that this run did not write is touched
+        (out / "models").mkdir(exist_ok=True)
+        for item in sorted((staging / "models").iterdir()):
+            item.replace(out / "models" / item.name)
+        for name in ("test_errors.png", "hysteresis_loops.png", "report.json"):  # the report last
+            (staging / name).replace(out / name)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     print(
@@ -238,12 +242,9 @@ def _compare_emps(out: pathlib.Path, args: argparse.Namespace) -> int:
             )
             text = ", ".join(f"{k}={np.round(np.asarray(v), 4).tolist()}" for k, v in params.items())
             print(f"{name:34s} {float(result.relative_error):18.4f} {test_error:18.4f}  {text}")
-    (out / "report.json").write_text(
-        json.dumps(
-            {"data": "emps", "fricjax": fj.__version__, "versions": _versions(), "idm": rows},
-            indent=2,
-            default=_jsonable,
-        )
+    _write_atomic(
+        out / "report.json",
+        _strict_json({"data": "emps", "fricjax": fj.__version__, "versions": _versions(), "idm": rows}),
     )
     print(f"report: {out / 'report.json'}")
     return 0
@@ -254,11 +255,14 @@ def _check_writable(out: pathlib.Path) -> None:
 
     try:
         out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".write-test"
-        probe.write_text("")
-        probe.unlink()
+        handle, probe = tempfile.mkstemp(prefix=".fricjax-write-test-", dir=out)  # a fresh name: nothing overwritten
+        os.close(handle)
+        os.unlink(probe)
     except OSError as err:
         raise CompareError(f"--out {out}: not writable ({err.strerror})") from err
+    models = out / "models"
+    if models.exists() and not models.is_dir():
+        raise CompareError(f"--out {out}: 'models' exists and is not a folder; move it away or choose another --out")
 
 
 def _parameters(model: Any) -> dict[str, Any]:
@@ -289,6 +293,44 @@ def _versions() -> dict[str, str]:
         "optimistix": optimistix.__version__,
         "numpy": np.__version__,
     }
+
+
+def _write_atomic(path: pathlib.Path, text: str) -> None:
+    """Write `text` to a temporary file beside `path`, then rename it over `path`."""
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(handle, "w") as stream:
+            stream.write(text)
+        os.replace(temporary, path)
+    except BaseException:
+        pathlib.Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+def _strict_json(report: Any) -> str:
+    """The report as strict JSON: non-finite numbers become `null` (with a warning naming where), never
+    `NaN` / `Infinity`, which strict parsers reject."""
+    bad: list[str] = []
+
+    def clean(value: Any, where: str) -> Any:
+        value = _jsonable(value) if isinstance(value, np.generic) or hasattr(value, "tolist") else value
+        if isinstance(value, float) and not np.isfinite(value):
+            bad.append(where)
+            return None
+        if isinstance(value, dict):
+            return {key: clean(item, f"{where}.{key}") for key, item in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [clean(item, f"{where}[{i}]") for i, item in enumerate(value)]
+        if value is None or isinstance(value, (bool, int, float, str)):
+            return value
+        return str(value)
+
+    text = json.dumps(clean(report, "report"), indent=2, allow_nan=False)
+    if bad:
+        shown = ", ".join(bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
+        warnings.warn(f"report.json: non-finite values written as null at {shown}", RuntimeWarning, stacklevel=2)
+        print(f"warning: non-finite scores or parameters (written as null in report.json): {shown}")
+    return text
 
 
 def _jsonable(value: Any) -> Any:
