@@ -723,3 +723,25 @@ def test_save_to_unwritable_path(tmp_path):
         fj.save_model(tmp_path / "no_such_dir" / "m.eqx", TRUTH)
     with pytest.raises(ValueError, match="cannot write"):
         fj.save_model(tmp_path, TRUTH)  # a directory
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# never worse than the start, no silent success
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def test_fit_never_returns_a_model_worse_than_its_start():
+    """Default Adam moves LuGre's zero-initialised z0 [m] by ~1e-2 per step: every step is worse than the start."""
+    truth = lugre()
+    data = fj.FrictionData(MOTION, fj.simulate(truth, MOTION))
+    start = eqx.tree_at(lambda m: m.stribeck.Fc, truth, fj.Positive(1.05))  # a start close to the truth
+    start_loss = float(fj.SimulationLoss()(start, None, data))
+    result = fj.fit(start, data, steps=20)
+    assert result.train_loss <= start_loss * (1 + 1e-12), (result.train_loss, start_loss)
+    assert result.success
+
+
+def test_validation_burn_in_covering_the_record_is_refused():
+    train, val = DATA.split(0.5)
+    with pytest.raises(ValueError, match="validation burn-in"):
+        fj.fit(START, train, validation=val, validation_burn_in=val.length, steps=1)
