@@ -3,7 +3,8 @@
 One flat public namespace: `import fricjax as fj`.
 """
 
-from importlib.metadata import PackageNotFoundError, version
+from importlib.metadata import PackageNotFoundError as _PackageNotFoundError
+from importlib.metadata import version as _version
 
 from ._constraints import AbstractUnwrappable as AbstractUnwrappable
 from ._constraints import Fixed as Fixed
@@ -52,8 +53,8 @@ from ._smoothing import safe_div as safe_div
 from ._smoothing import with_smoothing as with_smoothing
 
 try:
-    __version__ = version("fricjax")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree
+    __version__ = _version("fricjax")
+except _PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0.0.0"
 
 from . import compare as compare  # noqa: E402 - the public `fj.compare` namespace
