@@ -47,7 +47,7 @@ def test_step_loop_equals_simulate_and_no_jit(name):
     state = model.init_state()
     forces = []
     for k in range(motion.length):
-        sample = jax.tree_util.tree_map(lambda a, k=k: a[k], samples)
+        sample = samples.at(k)
         state, force = model.step(state, sample)
         forces.append(force)
     scan_force = fj.simulate(model, motion)

@@ -87,7 +87,7 @@ def test_weighted_simulate_equals_combination_and_step_loop(setup):
     step = eqx.filter_jit(ensemble.step)  # one compile instead of 50 eager steps
     state, looped = ensemble.init_state(), []
     for k in range(50):
-        sample = jax.tree_util.tree_map(lambda a, k=k: a[k], samples)
+        sample = samples.at(k)
         state, f = step(state, sample)
         looped.append(f)
     assert len(state) == len(members)

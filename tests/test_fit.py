@@ -77,11 +77,13 @@ def state_trajectory(model: Any, motion: fj.Motion) -> Any:
     """The state after every sample, from a scan of `model.step` written here (independent of the losses)."""
     model = fj.unwrap(model)
 
-    def body(state: Any, sample: Any) -> Any:
-        state, _ = model.step(state, sample)
+    samples = motion.samples(model.requires)
+
+    def body(state: Any, k: Any) -> Any:
+        state, _ = model.step(state, samples.at(k))
         return state, state
 
-    _, states = jax.lax.scan(body, model.init_state(), motion.samples(model.requires))
+    _, states = jax.lax.scan(body, model.init_state(), jnp.arange(motion.length))
     return states
 
 

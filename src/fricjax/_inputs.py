@@ -24,8 +24,8 @@ class MotionSample(NamedTuple):
     (viscous friction, static curves). `a` acceleration [m/s^2] and `normal_force` [N] are present (not `None`)
     only for models that declare them in `requires` ("a", "normal_force").
 
-    Stacked along time (every field of shape `(T,)`, `dt` broadcast) it is what `simulate` scans over:
-    `Motion.samples(requires)`.
+    Stacked along time (every signal of shape `(T,)`; `dt`, constant over the record, stays a scalar) it is
+    what `simulate` scans over: `Motion.samples(requires)`; `samples.at(k)` is sample k.
     """
 
     x: Array
@@ -34,6 +34,10 @@ class MotionSample(NamedTuple):
     dt: Array
     a: Array | None = None
     normal_force: Array | None = None
+
+    def at(self, k: int) -> MotionSample:
+        """Sample `k` of stacked samples (signals indexed along time, the scalar `dt` kept)."""
+        return MotionSample(*(field if field is None or jnp.ndim(field) == 0 else field[k] for field in self))  # type: ignore[arg-type]
 
 
 class Motion(eqx.Module):
@@ -107,7 +111,7 @@ class Motion(eqx.Module):
         return int(signal.shape[-1])  # type: ignore[union-attr]
 
     def samples(self, requires: frozenset[str] | tuple[str, ...] = ()) -> MotionSample:
-        """The per-step signals along time: a `MotionSample` whose fields have shape `(..., T)` (`dt` broadcast).
+        """The per-step signals along time: a `MotionSample` whose signals have shape `(..., T)` (`dt` a scalar).
 
         Missing signals are derived once, before any scan: `v` from `x` by central differences, `x` from `v`
         by zero-order hold, `a` from `v` by central differences (only when `"a"` is in `requires`);
@@ -121,7 +125,7 @@ class Motion(eqx.Module):
         if x is None:
             x = position_from_velocity(v, dt) if dt is not None else jnp.zeros_like(v)
         dx = jnp.diff(x, axis=-1, prepend=x[..., :1])
-        dt_steps = jnp.broadcast_to(jnp.ones((), x.dtype) if dt is None else dt[..., None], x.shape)
+        dt_value = jnp.ones((), x.dtype) if dt is None else dt
         a = None
         if "a" in requires:
             if self.a is not None:
@@ -135,7 +139,7 @@ class Motion(eqx.Module):
             if self.normal_force is None:
                 raise ValueError("Motion: the model needs the normal load; pass Motion(..., normal_force=...) [N].")
             normal_force = self.normal_force
-        return MotionSample(x=x, v=v, dx=dx, dt=dt_steps, a=a, normal_force=normal_force)
+        return MotionSample(x=x, v=v, dx=dx, dt=dt_value, a=a, normal_force=normal_force)
 
     @classmethod
     def from_position(cls, x: ArrayLike, dt: ArrayLike) -> Motion:
@@ -179,7 +183,7 @@ def _as_signal(value: ArrayLike, name: str) -> Array:
 
 class InputRecord(eqx.Module):
     """The input signals of a system model (a plant with its controller): named signals of shape `(T,)` and the
-    sample time `dt` [s]. `simulate` scans over them as a dict `{name: value_k, ..., "dt": dt}`.
+    sample time `dt` [s]. `simulate` scans over them; each step sees a dict `{name: value_k, ..., "dt": dt}`.
 
     ```python
     >>> import numpy as np, fricjax as fj
@@ -211,6 +215,5 @@ class InputRecord(eqx.Module):
         return int(next(iter(self.signals.values())).shape[-1])
 
     def samples(self) -> dict[str, Array]:
-        """The per-step signals, each `(..., T)`, with `dt` broadcast to the same shape."""
-        first = next(iter(self.signals.values()))
-        return {**self.signals, "dt": jnp.broadcast_to(self.dt[..., None], first.shape)}
+        """The per-step signals, each `(..., T)`, and the scalar `dt`."""
+        return {**self.signals, "dt": self.dt}

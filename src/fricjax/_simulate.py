@@ -7,6 +7,7 @@ ensembles, systems, data generators and protocols call `simulate` or `run`, neve
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import equinox as eqx
@@ -109,21 +110,36 @@ def run(
     return_states: bool = False,
 ) -> tuple[Any, Any]:
     """The scan itself (not jitted, no checks): `model` must be unwrapped (`fj.unwrap`), `samples` the model's
-    per-step signals (`model.samples(inputs)`, leading axis time). With `measured`, each step is followed by
+    per-step signals (`model.samples(inputs)`: leaves with a leading time axis; scalar leaves, such as `dt`, are
+    constants closed over by the loop body). With `measured`, each step is followed by
     `model.feedback(state, measured_k)`.
 
     **Returns:** `(final_state, outputs)`, or `(final_state, (outputs, states))` with `return_states=True`
     (the state after every sample, feedback applied).
     """
+    steps, rebuild = split_time_signals(samples)
 
     def body(carry: Any, xs: tuple[Any, Any]) -> tuple[Any, Any]:
-        sample, y_measured = xs
-        carry, y = model.step(carry, sample)
+        step_signals, y_measured = xs
+        carry, y = model.step(carry, rebuild(step_signals))
         if y_measured is not None:
             carry = model.feedback(carry, y_measured)
         return carry, ((y, carry) if return_states else y)
 
-    return jax.lax.scan(body, state, (samples, measured), unroll=unroll)
+    return jax.lax.scan(body, state, (steps, measured), unroll=unroll)
+
+
+def split_time_signals(samples: Any) -> tuple[list[Any], Callable[[list[Any]], Any]]:
+    """Split per-step samples into the signals along time (a list of leaves, `None` for the scalar constants)
+    and a function rebuilding the samples from such a list (or from slices / segments of it)."""
+    leaves, treedef = jax.tree_util.tree_flatten(samples)
+    steps = [leaf if jnp.ndim(leaf) > 0 else None for leaf in leaves]
+
+    def rebuild(step_leaves: list[Any]) -> Any:
+        signals = [leaf if signal is None else signal for signal, leaf in zip(step_leaves, leaves, strict=True)]
+        return jax.tree_util.tree_unflatten(treedef, signals)
+
+    return steps, rebuild
 
 
 def _k_step(model: AbstractModel, samples: Any, state0: Any, measured: Any, k: int, unroll: int) -> Any:
@@ -133,11 +149,12 @@ def _k_step(model: AbstractModel, samples: Any, state0: Any, measured: Any, k: i
     # the state entering sample j: state0 for j = 0, the teacher-forced state after sample j-1 otherwise
     entering = jax.tree_util.tree_map(lambda s0, s: jnp.concatenate([jnp.asarray(s0)[None], s[:-1]]), state0, forced)
     starts = jnp.arange(length - k + 1)
+    steps, rebuild = split_time_signals(samples)
 
     def window(j: jax.Array) -> Any:
         start = jax.tree_util.tree_map(lambda s: s[j], entering)
-        part = jax.tree_util.tree_map(lambda a: jax.lax.dynamic_slice_in_dim(a, j, k), samples)
-        return run(model, part, start, unroll=unroll)[1]
+        part = [None if a is None else jax.lax.dynamic_slice_in_dim(a, j, k) for a in steps]
+        return run(model, rebuild(part), start, unroll=unroll)[1]
 
     windows = jax.vmap(window)(starts)  # (T - k + 1, k, ...)
     head = jax.tree_util.tree_map(lambda w: w[0, : k - 1], windows)  # free run from state0
@@ -146,4 +163,4 @@ def _k_step(model: AbstractModel, samples: Any, state0: Any, measured: Any, k: i
 
 
 def _length(samples: Any) -> int:
-    return int(jax.tree_util.tree_leaves(samples)[0].shape[0])
+    return int(next(leaf for leaf in jax.tree_util.tree_leaves(samples) if jnp.ndim(leaf) > 0).shape[0])

@@ -18,7 +18,7 @@ from jaxtyping import Array, Float
 from .._constraints import unwrap
 from .._data._record import FrictionData
 from .._models._base import feeds_back
-from .._simulate import run
+from .._simulate import run, split_time_signals
 
 
 class AbstractLoss(eqx.Module):
@@ -118,8 +118,8 @@ class MultipleShootingLoss(AbstractLoss):
             raise ValueError(f"MultipleShootingLoss: `continuity_weight` must be >= 0, got {self.continuity_weight}.")
 
     def _segments(self, model: Any, data: FrictionData) -> tuple[Any, Any, Array, int]:
-        """The model's per-step samples of the whole record and of its K segments (leaves `(K, L, ...)`), the
-        segmented force, and K."""
+        """The model's per-step samples of the whole record, its K segments as a function of a segment's
+        signals with the list of segmented signals (leaves `(K, L, ...)`), the segmented force, and K."""
         samples = model.samples(data.motion)
         count = data.length // self.segment_length
         if count < 2:
@@ -132,7 +132,9 @@ class MultipleShootingLoss(AbstractLoss):
         def cut(a: Array) -> Array:
             return a[:used].reshape((count, self.segment_length) + a.shape[1:])
 
-        return samples, jax.tree_util.tree_map(cut, samples), cut(data.force), count
+        steps, rebuild = split_time_signals(samples)
+        segments = [None if a is None else cut(a) for a in steps]
+        return samples, (segments, rebuild), cut(data.force), count
 
     def init_extra(self, model: Any, data: FrictionData) -> Any:
         """Initial states of segments 2..K: the states a simulation of the whole record passes through."""
@@ -144,10 +146,10 @@ class MultipleShootingLoss(AbstractLoss):
 
     def residuals(self, model: Any, extra: Any, data: FrictionData) -> Array:
         model = unwrap(model)
-        _, segments, force, count = self._segments(model, data)
+        _, (segments, rebuild), force, count = self._segments(model, data)
         first = model.init_state()
         starts = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([jnp.asarray(a)[None], b]), first, extra)
-        finals, predicted = jax.vmap(lambda state, part: run(model, part, state))(starts, segments)
+        finals, predicted = jax.vmap(lambda state, part: run(model, rebuild(part), state))(starts, segments)
         errors = ((predicted - force) / self._scale(data)).reshape(-1)
         gaps = []
         for final, start in zip(jax.tree_util.tree_leaves(finals), jax.tree_util.tree_leaves(extra), strict=True):
