@@ -344,3 +344,34 @@ def test_system_substeps_are_checked(emps):
         fj.EMPSOpenLoop(plant, jnp.asarray(35.15), 0)
     with pytest.raises(ValueError, match="substeps"):
         fj.EMPSClosedLoop(plant, *(jnp.asarray(g) for g in (35.15, 160.18, 243.45, 10.0)), 0)
+
+
+def test_float32_model_is_teacher_forced_by_float64_measurements(narx):
+    v, _, _, noisy = narx
+    motion32 = fj.Motion.from_velocity(np.asarray(v, np.float32), dt=np.float32(1e-3))
+    model32 = PolyNARX(jnp.asarray(THETA, jnp.float32))
+    predicted = fj.simulate(model32, motion32, measured=np.asarray(noisy))  # float64 measurements
+    assert predicted.dtype == jnp.float32
+    np.testing.assert_allclose(predicted, numpy_one_step(THETA, v, noisy), rtol=1e-4, atol=1e-4)
+    k_step = fj.simulate(model32, motion32, measured=np.asarray(noisy), horizon=3)
+    np.testing.assert_allclose(k_step, numpy_k_step(THETA, v, noisy, 3), rtol=1e-4, atol=1e-4)
+
+
+def test_horizon_of_a_model_without_feedback_is_its_free_run():
+    motion = fj.Motion.from_position(1e-3 * np.sin(np.linspace(0, 6, 300)), dt=1e-3)
+    model = fj.LuGre(fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3), sigma0=1e5, sigma1=300.0, sigma2=0.4)
+    free = fj.simulate(model, motion)
+    np.testing.assert_array_equal(fj.simulate(model, motion, measured=np.zeros(300), horizon=5), free)
+
+
+def test_bad_inputs_are_named():
+    with pytest.raises(ValueError, match="shape \\(T,\\)"):
+        fj.InputRecord(dt=1e-3, vir=np.zeros((3, 40)))
+    with pytest.raises(ValueError, match="burn_in"):
+        fj.OneStepLoss(burn_in=-1)
+    lugre = fj.LuGre(fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3), sigma0=1e5, sigma1=300.0, sigma2=0.4)
+    no_dt = fj.FrictionData(fj.Motion(x=np.zeros(50), v=np.zeros(50)), np.zeros(50))
+    with pytest.raises(ValueError, match="sample time"):
+        fj.fit(lugre, no_dt, steps=1)
+    with pytest.raises(ValueError, match="gtau"):
+        fj.EMPSOpenLoop(fj.EMPSPlant(95.0, fj.CoulombViscous(Fc=20.0, Fv=200.0)), -1.0)

@@ -179,6 +179,7 @@ def run_compare(args: argparse.Namespace) -> int:
                     "fit_time_s": r.fit_time,
                     "num_parameters": r.num_parameters,
                     "result": r.result,
+                    "result_message": r.message,
                     "parameters": _parameters(r.model),
                 }
                 for r in sorted(rows, key=lambda r: r.nmse)

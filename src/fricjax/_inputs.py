@@ -200,6 +200,12 @@ class InputRecord(eqx.Module):
         if not signals:
             raise ValueError("InputRecord: give at least one named signal, e.g. InputRecord(dt=1e-3, vir=...).")
         arrays = {name: _as_signal(value, name) for name, value in signals.items()}
+        for name, array in arrays.items():
+            if array.ndim != 1:
+                raise ValueError(
+                    f"InputRecord: `{name}` must have shape (T,), got {array.shape}; for a batch of records use "
+                    "jax.vmap over records built inside the mapped function."
+                )
         shapes = {array.shape for array in arrays.values()}
         if len(shapes) != 1:
             raise ValueError(f"InputRecord: every signal must have the same shape, got {sorted(shapes)}.")
@@ -212,7 +218,7 @@ class InputRecord(eqx.Module):
     @property
     def length(self) -> int:
         """Number of samples T."""
-        return int(next(iter(self.signals.values())).shape[-1])
+        return int(next(iter(self.signals.values())).shape[0])
 
     def samples(self) -> dict[str, Array]:
         """The per-step signals, each `(..., T)`, and the scalar `dt`."""

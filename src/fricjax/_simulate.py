@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._constraints import unwrap
-from ._models._base import AbstractModel
+from ._models._base import AbstractModel, feeds_back
 
 # Loop unrolling of the scan: measured by benchmarks/simulate.py on the 2-core CPU (see benchmarks/README.md).
 DEFAULT_UNROLL = 2
@@ -53,7 +53,7 @@ def simulate(
       `InputRecord` for systems.
     - `state0`: the initial state; `None` means `model.init_state()` (at rest).
     - `measured`: the measured outputs, shaped like the output (for a friction model the force, `(T,)`).
-    - `horizon`: prediction horizon k >= 1 (needs `measured`).
+    - `horizon`: prediction horizon k >= 1 (needs `measured`); a horizon of T or more is the free run.
     - `unroll`: scan unrolling (performance only).
 
     **Returns:** the outputs along time: the friction force `(T,)` for friction models.
@@ -78,6 +78,8 @@ def simulate(
         if measured is None:
             raise ValueError("simulate: `horizon` needs the measured outputs: pass `measured=` (teacher forcing).")
         horizon = int(horizon)
+    if measured is not None:  # arrays, never static Python values, under the jit
+        measured = jax.tree_util.tree_map(jnp.asarray, measured)
     return _simulate(model, inputs, state0, measured, horizon, unroll)
 
 
@@ -97,7 +99,9 @@ def _simulate(model: AbstractModel, inputs: Any, state0: Any, measured: Any, hor
     if horizon is None or horizon == 1:
         _, outputs = run(model, samples, state, measured, unroll=unroll)
         return outputs
-    return _k_step(model, samples, state, measured, min(horizon, length), unroll)
+    if horizon >= length or not feeds_back(model):  # nothing is fed back within reach: the free run
+        return run(model, samples, state, unroll=unroll)[1]
+    return _k_step(model, samples, state, measured, horizon, unroll)
 
 
 def run(
@@ -122,8 +126,9 @@ def run(
     def body(carry: Any, xs: tuple[Any, Any]) -> tuple[Any, Any]:
         step_signals, y_measured = xs
         carry, y = model.step(carry, rebuild(step_signals))
-        if y_measured is not None:
-            carry = model.feedback(carry, y_measured)
+        if y_measured is not None:  # teacher forcing; the state keeps its dtype (float32 models, float64 data)
+            forced = model.feedback(carry, y_measured)
+            carry = jax.tree_util.tree_map(lambda new, old: jnp.asarray(new, jnp.result_type(old)), forced, carry)
         return carry, ((y, carry) if return_states else y)
 
     return jax.lax.scan(body, state, (steps, measured), unroll=unroll)
@@ -151,14 +156,14 @@ def _k_step(model: AbstractModel, samples: Any, state0: Any, measured: Any, k: i
     starts = jnp.arange(length - k + 1)
     steps, rebuild = split_time_signals(samples)
 
-    def window(j: jax.Array) -> Any:
+    def window(j: jax.Array) -> Any:  # the prediction of sample j + k - 1 from the state entering sample j
         start = jax.tree_util.tree_map(lambda s: s[j], entering)
         part = [None if a is None else jax.lax.dynamic_slice_in_dim(a, j, k) for a in steps]
-        return run(model, rebuild(part), start, unroll=unroll)[1]
+        return jax.tree_util.tree_map(lambda y: y[-1], run(model, rebuild(part), start, unroll=unroll)[1])
 
-    windows = jax.vmap(window)(starts)  # (T - k + 1, k, ...)
-    head = jax.tree_util.tree_map(lambda w: w[0, : k - 1], windows)  # free run from state0
-    tail = jax.tree_util.tree_map(lambda w: w[:, -1], windows)
+    tail = jax.vmap(window)(starts)  # samples k-1 ... T-1
+    head_part = [None if a is None else a[: k - 1] for a in steps]
+    head = run(model, rebuild(head_part), state0, unroll=unroll)[1]  # samples 0 ... k-2: the free run from state0
     return jax.tree_util.tree_map(lambda h, t: jnp.concatenate([h, t]), head, tail)
 
 

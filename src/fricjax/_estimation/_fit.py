@@ -24,6 +24,7 @@ import optimistix as optx
 
 from .._constraints import AbstractUnwrappable, Fixed, trainable_filter, unwrap
 from .._data._record import FrictionData
+from .._models._base import AbstractModel
 from .._simulate import run, simulate
 from .._smoothing import Smooth, exact, with_smoothing
 from ._linear import lstsq, parameter_std
@@ -106,7 +107,7 @@ def _simulate_force(model: Any, data: FrictionData) -> jax.Array:
 
 def solve_linear(model: Any, linear_spec: Any, data: FrictionData, burn_in: int = 0) -> Any:
     """Set the parameters selected by `linear_spec` (which enter the simulated force linearly) to their least-
-    squares values for `data`, by a differentiable solve of the normal equations (columns scaled, tiny ridge).
+    squares values for `data`, by a differentiable column-scaled solve (`fj.lstsq`, tiny ridge).
 
     The force is `f(theta) = f(0) + J theta` exactly, with `J` from one forward-mode pass (`jacfwd`).
     """
@@ -345,11 +346,10 @@ def fit(
         }.get(code, f"the optimistix solver failed ({code.split(':')[-1]}); the best model seen was kept")
     elif kind == "optax" and result_code == "max_steps" and diverged[best]:
         result_code, message = "diverged", "the chosen start diverged; its last good parameters were kept"
-    if result_code not in ("diverged",) and diverged.any() and not diverged.all():
-        message += f" ({int(diverged.sum())} of {count} starts diverged and were discarded)"
-
     if result_code == "max_steps" and kind == "optax":
         message = _budget_message(steps, [row[best] for row in history["train_loss"]])
+    if result_code not in ("diverged",) and diverged.any() and not diverged.all():
+        message += f" ({int(diverged.sum())} of {count} starts diverged and were discarded)"
     # never worse than the start: the initial model, scored as the starts are chosen, in the final setting
     start = jax.tree_util.tree_map(lambda a: a[:1], (starts, extras))
     if linear_only:  # the least-squares solve is the fit: nothing to compare
@@ -368,6 +368,12 @@ def fit(
     exact_val = (
         float(_evaluate(val_loss_fn, exact(fitted), None, validation)) if validation is not None else float("nan")
     )
+    if validation is not None and not np.isfinite(val_loss) and result_code != "diverged":
+        result_code = "diverged"
+        message = (
+            f"the validation loss of the returned model is not finite ({val_loss}); check the validation data "
+            "(NaN, scale) or the model's behaviour on it; " + message
+        )
     std = None
     if compute_std and np.isfinite(train_loss):
         std = _gauss_newton_std(fitted, spec, linear_spec, loss, chosen[1], data)
@@ -403,6 +409,10 @@ def fit(
 def _validate(model: Any, data: Any, validation: Any, steps: Any, loss: Any) -> None:
     if not isinstance(model, eqx.Module):
         raise TypeError(f"fit: `model` must be a fricjax model (an equinox Module), got {type(model).__name__}.")
+    if isinstance(model, AbstractModel):  # the signals the model needs are in the records (dt, x / v, ...)
+        for record in (data, validation):
+            if isinstance(record, FrictionData):
+                model.check_inputs(record.motion)
     data_type = getattr(loss, "data_type", FrictionData)
     for name, value in (("data", data), ("validation", validation)):
         if value is not None and not isinstance(value, data_type):
@@ -587,8 +597,9 @@ class _Search:
         return np.where(np.isfinite(scores) & ~self.diverged, scores, np.inf)
 
     def restart(self, train: Any, val: Any) -> None:
-        """A new continuation stage: its best-so-far starts from the current states."""
+        """A new continuation stage: its best-so-far (and its patience) start from the current states."""
         self.best_states, self.best_scores = self.states, self._scores(train, val)
+        self.stall = 0
 
     def observe(self, states: Any, steps: int, bad: np.ndarray, train: Any, val: Any, eps: Any) -> None:
         """After `steps` more solver steps: keep the best state of each start, record, update the bar."""
@@ -623,6 +634,11 @@ def _budget_message(steps: int, losses: list[Any]) -> str:
         return (
             f"stopped at the step budget ({steps} steps) while the loss was still falling ({100 * change:.2g} % over "
             "the last check): not converged; raise `steps` to go on"
+        )
+    if change < -1e-3:
+        return (
+            f"stopped at the step budget ({steps} steps) with the loss rising or oscillating at the end "
+            f"({100 * -change:.2g} % up over the last check); the best model seen is returned: lower the learning rate"
         )
     return f"ran the full budget of {steps} steps; the loss had levelled off (change {100 * change:.2g} % at the end)"
 

@@ -84,6 +84,10 @@ class OneStepLoss(AbstractLoss):
     burn_in: int = eqx.field(static=True, default=0)
     normalise: bool = eqx.field(static=True, default=True)
 
+    def __check_init__(self) -> None:
+        if self.burn_in < 0:
+            raise ValueError(f"OneStepLoss: `burn_in` must be >= 0, got {self.burn_in}.")
+
     def residuals(self, model: Any, extra: Any, data: FrictionData) -> Array:
         if not feeds_back(model):
             raise TypeError(

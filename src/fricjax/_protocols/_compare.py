@@ -226,6 +226,7 @@ class ModelScore:
     model: Any
     prediction: np.ndarray
     full_prediction: np.ndarray | None = None
+    message: str = ""
 
 
 def score(model: Any, split: Split) -> tuple[float, float, np.ndarray]:
@@ -280,9 +281,10 @@ def fit_and_score(
                 model,
                 full_prediction[split.validation_end :],
                 full_prediction,
+                result.message,
             )
         )
-        log(f"  {spec.label}: test NMSE {test_nmse:.3f} %, MAX {test_max:.3f}, {elapsed:.1f} s ({result.result})")
+        log(f"  {spec.label}: test NMSE {test_nmse:.3f} %, MAX {test_max:.3f}, {elapsed:.1f} s: {result.message}")
     return rows
 
 

@@ -429,7 +429,7 @@ def fit_emps_open_loop(
     result = fit(
         smooth_start,
         train,
-        scaling=ParameterScaling(),
+        scaling=fit_options.pop("scaling", ParameterScaling()),
         loss=loss,
         solver=levenberg_marquardt() if solver is None else solver,
         steps=steps,

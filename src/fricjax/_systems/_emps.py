@@ -153,8 +153,11 @@ class EMPSOpenLoop(AbstractSystem):
 
     requires: ClassVar[frozenset[str]] = frozenset({"vir"})
 
-    def __check_init__(self) -> None:
-        _substeps(self.substeps)
+    def __init__(self, plant: EMPSPlant, gtau: ArrayLike, substeps: int = 1):
+        _check_plant(plant)
+        self.plant = plant
+        self.gtau = _scalar(gtau, "gtau", None, unit="N/V", positive_only=True)
+        self.substeps = _substeps(substeps)
 
     def init_state(self) -> tuple[Array, Array]:
         zero = jnp.zeros((), jnp.result_type(self.gtau))
@@ -188,8 +191,22 @@ class EMPSClosedLoop(AbstractSystem):
 
     requires: ClassVar[frozenset[str]] = frozenset({"qg", "disturbance"})
 
-    def __check_init__(self) -> None:
-        _substeps(self.substeps)
+    def __init__(
+        self,
+        plant: EMPSPlant,
+        gtau: ArrayLike,
+        kp: ArrayLike,
+        kv: ArrayLike,
+        vmax: ArrayLike = 10.0,
+        substeps: int = 1,
+    ):
+        _check_plant(plant)
+        self.plant = plant
+        self.gtau = _scalar(gtau, "gtau", None, unit="N/V", positive_only=True)
+        self.kp = _scalar(kp, "kp", None, unit="1/s", positive_only=True)
+        self.kv = _scalar(kv, "kv", None, unit="V s/m", positive_only=True)
+        self.vmax = _scalar(vmax, "vmax", None, unit="V", positive_only=True)
+        self.substeps = _substeps(substeps)
 
     def init_state(self) -> tuple[Array, Array, Array, Array]:
         return self.rest_state(jnp.zeros((), jnp.result_type(self.gtau)))
