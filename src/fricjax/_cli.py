@@ -182,7 +182,7 @@ def run_compare(args: argparse.Namespace) -> int:
                     "result_message": r.message,
                     "parameters": _parameters(r.model),
                 }
-                for r in sorted(rows, key=lambda r: r.nmse)
+                for r in sorted(rows, key=cmp.by_score)
             ],
             "total_time_s": time.perf_counter() - started,
         }
@@ -267,15 +267,10 @@ def _check_writable(out: pathlib.Path) -> None:
 
 
 def _parameters(model: Any) -> dict[str, Any]:
-    import jax
+    from ._constraints import parameter_arrays, unwrap
+    from ._smoothing import exact
 
-    import fricjax as fj
-
-    out = {}
-    for path, leaf in jax.tree_util.tree_leaves_with_path(fj.unwrap(fj.exact(model))):
-        if hasattr(leaf, "dtype") and np.issubdtype(np.asarray(leaf).dtype, np.floating):
-            out["".join(str(p) for p in path).lstrip(".")] = np.asarray(leaf).tolist()
-    return out
+    return {path: value.tolist() for path, value in parameter_arrays(unwrap(exact(model))).items()}
 
 
 def _versions() -> dict[str, str]:

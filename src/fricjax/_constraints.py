@@ -171,3 +171,14 @@ def trainable_filter(model: Any) -> Any:
         return eqx.is_inexact_array(node)
 
     return jax.tree_util.tree_map(mark, model, is_leaf=lambda n: isinstance(n, (Fixed, AbstractSmoothing)))
+
+
+def parameter_arrays(tree: Any) -> dict[str, np.ndarray]:
+    """The floating-point array leaves of `tree` as NumPy arrays keyed by their path (`"stribeck.Fc"`,
+    `"members[0].k"`): the one parameter table behind `FitResult.parameters`, `fj.model_parameters` and the
+    `compare` report. Pass `unwrap(model)` for physical values."""
+    out = {}
+    for path, leaf in jax.tree_util.tree_leaves_with_path(tree):
+        if eqx.is_array(leaf) and jnp.issubdtype(leaf.dtype, jnp.floating):
+            out[jax.tree_util.keystr(path).lstrip(".")] = np.asarray(leaf)
+    return out

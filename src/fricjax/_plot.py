@@ -60,7 +60,7 @@ def plot_prediction_errors(rows: Sequence[Any], split: Any, path: Any) -> None:
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    ordered = sorted(rows, key=lambda r: r.nmse)
+    ordered = sorted(rows, key=lambda r: (not np.isfinite(r.nmse), np.nan_to_num(r.nmse)))
     measured = np.asarray(split.full.force)[split.validation_end :]
     t = np.arange(measured.size) * float(np.asarray(split.full.motion.dt))
     fig, axes = plt.subplots(len(ordered) + 1, 1, figsize=(10, 1.4 * (len(ordered) + 1)), sharex=True)
@@ -86,7 +86,7 @@ def plot_test_loops(rows: Sequence[Any], split: Any, path: Any) -> None:
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    ordered = sorted(rows, key=lambda r: r.nmse)[:4]
+    ordered = sorted(rows, key=lambda r: (not np.isfinite(r.nmse), np.nan_to_num(r.nmse)))[:4]
     x = np.asarray(split.full.motion.x)[split.validation_end :] * 1e6
     measured = np.asarray(split.full.force)[split.validation_end :]
     fig, axes = plt.subplots(1, len(ordered), figsize=(4 * len(ordered), 3.8), squeeze=False)

@@ -17,12 +17,11 @@ from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._constraints import unwrap
+from .._constraints import parameter_arrays, unwrap
 from .._inputs import Motion, MotionSample
 from .._models._base import AbstractFrictionModel
 from .._models.physics._dahl import Dahl
@@ -547,15 +546,8 @@ def model_parameters(model: eqx.Module) -> dict[str, Any]:
     100000.0
     ```
     """
-    leaves = jax.tree_util.tree_flatten_with_path(unwrap(model))[0]
     out: dict[str, Any] = {}
-    for path, leaf in leaves:
-        if not eqx.is_array_like(leaf) or isinstance(leaf, (bool, str)):
-            continue
-        key = jax.tree_util.keystr(path).lstrip(".")
-        value = np.asarray(leaf)
-        if not np.issubdtype(value.dtype, np.floating):
-            continue
+    for key, value in parameter_arrays(unwrap(model)).items():
         # round away the last-digit noise of the log / softmax reparametrisations (1e5 -> 100000.00000000003)
         digits = 12 if value.dtype == np.float64 else 6
         rounded = [float(f"{v:.{digits}g}") for v in value.reshape(-1).tolist()]

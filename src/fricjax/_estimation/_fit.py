@@ -454,7 +454,12 @@ def _tree_finite(tree: Any) -> jax.Array:
 
 
 def _where_tree(condition: jax.Array, new: Any, old: Any) -> Any:
-    return jax.tree_util.tree_map(lambda a, b: jnp.where(condition, a, b), new, old)
+    """`where(condition, new, old)` leaf by leaf; a condition of shape (B,) selects along the leading batch axis."""
+
+    def select(a: jax.Array, b: jax.Array) -> jax.Array:
+        return jnp.where(condition.reshape(condition.shape + (1,) * (a.ndim - condition.ndim)), a, b)
+
+    return jax.tree_util.tree_map(select, new, old)
 
 
 class _Problem(eqx.Module):
@@ -557,11 +562,6 @@ def _optx_code(value: int) -> str:
     return f"solver_failed:{name}"
 
 
-def _where_batch(mask: np.ndarray, new: Any, old: Any) -> Any:
-    selector = jnp.asarray(mask)
-    return jax.tree_util.tree_map(lambda a, b: jnp.where(selector.reshape((-1,) + (1,) * (a.ndim - 1)), a, b), new, old)
-
-
 def _record(
     history: dict[str, list[Any]], step: int, train: np.ndarray, val: np.ndarray, eps: Any, elapsed: float
 ) -> None:
@@ -610,7 +610,7 @@ class _Search:
         self.diverged |= bad
         scores = self._scores(train, val)
         improved = scores < self.best_scores
-        self.best_states = _where_batch(improved, states, self.best_states)
+        self.best_states = _where_tree(jnp.asarray(improved), states, self.best_states)
         self.best_scores = np.where(improved, scores, self.best_scores)
         self.stall = 0 if improved.any() else self.stall + 1
         _record(self.history, self.step_count, train, val, eps, time.perf_counter() - self.start_time)

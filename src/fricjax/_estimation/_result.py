@@ -5,15 +5,13 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-import equinox as eqx
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from .._constraints import unwrap
+from .._constraints import parameter_arrays, unwrap
 
 RESULT_CODES = {
-    "successful": "the solver converged (or ran all steps without a better validation point being missed)",
+    "successful": "the solver's convergence test held (optimistix solvers), or the parameters are linear and were "
+    "solved by least squares",
     "max_steps": "the step budget ran out before a convergence test held: the best model seen is returned, but it "
     "may not be converged (the message says whether the loss was still falling)",
     "early_stopped": "the validation loss stopped improving (patience exhausted); the best model was kept",
@@ -68,8 +66,8 @@ class FitResult:
         """`{path: (value, std)}` of the physical parameters of the fitted model (std `None` if unknown)."""
         from .._smoothing import exact
 
-        values = _flat_paths(unwrap(exact(self.model)))  # exact(): smoothing widths are settings, not parameters
-        stds = _flat_paths(exact(self.std)) if self.std is not None else {}
+        values = parameter_arrays(unwrap(exact(self.model)))  # exact(): smoothing widths are settings, not parameters
+        stds = parameter_arrays(exact(self.std)) if self.std is not None else {}
         return {path: (value, stds.get(path)) for path, value in values.items()}
 
     def summary(self, max_parameters: int = 20) -> str:
@@ -92,12 +90,3 @@ class FitResult:
         if len(parameters) > max_parameters:
             lines.append(f"  ... and {len(parameters) - max_parameters} more parameter arrays (FitResult.parameters())")
         return "\n".join(lines)
-
-
-def _flat_paths(tree: Any) -> dict[str, np.ndarray]:
-    out = {}
-    for path, leaf in jax.tree_util.tree_leaves_with_path(tree):
-        if eqx.is_array(leaf) and jnp.issubdtype(leaf.dtype, jnp.floating):
-            name = "".join(str(p) for p in path).lstrip(".")
-            out[name] = np.asarray(leaf)
-    return out

@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from typing import Any
 
 import equinox as eqx
@@ -120,10 +121,13 @@ def _constant(value: float) -> Any:
 
 def where_from_path(path: str) -> Any:
     """A `where` callable for a dotted field path: names are attributes, integers index tuples and lists
-    (`"mlp.layers.0.weight"`), other keys index dicts."""
+    (`"mlp.layers.0.weight"`, or `"members[0].Fc"` as parameter tables print it), other keys index dicts."""
+
+    # the keys of parameter tables ("members[0].k", "layers['w']") name the same nodes
+    dotted = re.sub(r"\[(\d+)\]", r".\1", re.sub(r"\['([^']*)'\]", r".\1", path)).lstrip(".")
 
     def where(tree: Any) -> Any:
-        for part in path.split("."):
+        for part in dotted.split("."):
             if isinstance(tree, (tuple, list)) and part.lstrip("-").isdigit():
                 tree = tree[int(part)]
             elif isinstance(tree, dict):

@@ -4,8 +4,9 @@ A model is an `equinox.Module` whose array leaves are its parameters. It never s
 gives the state at rest and `step(state, sample) -> (state, y)` advances one sample. A model whose state holds
 its own past outputs (NARX-type models) overrides `feedback(state, y_measured) -> state`, which replaces the
 fed-back prediction by the measurement (teacher forcing); for every other model it is the identity.
-`samples(inputs)` turns an input record into the per-step signals (leading axis: time) that `fj.simulate`
-scans over, deriving what the model declares in `requires` once, before the scan.
+`samples(inputs)` turns an input record into the per-step signals (leading axis: time; scalar leaves such as `dt`
+are constants of the record) that `fj.simulate` scans over, deriving what the model declares in `requires` once,
+before the scan.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ class AbstractModel(eqx.Module):
       models, any pytree for systems).
     - `feedback(state, y_measured) -> state`: replace the model's own past output held in `state` by the
       measured one (one-step / k-step-ahead prediction). The identity unless the model feeds back outputs.
-    - `samples(inputs)`: the per-step signals of an input record, each leaf with a leading time axis.
+    - `samples(inputs)`: the per-step signals of an input record, each leaf with a leading time axis, or a
+      scalar (a constant of the record, such as `dt`).
     - `requires`: the signals `step` reads (checked once, at the entry point).
     """
 
@@ -47,7 +49,7 @@ class AbstractModel(eqx.Module):
 
     @abc.abstractmethod
     def samples(self, inputs: Any) -> Any:
-        """The per-step signals of `inputs` (each leaf of shape `(T, ...)`)."""
+        """The per-step signals of `inputs` (leaves of shape `(T, ...)`, or scalars constant over the record)."""
 
     @abc.abstractmethod
     def check_inputs(self, inputs: Any) -> None:

@@ -380,10 +380,15 @@ def add_ensembles(rows: list[ModelScore], split: Split) -> list[ModelScore]:
     return out
 
 
+def by_score(row: ModelScore) -> tuple[bool, float]:
+    """Sort key of the table: by test NMSE, non-finite scores last."""
+    return (not np.isfinite(row.nmse), float(row.nmse) if np.isfinite(row.nmse) else 0.0)
+
+
 def format_table(rows: list[ModelScore]) -> str:
     """The comparison table, sorted by test NMSE (kernel paper Table 1 / worden2007 Fig. 11 layout)."""
     lines = [f"{'model':44s} {'params':>6s} {'NMSE %':>9s} {'MAX':>7s} {'fit s':>7s}  result"]
-    for r in sorted(rows, key=lambda r: r.nmse):
+    for r in sorted(rows, key=by_score):
         lines.append(
             f"{r.label:44s} {r.num_parameters:6d} {r.nmse:9.4f} {r.max_error:7.3f} {r.fit_time:7.1f}  {r.result}"
         )
