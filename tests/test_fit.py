@@ -747,3 +747,16 @@ def test_validation_burn_in_covering_the_record_is_refused():
     train, val = DATA.split(0.5)
     with pytest.raises(ValueError, match="validation burn-in"):
         fj.fit(START, train, validation=val, validation_burn_in=val.length, steps=1)
+
+
+def test_separable_least_squares_keeps_damping_nonnegative():
+    """Data with a falling force-velocity slope: unconstrained least squares would give Fv ~ -5 N s/m."""
+    v = np.asarray(MOTION.v)
+    force = 1.0 * np.tanh(v / EPS) - 5.0 * v + 0.2
+    data = fj.FrictionData(MOTION, force)
+    result = fj.fit(START, data, solver=fj.levenberg_marquardt(), steps=30, separable=("Fv", "offset"))
+    p = fj.unwrap(result.model)
+    assert float(p.Fv) == 0.0  # the bound is active, not violated
+    assert abs(float(p.offset) - 0.2) < 0.05 and np.isfinite(result.train_loss)
+    free = fj.lstsq(np.column_stack([v, np.ones_like(v)]), force - np.tanh(v / EPS)).x
+    assert free[0] < -4.0  # what the unconstrained solve would have returned

@@ -105,11 +105,15 @@ def _simulate_force(model: Any, data: FrictionData) -> jax.Array:
     return force
 
 
-def solve_linear(model: Any, linear_spec: Any, data: FrictionData, burn_in: int = 0) -> Any:
+def solve_linear(
+    model: Any, linear_spec: Any, data: FrictionData, burn_in: int = 0, *, nonnegative: Sequence[bool] | None = None
+) -> Any:
     """Set the parameters selected by `linear_spec` (which enter the simulated force linearly) to their least-
     squares values for `data`, by a differentiable column-scaled solve (`fj.lstsq`, tiny ridge).
 
     The force is `f(theta) = f(0) + J theta` exactly, with `J` from one forward-mode pass (`jacfwd`).
+    `nonnegative`: one flag per selected scalar (in tree order) that must stay >= 0 (damping coefficients);
+    `fit` derives it from the models' `nonnegative_fields`.
     """
     linear, rest = eqx.partition(model, linear_spec)
     flat, unravel = jax.flatten_util.ravel_pytree(linear)
@@ -121,7 +125,8 @@ def solve_linear(model: Any, linear_spec: Any, data: FrictionData, burn_in: int 
     f0 = predict(zero)
     J = jax.jacfwd(predict)(zero)
     target = data.force[burn_in:] - f0
-    theta = lstsq(J, target, ridge=1e-12).x  # column-scaled, differentiable (the one least-squares kernel)
+    bound = None if nonnegative is None or not any(nonnegative) else np.asarray(nonnegative, dtype=bool)
+    theta = lstsq(J, target, ridge=1e-12, nonnegative=bound).x  # the one least-squares kernel, differentiable
     return eqx.combine(unravel(theta), rest)
 
 
@@ -168,6 +173,21 @@ def _parameter_specs(model: Any, train: Any, freeze: Any, separable: Sequence[st
     if not any(jax.tree_util.tree_leaves(spec)) and linear_spec is None:
         raise ValueError("fit: nothing to train: every parameter is frozen.")
     return spec, linear_spec
+
+
+def _nonnegative_flags(model: Any, linear_spec: Any, separable: Sequence[str]) -> tuple[bool, ...] | None:
+    """One flag per scalar solved by separable least squares (tree order): True for fields their model class
+    declares physically >= 0 (`nonnegative_fields`: LuGre `sigma1` / `sigma2`, GMS `sigma2`, static `Fv`)."""
+    if linear_spec is None:
+        return None
+    marker = jax.tree_util.tree_map(lambda a: jnp.zeros_like(a) if eqx.is_inexact_array(a) else a, model)
+    for path in separable:
+        *parents, name = path.split(".")
+        owner = where_from_path(".".join(parents))(model) if parents else model
+        if name in getattr(type(owner), "nonnegative_fields", ()):
+            marker = eqx.tree_at(where_from_path(path), marker, replace_fn=jnp.ones_like)
+    flat, _ = jax.flatten_util.ravel_pytree(eqx.partition(marker, linear_spec)[0])
+    return tuple(bool(flag) for flag in np.asarray(flat) > 0.5)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -275,7 +295,13 @@ def fit(
     scales = None if scaling is None else scaling.scales(params0)
 
     problem = _Problem(
-        loss=loss, linear_spec=linear_spec, scales=scales, data=data, validation=validation, val_loss=val_loss_fn
+        loss=loss,
+        linear_spec=linear_spec,
+        linear_nonnegative=_nonnegative_flags(model, linear_spec, separable),
+        scales=scales,
+        data=data,
+        validation=validation,
+        val_loss=val_loss_fn,
     )
     extra0 = loss.init_extra(model, data)
     starts = (MultiStart(1, 0.0) if multistart is None else multistart).draw(params0, seed)
@@ -468,6 +494,7 @@ class _Problem(eqx.Module):
 
     loss: AbstractLoss
     linear_spec: Any
+    linear_nonnegative: tuple[bool, ...] | None = eqx.field(static=True)
     scales: Any
     data: FrictionData
     validation: FrictionData | None
@@ -479,7 +506,8 @@ class _Problem(eqx.Module):
         m = eqx.combine(params, static)
         if self.linear_spec is None:
             return m
-        return solve_linear(m, self.linear_spec, self.data, getattr(self.loss, "burn_in", 0))
+        burn_in = getattr(self.loss, "burn_in", 0)
+        return solve_linear(m, self.linear_spec, self.data, burn_in, nonnegative=self.linear_nonnegative)
 
     def objective(self, state: Any, static: Any) -> jax.Array:
         params, extra = state

@@ -34,6 +34,9 @@ class AbstractModel(eqx.Module):
     """
 
     requires: ClassVar[frozenset[str]] = frozenset()
+    # real (not reparametrised) fields that are physically >= 0 (damping coefficients): separable least squares
+    # keeps them >= 0 (`fj.fit(..., separable=...)`)
+    nonnegative_fields: ClassVar[frozenset[str]] = frozenset()
 
     @abc.abstractmethod
     def init_state(self) -> Any:

@@ -73,6 +73,7 @@ class GMS(AbstractFrictionModel):
     smoothing: AbstractSmoothing
 
     requires: ClassVar[frozenset[str]] = frozenset({"x", "v", "dt"})
+    nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"sigma2"})
 
     def __init__(
         self,

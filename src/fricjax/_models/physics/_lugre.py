@@ -80,6 +80,7 @@ class LuGre(AbstractFrictionModel):
     smoothing: AbstractSmoothing
 
     requires: ClassVar[frozenset[str]] = frozenset({"v", "dt"})
+    nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"sigma1", "sigma2"})
 
     def __init__(
         self,

@@ -47,6 +47,7 @@ class AbstractStaticFriction(AbstractFrictionModel):
     smoothing: AbstractSmoothing
 
     requires: ClassVar[frozenset[str]] = frozenset({"v"})
+    nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"Fv"})
 
     @abc.abstractmethod
     def _law(self, v: Array, sign: Array, pick: Any) -> Array:
