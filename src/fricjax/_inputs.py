@@ -3,9 +3,11 @@ input signals of a system model), the per-step samples a model's `step` sees, an
 
 from __future__ import annotations
 
+import warnings
 from typing import NamedTuple
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -167,7 +169,21 @@ def position_from_velocity(v: Array, dt: Array, x0: ArrayLike = 0.0) -> Array:
     return jnp.asarray(x0, v.dtype) + jnp.cumsum(increments, axis=-1)
 
 
+_WARNED_X64 = False
+
+
 def _as_signal(value: ArrayLike, name: str) -> Array:
+    global _WARNED_X64
+    if isinstance(value, np.ndarray) and value.dtype == np.float64 and not jax.config.read("jax_enable_x64"):
+        if not _WARNED_X64:  # once per session
+            _WARNED_X64 = True
+            warnings.warn(
+                f"fricjax: `{name}` is float64 but JAX runs in float32 (x64 off), so records are rounded to float32 "
+                "(small motions on large offsets lose accuracy); call jax.config.update('jax_enable_x64', True) "
+                "first.",
+                UserWarning,
+                stacklevel=3,
+            )
     array = as_float_array(value)
     if array.ndim < 1:
         raise ValueError(f"Motion: `{name}` must be a 1-D signal of shape (T,), got a scalar.")

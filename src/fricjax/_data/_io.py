@@ -44,10 +44,16 @@ def _read_columns(path: Any) -> dict[str, np.ndarray]:
             with np.load(path) as archive:
                 return {key.lower(): np.asarray(archive[key], dtype=float).reshape(-1) for key in archive.files}
         if suffix == ".csv":
-            table = np.genfromtxt(path, delimiter=",", names=True, dtype=float)
+            if not path.read_text(encoding="utf-8-sig", errors="replace").strip():
+                raise RecordError(f"{path}: the file is empty; give a header row and one row per sample")
+            # utf-8-sig: a byte-order mark (Excel's CSV export) is not part of the first column name
+            table = np.genfromtxt(path, delimiter=",", names=True, dtype=float, encoding="utf-8-sig")
             if table.dtype.names is None:
                 raise RecordError(f"{path}: the CSV needs a header row naming its columns")
-            return {name.lower(): np.asarray(table[name], dtype=float).reshape(-1) for name in table.dtype.names}
+            columns = {name.lower(): np.asarray(table[name], dtype=float).reshape(-1) for name in table.dtype.names}
+            if any(column.size == 0 for column in columns.values()):
+                raise RecordError(f"{path}: the CSV has a header but no data rows")
+            return columns
     except RecordError:
         raise
     except Exception as err:  # noqa: BLE001 - any parse failure becomes one line
@@ -62,11 +68,20 @@ def _record_from_columns(columns: dict[str, np.ndarray], path: Any) -> FrictionD
     if "x" not in columns and "v" not in columns:
         raise RecordError(f"{path}: need a displacement column 'x' and/or a velocity column 'v'")
     if "dt" in columns:
-        dt = float(columns["dt"].reshape(-1)[0])
+        dts = columns["dt"].reshape(-1)
+        if dts.size == 0 or not np.allclose(dts, dts[0], rtol=1e-9, atol=0):
+            raise RecordError(
+                f"{path}: column 'dt' must hold one sample time (all rows equal); resample the record to a uniform "
+                "rate first"
+            )
+        dt = float(dts[0])
     elif "t" in columns:
         steps = np.diff(columns["t"])
         if steps.size == 0 or not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
-            raise RecordError(f"{path}: column 't' must be uniformly sampled (or give 'dt')")
+            raise RecordError(
+                f"{path}: column 't' must be uniformly sampled; if it is only rounded, replace it by a column 'dt' "
+                "holding the sample time in seconds"
+            )
         dt = float(steps[0])
     else:
         raise RecordError(f"{path}: need a time column 't' or a sample-time column 'dt'")

@@ -26,7 +26,7 @@ from .._constraints import AbstractUnwrappable, Fixed, trainable_filter, unwrap
 from .._data._record import FrictionData
 from .._models._base import AbstractModel
 from .._simulate import run, simulate
-from .._smoothing import Smooth, exact, with_smoothing
+from .._smoothing import Smooth, exact, is_concrete, with_smoothing
 from ._linear import lstsq, parameter_std
 from ._losses import AbstractLoss, SimulationLoss
 from ._result import FitResult
@@ -439,6 +439,13 @@ def _validate(model: Any, data: Any, validation: Any, steps: Any, loss: Any) -> 
         for record in (data, validation):
             if isinstance(record, FrictionData):
                 model.check_inputs(record.motion)
+    for name, record in (("data", data), ("validation", validation)):
+        if isinstance(record, FrictionData) and getattr(loss, "normalise", False) and is_concrete(record.force):
+            if not float(np.std(np.asarray(record.force))) > 0:
+                raise ValueError(
+                    f"fit: the measured force of `{name}` is constant (std = 0), so the normalised loss (error / "
+                    "std) is undefined; check the record, or use a loss with normalise=False."
+                )
     data_type = getattr(loss, "data_type", FrictionData)
     for name, value in (("data", data), ("validation", validation)):
         if value is not None and not isinstance(value, data_type):
