@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import jax
 import numpy as np
 import pytest
 
@@ -67,3 +68,47 @@ def test_float64_data_with_x64_off_warns_once():
     )
     printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert printed.strip() == "1"
+
+
+def test_wrong_parameter_shape_and_fixed_parameters():
+    stribeck = fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3)
+    with pytest.raises(ValueError, match="`sigma0` must be one number"):
+        fj.LuGre(stribeck, sigma0=[1e5, 2e5], sigma1=300.0, sigma2=0.4)
+    motion = fj.Motion.from_position(1e-4 * np.sin(np.linspace(0, 6, 100)), dt=1e-3)
+    free = fj.LuGre(stribeck, sigma0=1e5, sigma1=300.0, sigma2=0.4, offset=0.1)
+    fixed = fj.LuGre(stribeck, sigma0=fj.Fixed(1e5), sigma1=fj.Fixed(300.0), sigma2=0.4, offset=fj.Fixed(0.1))
+    np.testing.assert_array_equal(fj.simulate(fixed, motion), fj.simulate(free, motion))
+
+    def trained(model):
+        return sum(bool(leaf) for leaf in jax.tree_util.tree_leaves(fj.trainable_filter(model)))
+
+    assert trained(free) - trained(fixed) == 3
+    static = fj.CoulombViscous(Fc=fj.Fixed(1.0), Fv=fj.Fixed(20.0))
+    assert trained(static) == 1  # the offset
+
+
+def test_emps_command_on_wrong_files_is_one_line(tmp_path, monkeypatch, capsys):
+    (tmp_path / "emps").mkdir()
+    for name in ("DATA_EMPS.mat", "DATA_EMPS_PULSES.mat"):
+        (tmp_path / "emps" / name).write_text("not a MATLAB file")
+    monkeypatch.setenv("FRICJAX_DATA", str(tmp_path))
+    assert fj.main(["compare", "--data", "emps", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "MATLAB" in err, err
+
+
+def test_sigterm_stops_compare_quietly(tmp_path):
+    out = tmp_path / "out"
+    code = f"import fricjax as fj, sys; sys.exit(fj.main(['compare', '--out', {str(out)!r}, '--no-progress']))"
+    process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in process.stdout:  # wait until the fits have started
+            if line.startswith("fitting"):
+                break
+        process.terminate()
+        _, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert process.returncode == 130, err
+    assert err.strip().splitlines() == [f"fricjax compare: interrupted; nothing was written to {out}"]
+    assert not any(out.iterdir())

@@ -6,6 +6,7 @@ import argparse
 import json
 import os
 import pathlib
+import signal
 import sys
 import tempfile
 import time
@@ -214,7 +215,10 @@ def _compare_emps(out: pathlib.Path, args: argparse.Namespace) -> int:
     train_path, test_path = root / "DATA_EMPS.mat", root / "DATA_EMPS_PULSES.mat"
     if not train_path.is_file() or not test_path.is_file():
         raise cmp.CompareError(f"--data emps: EMPS files not found in {root}; set FRICJAX_DATA to the data folder")
-    train, test = fj.load_emps(train_path), fj.load_emps(test_path)
+    try:
+        train, test = fj.load_emps(train_path), fj.load_emps(test_path)
+    except (ValueError, OSError) as err:
+        raise cmp.CompareError(f"--data emps: {err}") from err
     laws: list[tuple[str, Any]] = [
         ("Coulomb + viscous", fj.CoulombViscous),
         ("Threlfall", fj.Threlfall),
@@ -340,7 +344,8 @@ def _jsonable(value: Any) -> Any:
 def main(argv: Sequence[str] | None = None) -> int:
     """The `fricjax` command line: `fj.main(["compare", "--data", "tribometer:mixed"])` runs as the shell does.
 
-    **Returns:** the exit status (0 success, 2 a one-line input error).
+    **Returns:** the exit status (0 success, 2 a one-line input error, 130 interrupted: Ctrl-C or SIGTERM,
+    after which nothing was written to the output folder).
     """
     parser = argparse.ArgumentParser(prog="fricjax", description="Friction models as JAX scan simulators.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -377,11 +382,31 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         run_demo(out, figure=not args.no_figure)
         return 0
+    previous = _terminate_as_interrupt()
     try:
         return run_compare(args)
     except CompareError as err:
         print("fricjax compare: " + " ".join(str(err).split()), file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # the staging folder is removed on the way out (finally in run_compare)
+        print(f"fricjax compare: interrupted; nothing was written to {args.out}", file=sys.stderr)
+        return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _terminate_as_interrupt() -> Any:
+    """SIGTERM raises KeyboardInterrupt (so the clean-up of a half-written report runs); returns the previous
+    handler, or None where signals cannot be set (not the main thread)."""
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    try:
+        return signal.signal(signal.SIGTERM, interrupt)
+    except ValueError:  # not in the main thread
+        return None
 
 
 if __name__ == "__main__":  # pragma: no cover

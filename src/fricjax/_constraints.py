@@ -92,17 +92,36 @@ def unwrap(tree: Any) -> Any:
     return jax.tree_util.tree_map(lambda leaf: leaf.unwrap() if _is_wrapper(leaf) else leaf, tree, is_leaf=_is_wrapper)
 
 
-def positive(value: ParamLike, name: str, dtype: Any = None) -> Positive:
-    """Shorthand used by model constructors: `Positive(value, name=name)`; Python numbers take `dtype`."""
+def positive(value: ParamLike, name: str, dtype: Any = None, *, scalar: bool = False) -> Any:
+    """Shorthand used by model constructors: `Positive(value, name=name)`; Python numbers take `dtype`.
+    `scalar=True`: the parameter is one number (checked here, with its name, instead of a JAX shape error later).
+    `Fixed(value)` gives a fixed positive parameter (not trained)."""
+    if isinstance(value, Fixed):
+        return Fixed(positive(value.value, name, dtype, scalar=scalar))
+    if scalar:
+        _check_scalar(value, name)
     return Positive(value, name=name, dtype=dtype)
 
 
-def real(value: ParamLike, name: str, dtype: Any = None) -> Array:
-    """Convert an unconstrained real parameter to a float array, checking it is finite when concrete."""
+def real(value: ParamLike, name: str, dtype: Any = None, *, scalar: bool = False) -> Array:
+    """Convert an unconstrained real parameter to a float array, checking it is finite when concrete (and one
+    number with `scalar=True`). `Fixed(value)` gives a fixed real parameter (not trained)."""
+    if isinstance(value, Fixed):
+        return Fixed(real(value.value, name, dtype, scalar=scalar))  # type: ignore[return-value]
+    if scalar:
+        _check_scalar(value, name)
     value = as_float_array(value, dtype)
     if is_concrete(value) and not bool(np.all(np.isfinite(np.asarray(value)))):
         raise ValueError(f"`{name}` must be finite, got {np.asarray(value)!r}.")
     return value
+
+
+def _check_scalar(value: Any, name: str) -> None:
+    if isinstance(value, AbstractUnwrappable):
+        value = jax.tree_util.tree_leaves(value)[0] if jax.tree_util.tree_leaves(value) else 0.0
+    shape = np.shape(value)
+    if shape != ():
+        raise ValueError(f"`{name}` must be one number (a scalar), got shape {shape}; pass a float.")
 
 
 def _is_weak(value: Any) -> bool:

@@ -83,11 +83,11 @@ class Dahl(AbstractFrictionModel):
         smoothing: AbstractSmoothing = Exact(),
     ):
         dtype = model_dtype(sigma0, Fc, alpha, offset, F0)
-        self.sigma0 = positive(sigma0, "sigma0", dtype)
-        self.Fc = positive(Fc, "Fc", dtype)
-        self.alpha = positive(alpha, "alpha", dtype)
-        self.offset = real(offset, "offset", dtype)
-        self.F0 = real(F0, "F0", dtype)
+        self.sigma0 = positive(sigma0, "sigma0", dtype, scalar=True)
+        self.Fc = positive(Fc, "Fc", dtype, scalar=True)
+        self.alpha = positive(alpha, "alpha", dtype, scalar=True)
+        self.offset = real(offset, "offset", dtype, scalar=True)
+        self.F0 = real(F0, "F0", dtype, scalar=True)
         self.smoothing = smoothing
 
     def init_state(self) -> DahlState:

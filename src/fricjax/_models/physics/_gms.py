@@ -98,12 +98,12 @@ class GMS(AbstractFrictionModel):
         if alpha.shape != k.shape:
             raise ValueError(f"GMS: `alpha` must have the shape of `k` {k.shape}, got {alpha.shape}.")
         self.alpha = Simplex(alpha, name="alpha", dtype=dtype)
-        self.C = positive(C, "C", dtype)
-        sigma2 = real(sigma2, "sigma2", dtype)
-        if is_concrete(sigma2) and bool(np.any(np.asarray(sigma2) < 0)):
+        self.C = positive(C, "C", dtype, scalar=True)
+        sigma2 = real(sigma2, "sigma2", dtype, scalar=True)
+        if is_concrete(unwrap(sigma2)) and bool(np.any(np.asarray(unwrap(sigma2)) < 0)):
             raise ValueError(f"GMS: `sigma2` must be >= 0 (N·s/m), got {sigma2!r}.")
         self.sigma2 = sigma2
-        self.offset = real(offset, "offset", dtype)
+        self.offset = real(offset, "offset", dtype, scalar=True)
         self.smoothing = smoothing
 
     @property

@@ -100,11 +100,11 @@ class LuGre(AbstractFrictionModel):
                 f"got {type(stribeck).__name__}."
             )
         self.stribeck = stribeck
-        self.sigma0 = positive(sigma0, "sigma0", dtype)
+        self.sigma0 = positive(sigma0, "sigma0", dtype, scalar=True)
         self.sigma1 = _nonnegative(sigma1, "sigma1", dtype)
         self.sigma2 = _nonnegative(sigma2, "sigma2", dtype)
-        self.offset = real(offset, "offset", dtype)
-        self.z0 = real(z0, "z0", dtype)
+        self.offset = real(offset, "offset", dtype, scalar=True)
+        self.z0 = real(z0, "z0", dtype, scalar=True)
         self.smoothing = smoothing
 
     def init_state(self) -> LuGreState:
@@ -121,7 +121,7 @@ class LuGre(AbstractFrictionModel):
 
 
 def _nonnegative(value: ParamLike, name: str, dtype: Any = None) -> Array:
-    array = real(value, name, dtype)
-    if is_concrete(array) and bool(np.any(np.asarray(array) < 0)):
+    array = real(value, name, dtype, scalar=True)
+    if is_concrete(unwrap(array)) and bool(np.any(np.asarray(unwrap(array)) < 0)):
         raise ValueError(f"`{name}` must be >= 0 (a damping coefficient, N·s/m), got {value!r}.")
     return array

@@ -27,6 +27,8 @@ from ._stribeck import abs_pow
 
 
 def _coefficient(value: ParamLike, name: str, *, is_positive: bool, dtype: Any = None) -> Any:
+    if isinstance(value, Fixed):  # a fixed (not trained) coefficient
+        return Fixed(_coefficient(value.value, name, is_positive=is_positive, dtype=dtype))
     array = as_float_array(value, dtype)
     if array.ndim not in (0, 1) or (array.ndim == 1 and array.shape[0] != 2):
         raise ValueError(
