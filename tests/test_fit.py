@@ -760,3 +760,11 @@ def test_separable_least_squares_keeps_damping_nonnegative():
     assert abs(float(p.offset) - 0.2) < 0.05 and np.isfinite(result.train_loss)
     free = fj.lstsq(np.column_stack([v, np.ones_like(v)]), force - np.tanh(v / EPS)).x
     assert free[0] < -4.0  # what the unconstrained solve would have returned
+
+
+@pytest.mark.parametrize("solver", [optax.adam(3e-2), fj.levenberg_marquardt()], ids=["adam", "lm"])
+def test_gradient_fits_keep_damping_nonnegative(solver):
+    v = np.asarray(MOTION.v)
+    data = fj.FrictionData(MOTION, 1.0 * np.tanh(v / EPS) - 5.0 * v + 0.2)  # a falling force-velocity slope
+    result = fj.fit(START, data, solver=solver, steps=60, scaling=fj.ParameterScaling())
+    assert float(fj.unwrap(result.model).Fv) >= 0.0

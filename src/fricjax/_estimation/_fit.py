@@ -175,6 +175,29 @@ def _parameter_specs(model: Any, train: Any, freeze: Any, separable: Sequence[st
     return spec, linear_spec
 
 
+def _nonnegative_mask(model: Any) -> Any:
+    """A tree shaped like `model`: True at the real-stored fields their class declares physically >= 0."""
+    mask = jax.tree_util.tree_map(lambda _: False, model)
+    for path in _nonnegative_paths(model):
+        mask = eqx.tree_at(where_from_path(path), mask, True)
+    return mask
+
+
+def _nonnegative_paths(node: Any, prefix: str = "") -> list[str]:
+    out: list[str] = []
+    if isinstance(node, eqx.Module):
+        for field in dataclasses.fields(node):
+            child = getattr(node, field.name, None)
+            if field.name in getattr(type(node), "nonnegative_fields", ()) and eqx.is_inexact_array(child):
+                out.append(prefix + field.name)
+            else:
+                out += _nonnegative_paths(child, f"{prefix}{field.name}.")
+    elif isinstance(node, (tuple, list)):
+        for index, child in enumerate(node):
+            out += _nonnegative_paths(child, f"{prefix}{index}.")
+    return out
+
+
 def _nonnegative_flags(model: Any, linear_spec: Any, separable: Sequence[str]) -> tuple[bool, ...] | None:
     """One flag per scalar solved by separable least squares (tree order): True for fields their model class
     declares physically >= 0 (`nonnegative_fields`: LuGre `sigma1` / `sigma2`, GMS `sigma2`, static `Fv`)."""
@@ -298,6 +321,7 @@ def fit(
         loss=loss,
         linear_spec=linear_spec,
         linear_nonnegative=_nonnegative_flags(model, linear_spec, separable),
+        nonnegative=eqx.partition(_nonnegative_mask(model), spec)[0],
         scales=scales,
         data=data,
         validation=validation,
@@ -344,6 +368,7 @@ def fit(
                     message = f"validation loss did not improve for {patience} evaluations (step {search.step_count})"
         else:
             states, solver_codes, nsteps = _run_optimistix(solver, kind, problem, search.states, static, budget)
+            states = (problem.project(states[0]), states[1])  # the solver cannot bound: damping back to >= 0
             train_now, val_now = map(np.asarray, _batched_losses(problem, states, static))
             search.observe(states, int(np.max(nsteps)), ~np.isfinite(train_now), train_now, val_now, eps)
             if search.diverged.all():
@@ -502,10 +527,15 @@ class _Problem(eqx.Module):
     loss: AbstractLoss
     linear_spec: Any
     linear_nonnegative: tuple[bool, ...] | None = eqx.field(static=True)
+    nonnegative: Any  # a tree of Python bools shaped like the trained parameters (static under jit)
     scales: Any
     data: FrictionData
     validation: FrictionData | None
     val_loss: AbstractLoss
+
+    def project(self, params: Any) -> Any:
+        """Trained parameters with the physically non-negative ones (damping coefficients) clipped at 0."""
+        return jax.tree_util.tree_map(lambda p, m: jnp.maximum(p, 0.0) if m else p, params, self.nonnegative)
 
     def materialise(self, params: Any, static: Any) -> Any:
         if self.scales is not None:
@@ -550,6 +580,7 @@ def _run_chunk(solver: Any, problem: _Problem, states: Any, opt_states: Any, sta
                 grads, o, s, value=value, grad=grads, value_fn=lambda p: problem.objective(p, static)
             )
             s_new = optax.apply_updates(s, updates)
+            s_new = (problem.project(s_new[0]), s_new[1])  # physically signed parameters stay >= 0
             ok = jnp.isfinite(value) & _tree_finite(grads) & _tree_finite(s_new) & ~bad
             s = _where_tree(ok, s_new, s)
             o = _where_tree(ok, o_new, o)
