@@ -130,6 +130,7 @@ def run_compare(args: argparse.Namespace) -> int:
     from ._protocols import _compare as cmp
 
     out = pathlib.Path(args.out)
+    args.models = [m.lower() for m in args.models]  # model names are case-insensitive
     unknown = [m for m in args.models if m not in MODEL_NAMES]
     if unknown:
         raise cmp.CompareError(f"--models: unknown model {unknown[0]!r}; choose from {', '.join(MODEL_NAMES)}")
@@ -156,7 +157,8 @@ def run_compare(args: argparse.Namespace) -> int:
     print()
     print(cmp.format_table(rows))
     if reference is not None:
-        print(f"{'reference: ' + str(reference['model']):44s} {'':6s} {true_nmse:9.4f} {true_max:7.3f}")
+        width = cmp.label_width(rows)
+        print(f"{'reference: ' + str(reference['model']):{width}s} {'':6s} {true_nmse:9.4f} {true_max:7.3f}")
     staging = pathlib.Path(tempfile.mkdtemp(prefix=".partial-", dir=out))
     try:
         (staging / "models").mkdir()
@@ -363,7 +365,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="tribometer:presliding|mixed|sliding (synthetic), emps (real EMPS data), or FILE.npz/.csv with "
         "columns t or dt, x and/or v, force (default: %(default)s)",
     )
-    compare.add_argument("--models", nargs="+", default=list(MODEL_NAMES), help="models to fit (default: all)")
+    compare.add_argument(
+        "--models",
+        nargs="+",
+        default=list(MODEL_NAMES),
+        help=f"models to fit, any of {', '.join(MODEL_NAMES)} (case-insensitive; default: all). A record is split "
+        "60/20/20 in time: fit on the first 60 %%, choose among starts on the next 20 %%, score on the last 20 %%.",
+    )
     compare.add_argument("--out", default="fricjax-compare", help="output folder (default: %(default)s)")
     compare.add_argument("--seed", type=int, default=0, help="seed for the synthetic data and multi-starts")
     compare.add_argument("--no-progress", action="store_true", help="no progress bars")

@@ -385,11 +385,18 @@ def by_score(row: ModelScore) -> tuple[bool, float]:
     return (not np.isfinite(row.nmse), float(row.nmse) if np.isfinite(row.nmse) else 0.0)
 
 
+def label_width(rows: list[ModelScore]) -> int:
+    """The width of the table's first column: the longest label (at least 44 characters)."""
+    return max([44, *(len(r.label) for r in rows)])
+
+
 def format_table(rows: list[ModelScore]) -> str:
-    """The comparison table, sorted by test NMSE (kernel paper Table 1 / worden2007 Fig. 11 layout)."""
-    lines = [f"{'model':44s} {'params':>6s} {'NMSE %':>9s} {'MAX':>7s} {'fit s':>7s}  result"]
+    """The comparison table, sorted by test NMSE (kernel paper Table 1 / worden2007 Fig. 11 layout); MAX is the
+    largest absolute error divided by the standard deviation of the measured force."""
+    w = label_width(rows)
+    lines = [f"{'model':{w}s} {'params':>6s} {'NMSE %':>9s} {'MAX/std':>7s} {'fit s':>7s}  result"]
     for r in sorted(rows, key=by_score):
         lines.append(
-            f"{r.label:44s} {r.num_parameters:6d} {r.nmse:9.4f} {r.max_error:7.3f} {r.fit_time:7.1f}  {r.result}"
+            f"{r.label:{w}s} {r.num_parameters:6d} {r.nmse:9.4f} {r.max_error:7.3f} {r.fit_time:7.1f}  {r.result}"
         )
     return "\n".join(lines)
