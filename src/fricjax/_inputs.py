@@ -172,7 +172,7 @@ def position_from_velocity(v: Array, dt: Array, x0: ArrayLike = 0.0) -> Array:
 _WARNED_X64 = False
 
 
-def _as_signal(value: ArrayLike, name: str) -> Array:
+def _as_signal(value: ArrayLike, name: str, owner: str = "Motion") -> Array:
     global _WARNED_X64
     if isinstance(value, np.ndarray) and value.dtype == np.float64 and not jax.config.read("jax_enable_x64"):
         if not _WARNED_X64:  # once per session
@@ -186,13 +186,13 @@ def _as_signal(value: ArrayLike, name: str) -> Array:
             )
     array = as_float_array(value)
     if array.ndim < 1:
-        raise ValueError(f"Motion: `{name}` must be a 1-D signal of shape (T,), got a scalar.")
+        raise ValueError(f"{owner}: `{name}` must be a 1-D signal of shape (T,), got a scalar.")
     if array.shape[-1] == 0:
-        raise ValueError(f"Motion: `{name}` is empty; give at least one sample.")
+        raise ValueError(f"{owner}: `{name}` is empty; give at least one sample.")
     if is_concrete(array) and not bool(np.all(np.isfinite(np.asarray(array)))):
         bad = int(np.flatnonzero(~np.isfinite(np.asarray(array).reshape(-1)))[0])
         raise ValueError(
-            f"Motion: `{name}` contains NaN or inf (first at flat index {bad}); clean or interpolate the record."
+            f"{owner}: `{name}` contains NaN or inf (first at flat index {bad}); clean or interpolate the record."
         )
     return array
 
@@ -215,16 +215,16 @@ class InputRecord(eqx.Module):
     def __init__(self, dt: ArrayLike, **signals: ArrayLike):
         if not signals:
             raise ValueError("InputRecord: give at least one named signal, e.g. InputRecord(dt=1e-3, vir=...).")
-        arrays = {name: _as_signal(value, name) for name, value in signals.items()}
+        arrays = {name: _as_signal(value, name, "InputRecord") for name, value in signals.items()}
         for name, array in arrays.items():
             if array.ndim != 1:
                 raise ValueError(
                     f"InputRecord: `{name}` must have shape (T,), got {array.shape}; for a batch of records use "
                     "jax.vmap over records built inside the mapped function."
                 )
-        shapes = {array.shape for array in arrays.values()}
-        if len(shapes) != 1:
-            raise ValueError(f"InputRecord: every signal must have the same shape, got {sorted(shapes)}.")
+        shapes = {name: array.shape for name, array in arrays.items()}
+        if len(set(shapes.values())) != 1:
+            raise ValueError(f"InputRecord: every signal must have the same shape (one per sample), got {shapes}.")
         self.signals = arrays
         dtype = next(iter(arrays.values())).dtype
         self.dt = jnp.asarray(dt, dtype)

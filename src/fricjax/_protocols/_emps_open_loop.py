@@ -47,6 +47,7 @@ from .._estimation._fit import fit, levenberg_marquardt
 from .._estimation._losses import AbstractLoss
 from .._estimation._result import FitResult
 from .._estimation._strategies import Continuation, ParameterScaling
+from .._inputs import InputRecord
 from .._models.physics._static import AbstractStaticFriction, CoulombViscous
 from .._smoothing import Smooth, with_smoothing
 from .._systems._emps import EMPSPlant, EMPSSimulation, _open_loop, emps_open_loop_rmse_mm
@@ -83,7 +84,7 @@ def _free_run(
 ) -> tuple[Array, Array]:
     """Position and velocity at samples `window - 1 ... T - 1`, simulated from the window's state."""
     q0, qd0 = _initial_state(qm, dt, window, degree)
-    sim = _open_loop(plant, vir[window - 1 :], gtau, dt, q0, qd0, substeps)
+    sim = _open_loop(plant, InputRecord(dt, vir=vir[window - 1 :]), gtau, q0, qd0, substeps)
     return sim.q, sim.qd
 
 

@@ -229,24 +229,12 @@ class EMPSClosedLoop(AbstractSystem):
 
 
 def _open_loop(
-    plant: EMPSPlant, vir: Array, gtau: Array, dt: Array, q0: Array, qd0: Array, substeps: int
+    plant: EMPSPlant, record: InputRecord, gtau: Array, q0: Array, qd0: Array, substeps: int
 ) -> EMPSSimulation:
-    """Open-loop simulation through `fj.simulate` (checked inputs; used by the public function and the fit)."""
+    """Open-loop simulation of `record` (its `vir`) through `fj.simulate` (the public function and the fit)."""
     system = EMPSOpenLoop(plant, gtau, substeps)
-    q, qd = simulate(system, InputRecord(dt, vir=vir), (q0, qd0))
-    return EMPSSimulation(q=q, qd=qd, vir=vir)
-
-
-def _signal(value: ArrayLike, name: str, dtype: Any = None) -> Array:
-    array = as_float_array(value, dtype)
-    if array.ndim != 1:
-        raise ValueError(f"`{name}` must be a 1-D signal of shape (T,), got shape {array.shape}.")
-    if array.shape[0] < 1:
-        raise ValueError(f"`{name}` is empty; give at least one sample.")
-    if is_concrete(array) and not bool(np.all(np.isfinite(np.asarray(array)))):
-        bad = int(np.flatnonzero(~np.isfinite(np.asarray(array)))[0])
-        raise ValueError(f"`{name}` contains NaN or inf (first at index {bad}); clean or interpolate the record.")
-    return array
+    q, qd = simulate(system, record, (q0, qd0))
+    return EMPSSimulation(q=q, qd=qd, vir=record.signals["vir"])
 
 
 def _scalar(value: ArrayLike, name: str, dtype: Any, *, unit: str, positive_only: bool) -> Array:
@@ -310,13 +298,12 @@ def simulate_open_loop(
     ```
     """
     _check_plant(plant)
-    vir = _signal(vir, "vir")
-    dtype = vir.dtype
+    record = InputRecord(dt, vir=vir)  # checks the signal (1-D, samples, finite) and dt (> 0) once
+    dtype = record.dt.dtype
     return _open_loop(
         plant,
-        vir,
+        record,
         _scalar(gtau, "gtau", dtype, unit="N/V", positive_only=True),
-        _scalar(dt, "dt", dtype, unit="s", positive_only=True),
         _scalar(q0, "q0", dtype, unit="m", positive_only=False),
         _scalar(qd0, "qd0", dtype, unit="m/s", positive_only=False),
         _substeps(substeps),
@@ -372,16 +359,11 @@ def simulate_closed_loop(
     ```
     """
     _check_plant(plant)
-    qg = _signal(qg, "qg")
+    qg = as_float_array(qg)
     dtype = qg.dtype
-    if disturbance is None:
-        disturbance = jnp.zeros_like(qg)
-    else:
-        disturbance = _signal(disturbance, "disturbance", dtype).astype(dtype)
-        if disturbance.shape != qg.shape:
-            raise ValueError(
-                f"`disturbance` has shape {disturbance.shape} but `qg` has {qg.shape}; give one value per sample."
-            )
+    disturbance = jnp.zeros_like(qg) if disturbance is None else as_float_array(disturbance, dtype).astype(dtype)
+    # checks the signals (1-D, same length, finite) and dt (> 0) once
+    record = InputRecord(_scalar(dt, "dt", dtype, unit="s", positive_only=True), qg=qg, disturbance=disturbance)
     system = EMPSClosedLoop(
         plant,
         _scalar(gtau, "gtau", dtype, unit="N/V", positive_only=True),
@@ -390,7 +372,6 @@ def simulate_closed_loop(
         _scalar(vmax, "vmax", dtype, unit="V", positive_only=True),
         _substeps(substeps),
     )
-    record = InputRecord(_scalar(dt, "dt", dtype, unit="s", positive_only=True), qg=qg, disturbance=disturbance)
     state0 = system.rest_state(
         _scalar(q0, "q0", dtype, unit="m", positive_only=False),
         _scalar(qd0, "qd0", dtype, unit="m/s", positive_only=False),
