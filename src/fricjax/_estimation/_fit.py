@@ -315,7 +315,7 @@ def fit(
     eps_schedule = [None] if continuation is None else list(continuation.schedule())
     params0, static0 = eqx.partition(model, spec)
 
-    scales = None if scaling is None else scaling.scales(params0)
+    scales = None if scaling is None else scaling.scales(params0, model)
 
     problem = _Problem(
         loss=loss,
@@ -412,6 +412,11 @@ def fit(
         if np.isfinite(pair_scores[1]) and not pair_scores[0] <= pair_scores[1]:
             chosen = jax.tree_util.tree_map(lambda a: a[0], start)
             message += "; no step improved on the start, so the start is returned"
+            if scales is None and kind == "optax":
+                message += (
+                    " (real parameters are stepped as stored: for physical models pass scaling="
+                    "fj.ParameterScaling(), which scales each by its magnitude or physical range)"
+                )
 
     fitted = problem.materialise(chosen[0], static)
     train_loss = float(_evaluate(loss, fitted, chosen[1], data))

@@ -81,11 +81,14 @@ class Continuation:
 @dataclasses.dataclass(frozen=True)
 class ParameterScaling:
     """The optimiser sees every real (not log/softplus-stored) parameter divided by a scale: its initial
-    magnitude (`|value|`, 1 where it is 0), or `scale` where given per dotted field path.
+    magnitude `|value|`; where that is 0, the physical range the model declares (`parameter_ranges()`: LuGre
+    `z0` ~ Fc / sigma0 [m], offsets ~ Fc [N]), else 1; or `scale` where given per dotted field path.
 
     One learning rate then suits stiffnesses of 1e8 N/m and offsets of 1e-2 N alike (physical models with
-    parameters over many decades). Positive parameters are stored as logs and need no scaling. Leave it off
-    for black-box models whose weights are initialised near 0 (it would slow their small weights down).
+    parameters over many decades), and a zero-initialised bristle deflection moves by a fraction of the
+    pre-sliding range per step, not by 1e-2 m. Positive parameters are stored as logs and need no scaling.
+    Leave it off for black-box models whose weights are initialised near 0 (it would slow their small weights
+    down).
 
     **Arguments:** `scale`: optional `{path: value}` overrides (e.g. `{"z0": 1e-6}` for a state in metres
     initialised at 0).
@@ -93,8 +96,9 @@ class ParameterScaling:
 
     scale: dict[str, float] = dataclasses.field(default_factory=dict)
 
-    def scales(self, params: Any) -> Any:
-        """The scale of every trained leaf of `params` (a tree shaped like it; 1 for log/softplus leaves)."""
+    def scales(self, params: Any, model: Any = None) -> Any:
+        """The scale of every trained leaf of `params` (a tree shaped like it; 1 for log/softplus leaves).
+        `model`: the whole model `params` was partitioned from, for the physical ranges of zero leaves."""
 
         def leaf_scale(node: Any) -> Any:
             if isinstance(node, AbstractUnwrappable):
@@ -105,11 +109,45 @@ class ParameterScaling:
             return node
 
         scales = jax.tree_util.tree_map(leaf_scale, params, is_leaf=lambda n: isinstance(n, AbstractUnwrappable))
+        for path, value in physical_ranges(model).items():
+            where = where_from_path(path)
+            try:
+                leaf = where(params)
+            except (AttributeError, IndexError, KeyError, TypeError):
+                continue
+            if eqx.is_inexact_array(leaf) and np.isfinite(value) and value > 0:
+                scales = eqx.tree_at(where, scales, replace_fn=_where_zero(leaf, value))
         for path, value in self.scale.items():
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"ParameterScaling: the scale of {path!r} must be a positive number, got {value!r}.")
             scales = eqx.tree_at(where_from_path(path), scales, replace_fn=_constant(value))
         return scales
+
+
+def physical_ranges(model: Any, prefix: str = "") -> dict[str, float]:
+    """`{dotted path: magnitude}` over every model in `model` (ensemble members included) that declares
+    `parameter_ranges()`; models whose parameters are traced (inside jit / vmap) give none."""
+    out: dict[str, float] = {}
+    if isinstance(model, eqx.Module):
+        ranges = getattr(model, "parameter_ranges", None)
+        if callable(ranges):
+            try:
+                out.update({prefix + name: float(value) for name, value in ranges().items()})
+            except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError, TypeError):
+                pass
+        for field in dataclasses.fields(model):
+            out.update(physical_ranges(getattr(model, field.name, None), f"{prefix}{field.name}."))
+    elif isinstance(model, (tuple, list)):
+        for index, child in enumerate(model):
+            out.update(physical_ranges(child, f"{prefix}{index}."))
+    return out
+
+
+def _where_zero(leaf: Any, value: float) -> Any:
+    def replace(scale: Any) -> Any:
+        return jnp.where(leaf == 0, value, scale)
+
+    return replace
 
 
 def _constant(value: float) -> Any:

@@ -38,6 +38,12 @@ class AbstractModel(eqx.Module):
     # keeps them >= 0 (`fj.fit(..., separable=...)`)
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset()
 
+    def parameter_ranges(self) -> dict[str, float]:
+        """The physical magnitude of real fields that may start at 0 (`{field: magnitude}` in the field's
+        units, e.g. LuGre `z0` ~ Fc / sigma0 [m]): `fj.ParameterScaling` divides such fields by it, so that one
+        learning rate moves them by a physically small step. Empty by default."""
+        return {}
+
     @abc.abstractmethod
     def init_state(self) -> Any:
         """The state at rest (a pytree of arrays)."""

@@ -6,6 +6,7 @@ from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from ..._constraints import ParamLike, model_dtype, positive, real, unwrap
@@ -89,6 +90,10 @@ class Dahl(AbstractFrictionModel):
         self.offset = real(offset, "offset", dtype, scalar=True)
         self.F0 = real(F0, "F0", dtype, scalar=True)
         self.smoothing = smoothing
+
+    def parameter_ranges(self) -> dict[str, float]:
+        level = float(np.max(np.abs(np.asarray(unwrap(self.Fc)))))
+        return {"offset": level, "F0": level}  # N
 
     def init_state(self) -> DahlState:
         return DahlState(F=jnp.asarray(unwrap(self.F0)))

@@ -106,6 +106,9 @@ class GMS(AbstractFrictionModel):
         self.offset = real(offset, "offset", dtype, scalar=True)
         self.smoothing = smoothing
 
+    def parameter_ranges(self) -> dict[str, float]:
+        return {"offset": float(np.max(np.abs(np.asarray(unwrap(self.stribeck).Fc))))}  # N
+
     @property
     def num_elements(self) -> int:
         return int(self.k.raw.shape[0]) if hasattr(self.k, "raw") else int(jnp.shape(self.k)[0])

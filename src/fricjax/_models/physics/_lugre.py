@@ -107,6 +107,11 @@ class LuGre(AbstractFrictionModel):
         self.z0 = real(z0, "z0", dtype, scalar=True)
         self.smoothing = smoothing
 
+    def parameter_ranges(self) -> dict[str, float]:
+        p = unwrap(self)
+        level = float(np.max(np.abs(np.asarray(p.stribeck.Fc))))
+        return {"offset": level, "z0": level / float(np.max(np.asarray(p.sigma0)))}  # N, m (pre-sliding range)
+
     def init_state(self) -> LuGreState:
         return LuGreState(z=jnp.asarray(unwrap(self.z0)))
 

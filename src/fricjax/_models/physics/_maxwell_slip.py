@@ -161,6 +161,13 @@ class MaxwellSlip(AbstractFrictionModel):
         self.force_map = force_map
         self.smoothing = smoothing
 
+    def parameter_ranges(self) -> dict[str, float]:
+        if isinstance(self.force_map, SpringForces):  # the sliding force: sum of k_i * Delta_i [N]
+            p = unwrap(self)
+            level = float(np.sum(np.asarray(p.force_map.k) * np.asarray(p.thresholds)))
+            return {"force_map.offset": level}
+        return {}
+
     @property
     def num_elements(self) -> int:
         return int(jnp.shape(unwrap(self.thresholds))[-1])

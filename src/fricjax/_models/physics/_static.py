@@ -51,6 +51,10 @@ class AbstractStaticFriction(AbstractFrictionModel):
     requires: ClassVar[frozenset[str]] = frozenset({"v"})
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"Fv"})
 
+    def parameter_ranges(self) -> dict[str, float]:
+        Fc = getattr(self, "Fc", None)
+        return {} if Fc is None else {"offset": float(np.max(np.abs(np.asarray(unwrap(Fc)))))}  # N
+
     @abc.abstractmethod
     def _law(self, v: Array, sign: Array, pick: Any) -> Array:
         """The law without offset; `pick(c)` selects the coefficient for the side of `v`."""
