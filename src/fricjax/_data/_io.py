@@ -1,8 +1,12 @@
-"""Reading friction records from files: CSV (a header row naming the columns) and NPZ archives."""
+"""Reading friction records from files: CSV (a header row naming the columns) and NPZ archives, with column
+aliases and units; the returned data are always SI (m, m/s, N, s)."""
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import pathlib
+import re
 from typing import Any
 
 import numpy as np
@@ -15,45 +19,241 @@ class RecordError(ValueError):
     """A record file that cannot be read as friction data; the message names the file and the fix."""
 
 
-def load_record(path: str | pathlib.Path) -> FrictionData:
-    """Read a friction record from a `.csv` (header row) or `.npz` file.
+# the names each column role answers to (compared case-insensitively, whitespace trimmed)
+_ALIASES = {
+    "t": ("t", "time"),
+    "dt": ("dt",),
+    "x": ("x", "position", "displacement", "pos"),
+    "v": ("v", "velocity", "vel"),
+    "force": ("force", "f", "friction", "friction_force"),
+}
+_ROLE = {alias: role for role, aliases in _ALIASES.items() for alias in aliases}
 
-    Columns (case-insensitive): `t` (uniformly sampled time [s]) or `dt` (sample time [s]); `x` displacement [m]
-    and/or `v` velocity [m/s]; `force` [N]. A missing `v` is derived by central differences, a missing `x` by
-    zero-order hold. At least 100 samples. Errors name the file and the fix (`RecordError`, a ValueError).
+# SI factor of each unit name; the names are case-sensitive (mN is not MN), other spellings in _SPELLINGS
+_X_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "nm": 1e-9, "in": 0.0254}
+_FORCE_UNITS = {"N": 1.0, "kN": 1e3, "mN": 1e-3, "uN": 1e-6, "lbf": 4.4482216152605, "kip": 4448.2216152605}
+_TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+_SPELLINGS = {
+    "µm": "um",  # micro sign
+    "μm": "um",  # Greek mu
+    "micron": "um",
+    "inch": "in",
+    "µN": "uN",
+    "μN": "uN",
+    "µs": "us",
+    "μs": "us",
+}
+_TABLES = {"x": _X_UNITS, "force": _FORCE_UNITS, "t": _TIME_UNITS}
+_KIND = {"x": "displacement", "force": "force", "t": "time"}
+
+
+@dataclasses.dataclass(frozen=True)
+class Units:
+    """The units a record file is written in: displacement `x` (velocity in `x` per second) and `force`.
+
+    Unit names are checked and spelled canonically (`"µm"` becomes `"um"`). Known displacement units: m, cm,
+    mm, um (µm), nm, in; force units: N, kN, mN, uN (µN), lbf, kip.
+
+    ```python
+    >>> Units(x="µm", force="kN").v, Units(x="mm").x_factor
+    ('um/s', 0.001)
+    ```
+    """
+
+    x: str = "m"
+    force: str = "N"
+
+    def __post_init__(self):
+        object.__setattr__(self, "x", self.check("x", self.x))
+        object.__setattr__(self, "force", self.check("force", self.force))
+
+    @staticmethod
+    def check(quantity: str, name: str) -> str:
+        """The canonical spelling of unit `name` for `quantity` (`"x"`, `"force"` or `"t"`); a ValueError
+        listing the known units if there is none."""
+        table = _TABLES[quantity]
+        name = str(name).strip()
+        name = _SPELLINGS.get(name, name)
+        if name not in table:
+            others = {
+                canonical: [alias for alias, target in _SPELLINGS.items() if target == canonical] for canonical in table
+            }
+            known = ", ".join(f"{c} ({', '.join(a)})" if a else c for c, a in others.items())
+            raise ValueError(f"unknown {_KIND[quantity]} unit {name!r} (known: {known})")
+        return name
+
+    @property
+    def x_factor(self) -> float:
+        """Metres per displacement unit."""
+        return _X_UNITS[self.x]
+
+    @property
+    def force_factor(self) -> float:
+        """Newtons per force unit."""
+        return _FORCE_UNITS[self.force]
+
+    @property
+    def v(self) -> str:
+        """The velocity unit, displacement unit per second (e.g. `"um/s"`)."""
+        return f"{self.x}/s"
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordInfo:
+    """What `read_record` found in a file.
+
+    `columns` maps each role used (`"t"`, `"dt"`, `"x"`, `"v"`, `"force"`) to the column name or NPZ key as
+    written in the file; `ignored` lists the columns and keys not used; `units` the file's units (the data
+    returned with it are SI); `samples` the record length; `dt` the sample time used [s].
+    """
+
+    path: str
+    columns: dict[str, str]
+    ignored: tuple[str, ...]
+    units: Units
+    samples: int
+    dt: float
+
+
+def load_record(
+    path: str | pathlib.Path, *, dt: float | None = None, x_unit: str | None = None, force_unit: str | None = None
+) -> FrictionData:
+    """Read a friction record from a `.csv` (header row) or `.npz` file, in SI units.
+
+    **Columns** (CSV header names or NPZ keys, case-insensitive, whitespace trimmed):
+
+    - `force` [force unit], also `F`, `friction`, `friction_force`;
+    - `x` displacement [x unit], also `position`, `displacement`, `pos`; and/or `v` velocity [x unit per second],
+      also `velocity`, `vel`. A missing `v` is derived by central differences, a missing `x` by zero-order hold;
+    - `t` uniformly sampled time [s], also `time`; or `dt` the sample time [s] (one value, or a column of equal
+      values); or the `dt` argument, which wins over both (use it when `t` is rounded or absent).
+
+    Other columns and keys are ignored, as are NPZ keys that are not numeric (strings, metadata); an NPZ key
+    holding a 2-D table under a column name is an error. Two columns with the same role (`x` and `position`)
+    are an error. At least 100 samples.
+
+    **Units.** A column name may carry its unit in brackets: `x [um]`, `force (kN)`, `v [mm/s]`, `t [ms]`.
+    An NPZ file may hold a key `units` with a string such as `"x=um,force=kN"`. The `x_unit` and `force_unit`
+    arguments win over the file's units. Without any, the file is SI (m, N, s). Displacement units: m, cm, mm,
+    um (µm), nm, in; force units: N, kN, mN, uN (µN), lbf, kip; time units: s, ms, us (µs).
+
+    Errors are one line naming the file and the fix (`RecordError`, a ValueError).
+
+    **Arguments:** `path` the file; `dt` the sample time [s]; `x_unit`, `force_unit` the file's units.
+
+    **Returns:** a `FrictionData` in m, m/s and N.
 
     ```python
     >>> import numpy as np, tempfile, pathlib, fricjax as fj
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "record.csv"
     >>> t = np.arange(200) * 1e-3
-    >>> np.savetxt(path, np.c_[t, 1e-3 * np.sin(t), np.sin(t)], delimiter=",", header="t,x,force", comments="")
-    >>> fj.load_record(path).length
-    200
+    >>> np.savetxt(path, np.c_[t, np.sin(t), np.sin(t)], delimiter=",", header="time,x [mm],F [N]", comments="")
+    >>> data = fj.load_record(path)
+    >>> data.length, round(float(data.motion.x[100] / np.sin(t[100])), 6)  # mm -> m
+    (200, 0.001)
     ```
     """
+    return read_record(path, dt=dt, x_unit=x_unit, force_unit=force_unit)[0]
+
+
+def read_record(
+    path: str | pathlib.Path, *, dt: float | None = None, x_unit: str | None = None, force_unit: str | None = None
+) -> tuple[FrictionData, RecordInfo]:
+    """`load_record`, also returning a `RecordInfo` (columns used and ignored, units, samples, dt)."""
     path = pathlib.Path(path)
     if not path.is_file():
         raise RecordError(f"{path}: no such file")
-    return _record_from_columns(_read_columns(path), path)
+    if dt is not None:
+        try:
+            dt = math.nan if isinstance(dt, bool) else float(dt)
+        except (TypeError, ValueError):
+            dt = math.nan
+        if not (math.isfinite(dt) and dt > 0):
+            raise RecordError(f"{path}: dt must be a positive finite sample time in seconds")
+    entries, units_entry = _read_table(path)
+    columns: dict[str, str] = {}  # role -> the name as written in the file
+    data: dict[str, np.ndarray] = {}  # role -> the values as written
+    declared: dict[str, list[tuple[str, str]]] = {"x": [], "force": [], "t": [], "dt": []}  # (unit, where given)
+    ignored = []
+    for raw, values in entries:
+        name, unit = _split_unit(raw)
+        role = _ROLE.get(name.lower())
+        if role is None:
+            if raw.strip():
+                ignored.append(raw)
+            continue
+        if role in columns:
+            raise RecordError(f"{path}: columns {columns[role]!r} and {raw!r} both give {role!r}; keep one of them")
+        if values is None:
+            raise RecordError(f"{path}: {raw!r} does not hold numbers; give a numeric column or rename it")
+        if np.squeeze(values).ndim > 1:
+            raise RecordError(f"{path}: {raw!r} has shape {values.shape}; give one value per sample (a 1-D array)")
+        columns[role] = raw
+        data[role] = values.reshape(-1)
+        if unit is not None:
+            _declare(declared, role, unit, repr(raw), path)
+    if units_entry is not None:
+        for role, unit in _parse_units_entry(units_entry, path):
+            _declare(declared, role, unit, f"the units entry {role}={unit}", path)
+    if "force" not in data:
+        found = ", ".join(repr(raw) for raw, _ in entries) or "nothing"
+        raise RecordError(f"{path}: missing column 'force' (or F, friction, friction_force; found: {found})")
+    if "x" not in data and "v" not in data:
+        raise RecordError(
+            f"{path}: need a displacement column 'x' (or position, displacement, pos) and/or a velocity column 'v' "
+            "(or velocity, vel)"
+        )
+    units = Units(
+        x=_resolve_unit(path, "x", declared["x"], x_unit),
+        force=_resolve_unit(path, "force", declared["force"], force_unit),
+    )
+    if dt is None:
+        if "dt" in data:
+            dts = data["dt"]
+            if dts.size == 0 or not np.allclose(dts, dts[0], rtol=1e-9, atol=0):
+                raise RecordError(
+                    f"{path}: column 'dt' must hold one sample time (all rows equal); resample the record to a "
+                    "uniform rate first"
+                )
+            dt = float(dts[0]) * _TIME_UNITS[_resolve_unit(path, "t", declared["dt"], None)]
+        elif "t" in data:
+            steps = np.diff(data["t"])
+            if steps.size == 0 or not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
+                raise RecordError(
+                    f"{path}: column 't' must be uniformly sampled; if it is only rounded, give the sample time in "
+                    "seconds (dt= in load_record, --dt on the command line) or a column 'dt' holding it"
+                )
+            dt = float(steps[0]) * _TIME_UNITS[_resolve_unit(path, "t", declared["t"], None)]
+        else:
+            raise RecordError(
+                f"{path}: need a time column 't' (or time) or a sample-time column 'dt', or give the sample time in "
+                "seconds (dt= in load_record, --dt on the command line)"
+            )
+    force = data["force"] * units.force_factor
+    if force.size < 100:
+        raise RecordError(f"{path}: only {force.size} samples; need at least 100")
+    x = data["x"] * units.x_factor if "x" in data else None
+    v = data["v"] * units.x_factor if "v" in data else None
+    try:
+        if x is not None:
+            motion = Motion(x=x, v=v, dt=dt) if v is not None else Motion.from_position(x, dt)
+        else:
+            motion = Motion.from_velocity(data["v"] * units.x_factor, dt)
+        record = FrictionData(motion, force)
+    except (ValueError, TypeError) as err:
+        raise RecordError(f"{path}: {err}") from err
+    return record, RecordInfo(str(path), columns, tuple(ignored), units, int(force.size), float(dt))
 
 
-def _read_columns(path: Any) -> dict[str, np.ndarray]:
+def _read_table(path: pathlib.Path) -> tuple[list[tuple[str, np.ndarray | None]], str | None]:
+    """The file's columns in order, `(name as written, values or None where not numeric)`, and an NPZ `units`
+    entry if there is one."""
     suffix = path.suffix.lower()
     try:
         if suffix == ".npz":
-            with np.load(path) as archive:
-                return {key.lower(): np.asarray(archive[key], dtype=float).reshape(-1) for key in archive.files}
+            return _read_npz(path)
         if suffix == ".csv":
-            if not path.read_text(encoding="utf-8-sig", errors="replace").strip():
-                raise RecordError(f"{path}: the file is empty; give a header row and one row per sample")
-            # utf-8-sig: a byte-order mark (Excel's CSV export) is not part of the first column name
-            table = np.genfromtxt(path, delimiter=",", names=True, dtype=float, encoding="utf-8-sig")
-            if table.dtype.names is None:
-                raise RecordError(f"{path}: the CSV needs a header row naming its columns")
-            columns = {name.lower(): np.asarray(table[name], dtype=float).reshape(-1) for name in table.dtype.names}
-            if any(column.size == 0 for column in columns.values()):
-                raise RecordError(f"{path}: the CSV has a header but no data rows")
-            return columns
+            return _read_csv(path), None
     except RecordError:
         raise
     except Exception as err:  # noqa: BLE001 - any parse failure becomes one line
@@ -62,39 +262,115 @@ def _read_columns(path: Any) -> dict[str, np.ndarray]:
     raise RecordError(f"{path}: unsupported file type {suffix!r}; use .npz or .csv")
 
 
-def _record_from_columns(columns: dict[str, np.ndarray], path: Any) -> FrictionData:
-    if "force" not in columns:
-        raise RecordError(f"{path}: missing column 'force' (found: {', '.join(sorted(columns))})")
-    if "x" not in columns and "v" not in columns:
-        raise RecordError(f"{path}: need a displacement column 'x' and/or a velocity column 'v'")
-    if "dt" in columns:
-        dts = columns["dt"].reshape(-1)
-        if dts.size == 0 or not np.allclose(dts, dts[0], rtol=1e-9, atol=0):
-            raise RecordError(
-                f"{path}: column 'dt' must hold one sample time (all rows equal); resample the record to a uniform "
-                "rate first"
-            )
-        dt = float(dts[0])
-    elif "t" in columns:
-        steps = np.diff(columns["t"])
-        if steps.size == 0 or not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
-            raise RecordError(
-                f"{path}: column 't' must be uniformly sampled; if it is only rounded, replace it by a column 'dt' "
-                "holding the sample time in seconds"
-            )
-        dt = float(steps[0])
-    else:
-        raise RecordError(f"{path}: need a time column 't' or a sample-time column 'dt'")
-    force = columns["force"]
-    if force.size < 100:
-        raise RecordError(f"{path}: only {force.size} samples; need at least 100")
+def _read_npz(path: pathlib.Path) -> tuple[list[tuple[str, np.ndarray | None]], str | None]:
+    entries: list[tuple[str, np.ndarray | None]] = []
+    units = None
+    with np.load(path) as archive:
+        for key in archive.files:
+            try:
+                value = archive[key]
+            except ValueError:  # an object array (pickled metadata), which allow_pickle=False refuses
+                value = None
+            if key.strip().lower() == "units":
+                if value is None or value.dtype.kind not in "US":
+                    raise RecordError(f"{path}: key {key!r} must hold a string such as 'x=um,force=kN'")
+                units = ",".join(str(item.decode() if isinstance(item, bytes) else item) for item in value.flat)
+            elif value is not None and value.dtype.kind in "iuf":
+                entries.append((key, value.astype(float)))
+            else:
+                entries.append((key, None))
+    return entries, units
+
+
+def _read_csv(path: pathlib.Path) -> list[tuple[str, np.ndarray | None]]:
+    # the header is split here: genfromtxt(names=True) rewrites names ("x [um]" -> "x_um") and loses the units
+    raw = path.read_bytes()
     try:
-        x, v = columns.get("x"), columns.get("v")
-        if x is not None:
-            motion = Motion(x=x, v=v, dt=dt) if v is not None else Motion.from_position(x, dt)
-        else:
-            assert v is not None
-            motion = Motion.from_velocity(v, dt)
-        return FrictionData(motion, force)
-    except (ValueError, TypeError) as err:
-        raise RecordError(f"{path}: {err}") from err
+        text = raw.decode("utf-8-sig")  # a byte-order mark (Excel's CSV export) is not part of the first name
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")  # an 8-bit export (µ as 0xB5); binary junk then fails below, in one line
+    lines = [line for line in text.splitlines() if line.strip()]
+    if not lines:
+        raise RecordError(f"{path}: the file is empty; give a header row and one row per sample")
+    names = [name.strip().strip("\"'").strip() for name in lines[0].lstrip("#").split(",")]
+    if all(_is_number(name) for name in names):
+        raise RecordError(f"{path}: the CSV needs a header row naming its columns (e.g. t,x,force)")
+    rows = [line for line in lines[1:] if not line.lstrip().startswith("#")]
+    if not rows:
+        raise RecordError(f"{path}: the CSV has a header but no data rows")
+    # unparsable fields become NaN, which the record's finiteness check then names
+    table = np.genfromtxt(rows, delimiter=",", dtype=float, ndmin=2)
+    if table.shape[1] != len(names):
+        raise RecordError(
+            f"{path}: cannot read the file (the header names {len(names)} columns, the rows hold {table.shape[1]})"
+        )
+    return [(name, table[:, k]) for k, name in enumerate(names)]
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _split_unit(raw: str) -> tuple[str, str | None]:
+    """`"x [um]"` -> `("x", "um")`, `"force (kN)"` -> `("force", "kN")`, `"t"` -> `("t", None)`."""
+    match = re.fullmatch(r"\s*(.*?)\s*(?:\[([^\]]*)\]|\(([^)]*)\))\s*", raw)
+    if match is None:
+        return raw.strip(), None
+    return match[1], (match[2] if match[2] is not None else match[3]).strip()
+
+
+def _parse_units_entry(entry: str, path: pathlib.Path) -> list[tuple[str, str]]:
+    """`"x=um,force=kN"` -> `[("x", "um"), ("force", "kN")]`, names resolved through the column aliases."""
+    out = []
+    for item in re.split(r"[,;]", entry):
+        if not item.strip():
+            continue
+        name, sep, unit = item.partition("=")
+        role = _ROLE.get(name.strip().lower())
+        if not sep or role is None or not unit.strip():
+            raise RecordError(
+                f"{path}: cannot read {item.strip()!r} in the units entry; write it as 'x=um,force=kN' "
+                "(names: x, v, force, t, dt or their aliases)"
+            )
+        out.append((role, unit.strip()))
+    return out
+
+
+def _declare(declared: dict[str, list[tuple[str, str]]], role: str, unit: str, where: str, path: Any) -> None:
+    """Note a unit the file gives for `role`; a velocity unit `<x unit>/s` declares the displacement unit."""
+    if role == "v":
+        x_unit, sep, per = unit.partition("/")
+        if not sep or per.strip() != "s":
+            raise RecordError(
+                f"{path}: velocity unit {unit!r} in {where} must be a displacement unit per second (e.g. um/s)"
+            )
+        role, unit = "x", x_unit
+    declared[role].append((unit, where))
+
+
+_DEFAULTS = {"x": "m", "force": "N", "t": "s"}
+_OPTIONS = {"x": "x_unit= (--x-unit)", "force": "force_unit= (--force-unit)"}
+
+
+def _resolve_unit(path: Any, quantity: str, declared: list[tuple[str, str]], override: str | None) -> str:
+    """The unit of `quantity`: the argument `override` if given, else the one the file declares, else SI."""
+    if override is not None:
+        try:
+            return Units.check(quantity, override)
+        except ValueError as err:
+            raise RecordError(f"{path}: {err}") from None
+    found: dict[str, str] = {}
+    fix = f", or pass {_OPTIONS[quantity]}" if quantity in _OPTIONS else ""
+    for unit, where in declared:
+        try:
+            found.setdefault(Units.check(quantity, unit), where)
+        except ValueError as err:
+            raise RecordError(f"{path}: {err} in {where}; correct it{fix}") from None
+    if len(found) > 1:
+        listed = " and ".join(f"{unit} ({where})" for unit, where in found.items())
+        raise RecordError(f"{path}: the file gives the {_KIND[quantity]} unit as {listed}; make them agree{fix}")
+    return next(iter(found), _DEFAULTS[quantity])

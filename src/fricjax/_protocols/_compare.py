@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from .._data._io import _read_columns, _record_from_columns
+from .._data._io import read_record
 from .._data._record import FrictionData
 from .._estimation._fit import fit, levenberg_marquardt
 from .._estimation._result import FitResult
@@ -316,12 +316,18 @@ def load_split(spec: str, *, seed: int = 0) -> tuple[Split, dict[str, Any], Any]
     if not path.is_file():
         raise CompareError(f"--data {spec}: no such file (use tribometer:presliding|mixed|sliding, emps, or a file)")
     try:
-        columns = _read_columns(path)
-        full = _record_from_columns(columns, path)
+        full, info = read_record(path)
     except ValueError as err:
         raise CompareError(f"--data {err}") from err
     n = full.length
-    card = {"source": str(path), "samples": n, "columns": sorted(columns), "dt_s": float(np.asarray(full.motion.dt))}
+    card = {
+        "source": str(path),
+        "samples": n,
+        "columns": dict(info.columns),
+        "ignored": list(info.ignored),
+        "units": {"x": info.units.x, "force": info.units.force},
+        "dt_s": float(np.asarray(full.motion.dt)),
+    }
     return Split(full, int(0.6 * n), int(0.8 * n)), card, None
 
 

@@ -1,0 +1,158 @@
+"""Reading records: column aliases, units in the header / NPZ / arguments (SI inside), extra NPZ keys, `dt=`."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import fricjax as fj
+from fricjax.compare import load_split
+
+N = 150
+DT = 1e-3
+T = np.arange(N) * DT
+X = np.sin(np.arange(N) / 20)  # in the file's displacement unit
+F = np.cos(np.arange(N) / 20)  # in the file's force unit
+
+
+def _csv(path, header, *columns, encoding="utf-8"):
+    rows = "\n".join(",".join(f"{value:.12g}" for value in row) for row in np.column_stack(columns))
+    path.write_text(header + "\n" + rows + "\n", encoding=encoding)
+    return path
+
+
+@pytest.mark.parametrize(
+    "header",
+    [
+        "t,x,F",
+        "t,x,Friction",
+        "t,x,friction_force",
+        "t,Position,force",
+        "t,displacement,force",
+        "t, pos ,force",
+        "time,x,force",
+        "Time,x,force",
+    ],
+)
+def test_every_alias_of_time_displacement_and_force(tmp_path, header):
+    data = fj.load_record(_csv(tmp_path / "r.csv", header, T, X, F))
+    assert data.length == N and float(data.motion.dt) == pytest.approx(DT)
+    np.testing.assert_allclose(data.motion.x, X)
+    np.testing.assert_allclose(data.force, F)
+
+
+@pytest.mark.parametrize("name", ["velocity", "Vel"])
+def test_velocity_aliases(tmp_path, name):
+    data = fj.load_record(_csv(tmp_path / "r.csv", f"t,{name},force", T, X, F))
+    np.testing.assert_allclose(data.motion.v, X)
+
+
+def test_units_in_csv_header_brackets_give_si(tmp_path):
+    data = fj.load_record(_csv(tmp_path / "r.csv", "t [s],x [um],force (kN)", T, X, F))
+    np.testing.assert_allclose(data.motion.x, 1e-6 * X)
+    np.testing.assert_allclose(data.force, 1e3 * F)
+    # time in ms, velocity in mm/s (which sets the displacement unit), a commented header as np.savetxt writes it
+    path = tmp_path / "v.csv"
+    np.savetxt(path, np.c_[np.arange(N), X, F], delimiter=",", header="time (ms), v [mm/s], F [mN]")
+    data = fj.load_record(path)
+    assert float(data.motion.dt) == pytest.approx(1e-3)
+    np.testing.assert_allclose(data.motion.v, 1e-3 * X)
+    np.testing.assert_allclose(data.force, 1e-3 * F)
+
+
+@pytest.mark.parametrize(
+    "x_unit, factor", [("m", 1.0), ("mm", 1e-3), ("um", 1e-6), ("µm", 1e-6), ("nm", 1e-9), ("in", 0.0254)]
+)
+def test_x_unit_argument(tmp_path, x_unit, factor):
+    data = fj.load_record(_csv(tmp_path / "r.csv", "t,x,force", T, X, F), x_unit=x_unit)
+    np.testing.assert_allclose(data.motion.x, factor * X)
+
+
+@pytest.mark.parametrize(
+    "force_unit, factor",
+    [("N", 1.0), ("kN", 1e3), ("mN", 1e-3), ("lbf", 4.4482216152605), ("kip", 4448.2216152605)],
+)
+def test_force_unit_argument(tmp_path, force_unit, factor):
+    data = fj.load_record(_csv(tmp_path / "r.csv", "t,x,force", T, X, F), force_unit=force_unit)
+    np.testing.assert_allclose(data.force, factor * F)
+
+
+def test_unit_arguments_win_over_the_file(tmp_path):
+    path = _csv(tmp_path / "r.csv", "t,x [um],v [mm/s],force [kN]", T, X, X, F)
+    data = fj.load_record(path, x_unit="mm", force_unit="N")
+    np.testing.assert_allclose(data.motion.x, 1e-3 * X)
+    np.testing.assert_allclose(data.motion.v, 1e-3 * X)
+    np.testing.assert_allclose(data.force, F)
+    with pytest.raises(fj.RecordError, match="um .* and mm .*make them agree"):
+        fj.load_record(path)  # without the argument, the file disagrees with itself
+
+
+def test_unknown_unit_names_the_known_ones(tmp_path):
+    path = _csv(tmp_path / "r.csv", "t,x [furlong],force", T, X, F)
+    with pytest.raises(fj.RecordError, match=r"unknown displacement unit 'furlong' \(known: m, .*um.*--x-unit"):
+        fj.load_record(path)
+    with pytest.raises(fj.RecordError, match=r"unknown force unit 'MN' \(known: N, kN, mN"):
+        fj.load_record(path, x_unit="mm", force_unit="MN")
+
+
+def test_npz_with_extra_keys_and_a_units_entry(tmp_path):
+    path = tmp_path / "r.npz"
+    np.savez(
+        path,
+        time=T,
+        position=X,
+        F=F,
+        units="x=um,force=kN",
+        operator="bench 3",
+        image=np.ones((4, 5)),
+        temperature=np.full(N, 21.0),
+        meta=np.array({"a": 1}, dtype=object),
+    )
+    data = fj.load_record(path)
+    np.testing.assert_allclose(data.motion.x, 1e-6 * X)
+    np.testing.assert_allclose(data.force, 1e3 * F)
+    # units in the key names, a scalar dt, the units entry as a 1-D array of strings
+    path = tmp_path / "k.npz"
+    np.savez(path, **{"x [mm]": X, "force": F, "dt": np.array(2e-3), "units": np.array(["force=mN"])})
+    data = fj.load_record(path)
+    assert float(data.motion.dt) == pytest.approx(2e-3)
+    np.testing.assert_allclose(data.motion.x, 1e-3 * X)
+    np.testing.assert_allclose(data.force, 1e-3 * F)
+
+
+def test_dt_argument_for_a_rounded_or_missing_time_column(tmp_path):
+    rounded = np.round(np.arange(N) * 0.0007, 3)
+    path = _csv(tmp_path / "rounded.csv", "t,x,force", rounded, X, F)
+    with pytest.raises(fj.RecordError, match=r"uniformly sampled.*dt=.*--dt"):
+        fj.load_record(path)
+    assert float(fj.load_record(path, dt=7e-4).motion.dt) == pytest.approx(7e-4)
+    path = _csv(tmp_path / "no_time.csv", "x,force", X, F)
+    with pytest.raises(fj.RecordError, match=r"need a time column 't'.*dt="):
+        fj.load_record(path)
+    assert float(fj.load_record(path, dt=5e-4).motion.dt) == pytest.approx(5e-4)
+    for bad in (0.0, -1e-3, float("nan"), float("inf"), "fast"):
+        with pytest.raises(fj.RecordError, match="positive finite"):
+            fj.load_record(path, dt=bad)
+
+
+@pytest.mark.parametrize("header", ["t,x,position,force", "t,x,force,F"])
+def test_two_columns_for_one_role_is_an_error(tmp_path, header):
+    path = _csv(tmp_path / "r.csv", header, T, X, X, F)
+    first, second = header.split(",")[1:3] if "position" in header else header.split(",")[2:4]
+    with pytest.raises(fj.RecordError, match=f"columns '{first}' and '{second}' both give"):
+        fj.load_record(path)
+
+
+def test_byte_order_mark_header_with_units(tmp_path):
+    path = _csv(tmp_path / "excel.csv", '"time [ms]","x [mm]","force [N]"', np.arange(N), X, F, encoding="utf-8-sig")
+    data = fj.load_record(path)
+    assert float(data.motion.dt) == pytest.approx(1e-3)
+    np.testing.assert_allclose(data.motion.x, 1e-3 * X)
+
+
+def test_compare_data_card_lists_columns_ignored_and_units(tmp_path):
+    path = _csv(tmp_path / "r.csv", "time,x [um],F [kN],temperature", T, X, F, np.zeros(N))
+    _, card, _ = load_split(str(path))
+    assert card["columns"] == {"t": "time", "x": "x [um]", "force": "F [kN]"}
+    assert card["ignored"] == ["temperature"]
+    assert card["units"] == {"x": "um", "force": "kN"}
