@@ -771,6 +771,20 @@ def test_scaled_adam_fits_a_zero_initialised_bristle_deflection():
     assert "ParameterScaling" in unscaled.message or unscaled.train_loss < start_loss
 
 
+@pytest.mark.parametrize("solver", [optax.adam(3e-2), fj.levenberg_marquardt(rtol=0.0, atol=0.0)], ids=["adam", "lm"])
+def test_tolerance_ends_a_fit_as_converged_before_its_budget(solver):
+    """A stopping rule for every solver: LM with tolerances it never meets, and Adam, stop as converged once
+    the loss stops falling, well before the budget; without the rule they run it out."""
+    noisy = fj.FrictionData(MOTION, np.asarray(DATA.force) + 0.05 * np.random.default_rng(0).normal(size=DATA.length))
+    result = fj.fit(
+        START, noisy, solver=solver, steps=400, eval_every=20, tolerance=1e-3, scaling=fj.ParameterScaling()
+    )
+    assert result.result == "successful" and "converged" in result.message, result.message
+    assert result.history["step"][-1] < 400
+    budget = fj.fit(START, noisy, solver=solver, steps=60, eval_every=20, scaling=fj.ParameterScaling())
+    assert budget.result == "max_steps"
+
+
 def test_validation_burn_in_covering_the_record_is_refused():
     train, val = DATA.split(0.5)
     with pytest.raises(ValueError, match="validation burn-in"):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import pathlib
@@ -120,7 +121,8 @@ MODEL_NAMES = ("stribeck", "lugre", "gms", "nlr", "dnlrx")
 
 
 def run_compare(args: argparse.Namespace) -> int:
-    """`fricjax compare`: fit every model, score on the test part, add ensembles, write the report."""
+    """`fricjax compare`: fit every model on the training record, score each by free run on the test records
+    (or the record's own test part), add ensembles, write the report."""
     import shutil
     import tempfile
 
@@ -134,56 +136,114 @@ def run_compare(args: argparse.Namespace) -> int:
     unknown = [m for m in args.models if m not in MODEL_NAMES]
     if unknown:
         raise cmp.CompareError(f"--models: unknown model {unknown[0]!r}; choose from {', '.join(MODEL_NAMES)}")
+    if args.init_window is not None and args.init_window < 0:
+        raise cmp.CompareError(f"--init-window must be >= 0 samples, got {args.init_window}")
+    settings = cmp.FitSettings(steps=args.steps, gms_elements=args.gms_elements, maxwell_elements=args.maxwell_elements)
     _check_writable(out)
     if args.data == "emps":
         return _compare_emps(out, args)
-    split, card, truth = cmp.load_split(args.data, seed=args.seed)
+    units_kw = {"dt": args.dt, "x_unit": args.x_unit, "force_unit": args.force_unit}
+    training = cmp.load_record_spec(args.data, seed=args.seed, **units_kw)
+    test_specs = list(args.test or [])
+    edges = training.card.get("split_edges")
+    if args.split is not None:
+        split = cmp.Split.fractions(training.data, *args.split)
+    elif test_specs:  # fit on the whole record but its validation tail
+        split = cmp.Split.fractions(training.data, 0.8, 1.0)
+    elif edges is not None:
+        split = cmp.Split(training.data, int(edges[1]), int(edges[2]))
+    else:
+        split = cmp.Split.fractions(training.data, 0.6, 0.8)
+    tests: list[cmp.TestRecord] = []
+    if split.validation_end < training.data.length:
+        tests.append(split.test_record(args.init_window, training.reference))
+    loaded_tests = [cmp.load_record_spec(spec, seed=args.seed, **units_kw) for spec in test_specs]
+    for loaded in loaded_tests:
+        window = cmp.default_init_window(loaded.data.length) if args.init_window is None else args.init_window
+        name = loaded.name if loaded.name not in {t.name for t in tests} else f"{loaded.name} #{len(tests) + 1}"
+        tests.append(cmp.TestRecord(name, loaded.data, 0, window, loaded.reference))
+    if not tests:
+        raise cmp.CompareError("nothing to test on: the split leaves no test part; pass --test records")
+    units = training.units
     print(
-        f"fricjax {fj.__version__} compare: {args.data}, {split.full.length} samples "
-        f"(train {split.train_end}, validation {split.validation_end - split.train_end}, "
-        f"test {split.full.length - split.validation_end}), models: {', '.join(args.models)}"
+        f"fricjax {fj.__version__} compare: {args.data}, {split.full.length} samples (train {split.train_end}, "
+        f"validation {split.validation_end - split.train_end}); test: "
+        + "; ".join(
+            f"{t.name} ({t.record.length - t.scored_start} scored after a {t.init_window}-sample initialisation window)"
+            for t in tests
+        )
+        + f"; models: {', '.join(args.models)}"
     )
+    for line in cmp.statistics_warnings(split, tests, units):
+        print("warning: " + line)
     started = time.perf_counter()
-    rows = cmp.fit_and_score(list(args.models), split, seed=args.seed, progress=not args.no_progress)
-    rows += cmp.add_ensembles(rows, split)
-    reference = None
-    if truth is not None:
-        true_nmse, true_max, _ = cmp.score(truth, split)
-        reference = {
-            "model": f"true model ({type(truth).__name__}, exact, noisy data)",
-            "nmse_percent": true_nmse,
-            "max_error": true_max,
-        }
+    rows = cmp.fit_and_score(
+        list(args.models), split, tests=tests, settings=settings, seed=args.seed, progress=not args.no_progress
+    )
+    rows += cmp.add_ensembles(rows, split, tests)
+    floor = cmp.reference_scores(tests)
     print()
-    print(cmp.format_table(rows))
-    if reference is not None:
-        width = cmp.label_width(rows)
-        print(f"{'reference: ' + str(reference['model']):{width}s} {'':6s} {true_nmse:9.4f} {true_max:7.3f}")
+    print(cmp.format_table(rows, floor))
     staging = pathlib.Path(tempfile.mkdtemp(prefix=".partial-", dir=out))
     try:
         (staging / "models").mkdir()
         for row in rows:
             fj.save_model(staging / "models" / f"{row.name}.eqx", row.model)
-        plot_prediction_errors(rows, split, staging / "test_errors.png")
-        plot_test_loops(rows, split, staging / "hysteresis_loops.png")
+        plot_prediction_errors(rows, tests[0], staging / "test_errors.png", units=units)
+        plot_test_loops(rows, tests[0], staging / "hysteresis_loops.png", units=units)
         report = {
             "fricjax": fj.__version__,
             "versions": _versions(),
             "data": args.data,
             "seed": args.seed,
-            "data_card": card,
-            "reference": reference,
+            "data_card": training.card,
+            "units": {"x": units.x, "v": units.v, "force": units.force, "internal": "SI (m, m/s, N)"},
+            "split": {
+                "train": [0, split.train_end],
+                "validation": [split.train_end, split.validation_end],
+                "test_part": [split.validation_end, split.full.length]
+                if split.validation_end < split.full.length
+                else None,
+            },
+            "test_records": [
+                {
+                    "name": t.name,
+                    "samples": t.record.length,
+                    "init_window": [t.start, t.scored_start],
+                    "scored": [t.scored_start, t.record.length],
+                    "noise_floor_nmse_percent": floor[t.name].nmse if t.name in floor else None,
+                    "card": loaded.card if (loaded := _loaded_for(t, loaded_tests)) is not None else None,
+                }
+                for t in tests
+            ],
+            "settings": {
+                **dataclasses.asdict(settings),
+                "solvers": "Levenberg-Marquardt (optimistix) with separable least squares for linear parameters; "
+                "GMS: Adam with smoothing continuation from gms_starts starts, then a Levenberg-Marquardt polish",
+                "scoring": "free run in exact mode from each record's first sample; the force offset is the mean "
+                "error over the initialisation window, which is not scored",
+            },
+            "result_codes": cmp.RESULT_CODES,
+            "reference": {
+                "model": "true model + sensor drift and offset (noise-free sensor reading)",
+                "scores": {name: dataclasses.asdict(value) for name, value in floor.items()},
+            }
+            if floor
+            else None,
             "models": [
                 {
                     "name": r.name,
                     "label": r.label,
                     "nmse_percent": r.nmse,
-                    "max_error": r.max_error,
+                    "max_error_over_std": r.max_error,
+                    "validation_nmse_percent": r.validation_nmse,
+                    "test_scores": {name: dataclasses.asdict(value) for name, value in r.tests.items()},
                     "fit_time_s": r.fit_time,
                     "num_parameters": r.num_parameters,
                     "result": r.result,
                     "result_message": r.message,
                     "parameters": _parameters(r.model),
+                    "parameter_std": _parameters(r.std) if r.std is not None else None,
                 }
                 for r in sorted(rows, key=cmp.by_score)
             ],
@@ -203,6 +263,10 @@ def run_compare(args: argparse.Namespace) -> int:
         f"models: {out / 'models'} ({time.perf_counter() - started:.0f} s)"
     )
     return 0
+
+
+def _loaded_for(test: Any, loaded: list[Any]) -> Any:
+    return next((item for item in loaded if item.data is test.record), None)
 
 
 def _compare_emps(out: pathlib.Path, args: argparse.Namespace) -> int:
@@ -362,16 +426,54 @@ def main(argv: Sequence[str] | None = None) -> int:
     compare.add_argument(
         "--data",
         default="tribometer:mixed",
-        help="tribometer:presliding|mixed|sliding (synthetic), emps (real EMPS data), or FILE.npz/.csv with "
-        "columns t or dt, x and/or v, force (default: %(default)s)",
+        help="the training record: tribometer:presliding|mixed|sliding[:seed=N,offset=F,drift=F,duration=S] "
+        "(synthetic), emps (real EMPS data), or FILE.npz/.csv with columns t (time) or dt, x (position, "
+        "displacement) and/or v (velocity), force (F, friction); units in brackets, e.g. 'x [um]' "
+        "(default: %(default)s)",
+    )
+    compare.add_argument(
+        "--test",
+        nargs="+",
+        metavar="RECORD",
+        help="test records (same forms as --data): the models fitted on --data run free on each; the first "
+        "--init-window samples of each estimate the force offset and settle the state and are not scored. "
+        "With --test, --data is split 80/20 into training and validation unless --split says otherwise",
+    )
+    compare.add_argument(
+        "--split",
+        nargs=2,
+        type=float,
+        metavar=("TRAIN_END", "VALIDATION_END"),
+        help="split --data at these fractions: train, validation (choice among starts), test part (default "
+        "0.6 0.8: 60/20/20; 0.8 1.0 with --test)",
+    )
+    compare.add_argument(
+        "--init-window",
+        type=int,
+        default=None,
+        metavar="N",
+        help="samples at the start of each test part that initialise the model's state and estimate the "
+        "record's force offset; never scored (default: 10 %% of the test part; 0: no offset estimate)",
     )
     compare.add_argument(
         "--models",
         nargs="+",
         default=list(MODEL_NAMES),
-        help=f"models to fit, any of {', '.join(MODEL_NAMES)} (case-insensitive; default: all). A record is split "
-        "60/20/20 in time: fit on the first 60 %%, choose among starts on the next 20 %%, score on the last 20 %%.",
+        help=f"models to fit, any of {', '.join(MODEL_NAMES)} (case-insensitive; default: all)",
     )
+    compare.add_argument(
+        "--steps",
+        type=int,
+        default=40,
+        help="Levenberg-Marquardt step budget per fit (GMS Adam stage: 8x) (default: %(default)s)",
+    )
+    compare.add_argument("--gms-elements", type=int, default=4, help="GMS elements (default: %(default)s)")
+    compare.add_argument(
+        "--maxwell-elements", type=int, default=5, help="Maxwell-slip NLR / DNLRX elements (default: %(default)s)"
+    )
+    compare.add_argument("--dt", type=float, default=None, help="sample time [s] of the file records (overrides t)")
+    compare.add_argument("--x-unit", default=None, help="displacement unit of the file records (m, mm, um, nm, in)")
+    compare.add_argument("--force-unit", default=None, help="force unit of the file records (N, kN, mN, lbf, kip)")
     compare.add_argument("--out", default="fricjax-compare", help="output folder (default: %(default)s)")
     compare.add_argument("--seed", type=int, default=0, help="seed for the synthetic data and multi-starts")
     compare.add_argument("--no-progress", action="store_true", help="no progress bars")

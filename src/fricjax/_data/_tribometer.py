@@ -239,6 +239,8 @@ class TribometerData(eqx.Module):
     - `true_model`: the model that made the force (as passed, or the default exact GMS).
     - `true_motion`: the true displacement and its analytic velocity (what the force was simulated from).
     - `clean_force`: the noise- and drift-free force [N], shape `(T,)`.
+    - `sensor_force`: what the force cell reads without its white noise: the clean force plus drift and
+      offset [N]. Its error against `full.force` is the noise floor no fitted model can beat.
     - `card`: the data card, a JSON-serialisable dict (regime, seed, sizes, sample rate, excitation, sensor
       effects, the true parameters, the fraction of samples with every element sticking, peak / breakaway
       force, ...). `card_text()` prints it; `save_card(path)` writes it as JSON.
@@ -251,6 +253,7 @@ class TribometerData(eqx.Module):
     true_model: AbstractFrictionModel
     true_motion: Motion
     clean_force: Float[Array, "T"]
+    sensor_force: Float[Array, "T"]
     card: dict[str, Any]
 
     def card_text(self) -> str:
@@ -294,6 +297,7 @@ def make_tribometer(
     force_noise_std: float | None = None,
     drift: float | None = None,
     drift_time_constant: float | None = None,
+    force_offset: float = 0.0,
     position_quantisation: float | None = None,
     position_noise_std: float | None = None,
     velocity: str = "central",
@@ -320,6 +324,8 @@ def make_tribometer(
       (1 - exp(-T / tau))`, reaching `drift` [N] (default -3 % of the peak-to-peak range) at the end of the
       record, with `tau = drift_time_constant` (default: the record's duration, a curved trend between a linear
       and a saturating one).
+    - **force-cell offset** `force_offset` [N] (default 0): the cell is not zeroed between records, so a
+      record may start at a non-zero reading at rest.
 
     The excitation is an amplitude-modulated multi-sine (the periodic trajectories the rig can always impose,
     parlitz2004 §II-B): a slow carrier (about 4 Hz) with a faster component that reverses the velocity inside
@@ -351,7 +357,8 @@ def make_tribometer(
       samples, at least 100).
     - `noise`: `False` switches every sensor effect off (the measured force is the clean force, the measured
       displacement the true one); the effect arguments must then be left at `None` or 0.
-    - `force_noise_std` [N], `drift` [N, signed], `drift_time_constant` [s], `position_quantisation` [m],
+    - `force_noise_std` [N], `drift` [N, signed], `drift_time_constant` [s], `force_offset` [N, signed],
+      `position_quantisation` [m],
       `position_noise_std` [m]: the sensor effects (`None`: the defaults above; 0 switches one off).
     - `velocity`: `"central"` or `"al-alaoui"`, how the velocity is derived from the measured displacement.
     - `breakaway_displacement`: the displacement scale `x_b` [m] of the regimes; default from the model (GMS,
@@ -397,12 +404,13 @@ def make_tribometer(
         "drift_time_constant": drift_time_constant,
         "position_quantisation": position_quantisation,
         "position_noise_std": position_noise_std,
+        "force_offset": force_offset,
     }
     for name, value in effects.items():
         if value is None:
             continue
         number = _finite(name, value)
-        if name != "drift" and (number < 0 or (name == "drift_time_constant" and number == 0)):
+        if name not in ("drift", "force_offset") and (number < 0 or (name == "drift_time_constant" and number == 0)):
             bound = "> 0" if name == "drift_time_constant" else ">= 0"
             raise ValueError(f"make_tribometer: `{name}` must be {bound}, got {value!r}.")
         if not noise and number != 0 and name != "drift_time_constant":
@@ -445,12 +453,14 @@ def make_tribometer(
         tau = duration if drift_time_constant is None else float(drift_time_constant)
     t_end = t[-1] if t[-1] > 0 else dt
     drift_signal = drift_n * (-np.expm1(-t / tau)) / (-math.expm1(-t_end / tau))
-    force = clean + force_std * streams[1].standard_normal(length) + drift_signal
+    offset_n = float(force_offset) if noise else 0.0
+    sensor = clean + drift_signal + offset_n  # what the cell reads without noise: the noise floor's reference
+    force = sensor + force_std * streams[1].standard_normal(length)
     x_meas = excitation.x + x_std * streams[2].standard_normal(length)
     if quantum > 0:
         x_meas = quantum * np.round(x_meas / quantum)
     if not noise:
-        force, x_meas = clean.copy(), excitation.x.copy()
+        force, x_meas, sensor = clean.copy(), excitation.x.copy(), clean.copy()
     if velocity == "central":
         motion = Motion.from_position(x_meas, dt)
     else:
@@ -514,6 +524,7 @@ def make_tribometer(
             "force_noise_over_range": force_std / force_range if force_range > 0 else None,
             "drift_N": drift_n,
             "drift_time_constant_s": tau,
+            "force_offset_N": offset_n,
             "drift_model": "drift * (1 - exp(-t/tau)) / (1 - exp(-T/tau)) (charge leakage of the piezo force cell)",
             "position_quantisation_m": quantum,
             "position_noise_std_m": x_std,
@@ -532,6 +543,7 @@ def make_tribometer(
         true_model=model,
         true_motion=true_motion,
         clean_force=jnp.asarray(clean),
+        sensor_force=jnp.asarray(sensor),
         card=card,
     )
 

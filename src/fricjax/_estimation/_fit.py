@@ -239,6 +239,7 @@ def fit(
     continuation: Continuation | None = None,
     eval_every: int | None = None,
     patience: int | None = None,
+    tolerance: float | None = None,
     progress: bool = False,
     seed: int = 0,
     compute_std: bool = False,
@@ -273,6 +274,10 @@ def fit(
     - `continuation`: a `Continuation(eps_start, eps_end, stages)`.
     - `eval_every`: optax steps between checks (validation, divergence, progress); default steps / 50.
     - `patience`: evaluations without validation improvement before stopping (default: never).
+    - `tolerance`: a stopping rule for any solver: the fit ends as converged (`successful`) when the training
+      loss of the best start falls by less than this fraction over one check (`eval_every` steps; optimistix
+      solvers then run in chunks of that many steps). Default: none (optax runs its budget; optimistix stops
+      by its own `rtol` / `atol`).
     - `progress`: show a tqdm progress bar. `seed`: for the multi-start draws (results are deterministic).
     - `compute_std`: Gauss-Newton standard deviations of the trained physical parameters (a dense Jacobian
       over them: for physical models, not for networks with thousands of weights).
@@ -345,9 +350,11 @@ def fit(
     if linear_only:  # only separable (linear) parameters: one least-squares solve is the whole fit
         stop, result_code, message = True, "successful", "only linear parameters: solved by least squares"
         search.best_scores = np.zeros(count)
+    converged = ""  # the tolerance rule's message, where it ended the last stage
     for eps, budget in zip(eps_schedule, stage_steps, strict=True):
         if stop or budget == 0:
             continue
+        converged = ""
         if eps is not None:
             static = eqx.partition(with_smoothing(model, Smooth(jnp.asarray(eps, dtype=float))), spec)[1]
             # losses at different widths are not comparable: each stage starts its own best-so-far
@@ -363,17 +370,33 @@ def fit(
                 search.observe(states, n, np.asarray(bad), *_batched_losses(problem, states, static), eps)
                 if search.diverged.all():
                     stop, result_code, message = True, "diverged", _DIVERGENCE_MESSAGE
+                elif tolerance is not None and search.converged(tolerance):
+                    converged = _converged_message(tolerance, chunk, search.step_count)
+                    break  # this stage has converged (the next continuation stage, if any, still runs)
                 elif patience is not None and validation is not None and search.stall >= patience:
                     stop, result_code = True, "early_stopped"
                     message = f"validation loss did not improve for {patience} evaluations (step {search.step_count})"
         else:
-            states, solver_codes, nsteps = _run_optimistix(solver, kind, problem, search.states, static, budget)
-            states = (problem.project(states[0]), states[1])  # the solver cannot bound: damping back to >= 0
-            train_now, val_now = map(np.asarray, _batched_losses(problem, states, static))
-            search.observe(states, int(np.max(nsteps)), ~np.isfinite(train_now), train_now, val_now, eps)
-            if search.diverged.all():
-                stop, result_code, message = True, "diverged", "the loss became non-finite for every start"
+            chunk = budget if tolerance is None else (eval_every or max(1, budget // 8))
+            done = 0
+            while done < budget and not stop:
+                n = min(chunk, budget - done)
+                states, solver_codes, nsteps = _run_optimistix(solver, kind, problem, search.states, static, n)
+                states = (problem.project(states[0]), states[1])  # the solver cannot bound: damping back to >= 0
+                train_now, val_now = map(np.asarray, _batched_losses(problem, states, static))
+                search.observe(states, int(np.max(nsteps)), ~np.isfinite(train_now), train_now, val_now, eps)
+                done += n
+                if search.diverged.all():
+                    stop, result_code, message = True, "diverged", "the loss became non-finite for every start"
+                elif all(code == "successful" for code in solver_codes):
+                    break  # the solver's own tolerance
+                elif tolerance is not None and search.converged(tolerance):
+                    converged = _converged_message(tolerance, chunk, search.step_count)
+                    break
     search.close()
+    if converged and not stop:
+        stop, result_code, message = True, "successful", converged
+        solver_codes = ["tolerance"] * max(len(solver_codes), 1)
     best_states, best_scores, diverged, history = (
         search.best_states,
         search.best_scores,
@@ -388,7 +411,11 @@ def fit(
         best = 0
         best_states = (starts, extras)
     chosen = jax.tree_util.tree_map(lambda a: a[best], best_states)
-    if kind != "optax" and result_code != "diverged":
+    if (
+        kind != "optax"
+        and result_code not in ("diverged",)
+        and not (solver_codes and solver_codes[best] == "tolerance")
+    ):
         code = solver_codes[best] if solver_codes else "successful"
         result_code = code.split(":")[0]
         message = {
@@ -689,6 +716,14 @@ class _Search:
             self.bar.update(steps)
             self.bar.set_postfix(loss=f"{np.nanmin(train):.3g}", val=f"{np.nanmin(val):.3g}")
 
+    def converged(self, tolerance: float) -> bool:
+        """Whether the best start's training loss fell by less than `tolerance` (relative) over the last check."""
+        losses = self.history["train_loss"]
+        if len(losses) < 2:
+            return False
+        previous, last = np.nanmin(losses[-2]), np.nanmin(losses[-1])
+        return bool(np.isfinite(last) and previous - last <= tolerance * abs(previous))
+
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
@@ -712,6 +747,10 @@ def _budget_message(steps: int, losses: list[Any]) -> str:
             f"({100 * -change:.2g} % up over the last check); the best model seen is returned: lower the learning rate"
         )
     return f"ran the full budget of {steps} steps; the loss had levelled off (change {100 * change:.2g} % at the end)"
+
+
+def _converged_message(tolerance: float, chunk: int, step: int) -> str:
+    return f"converged: the loss fell by less than {tolerance:g} (relative) over the last {chunk} steps (step {step})"
 
 
 _DIVERGENCE_MESSAGE = (

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from .._data._io import read_record
+from .._data._io import Units, read_record
 from .._data._record import FrictionData
 from .._estimation._fit import fit, levenberg_marquardt
 from .._estimation._result import FitResult
@@ -75,24 +75,132 @@ class DataScales:
 
 
 @dataclasses.dataclass(frozen=True)
-class ModelSpec:
-    """How to start and fit one model family in `compare`."""
+class FitSettings:
+    """Budgets and model sizes of `compare` (the command line's `--steps`, `--gms-elements`,
+    `--maxwell-elements`).
 
-    label: str
-    build: Callable[[DataScales], Any]
-    fit: Callable[[Any, Split, int, bool], FitResult]
+    - `steps`: the Levenberg-Marquardt step budget of every fit (GMS: its Adam stage gets 8 x as many steps,
+      then an LM polish of `steps`). An LM fit ends earlier, as converged (`successful`), when its training
+      loss falls by less than `tolerance` (relative) over `steps / 8` steps; `max_steps` means not converged.
+    - `gms_elements`, `maxwell_elements`: the element counts of GMS and of Maxwell-slip NLR / DNLRX.
+    - `gms_starts`: starts of the GMS Adam stage (a vmap-ed multi-start: cold GMS fits have local minima).
+    """
+
+    steps: int = 40
+    gms_elements: int = 4
+    maxwell_elements: int = 5
+    gms_starts: int = 2
+    tolerance: float = 1e-4
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "gms_elements", "maxwell_elements", "gms_starts"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise CompareError(f"--{name.replace('_', '-')} must be a positive integer, got {value!r}")
+
+
+RESULT_CODES = {
+    "successful": "the solver stopped by its tolerance (converged)",
+    "max_steps": "the step budget ran out first: not converged (raise --steps)",
+    "early_stopped": "stopped when the validation loss stopped improving",
+    "diverged": "the loss became non-finite; the last good model was kept",
+}
+
+
+class CompareError(ValueError):
+    """A problem with the user's input to `compare`, reported as one line."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TestRecord:
+    """A record a fitted model is scored on by free-run simulation in exact mode from the record's first sample.
+
+    Samples `[start, start + init_window)` are the initialisation window: the model runs through them (its
+    state settles from the record's history) and the record's force-cell offset is estimated there, as the mean
+    of measured minus predicted force, and added to the prediction. Samples `[start + init_window, T)` are
+    scored; the window never is. `start` > 0 when the test part follows training data in the same record
+    (`Split.test_record`).
+
+    `reference`: where the record is synthetic, the force its sensor reads without white noise (the true model
+    plus drift and offset): scored the same way, it is the noise floor.
+    """
+
+    __test__ = False  # not a pytest test class
+
+    name: str
+    record: FrictionData
+    start: int = 0
+    init_window: int = 0
+    reference: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if not (self.start >= 0 and self.init_window >= 0 and self.start + self.init_window < self.record.length):
+            raise CompareError(
+                f"{self.name}: an initialisation window of {self.init_window} samples leaves nothing to score in a "
+                f"test part of {self.record.length - self.start} samples; lower --init-window"
+            )
+
+    @property
+    def scored_start(self) -> int:
+        return self.start + self.init_window
+
+
+@dataclasses.dataclass(frozen=True)
+class Score:
+    """A model's score on one test record: NMSE [%] and MAX / std of the measured force on the scored part, and
+    the force offset [N] estimated in the initialisation window."""
+
+    nmse: float
+    max_error: float
+    offset: float
+
+
+def score_prediction(prediction: Any, test: TestRecord) -> tuple[Score, np.ndarray]:
+    """Score a prediction over the whole test record: the offset is the mean error in the initialisation window
+    (0 without one). **Returns:** `(Score, the offset-corrected prediction on the scored part)`."""
+    prediction = np.asarray(prediction, dtype=float)
+    measured = np.asarray(test.record.force, dtype=float)
+    window = slice(test.start, test.scored_start)
+    offset = float(np.mean(measured[window] - prediction[window])) if test.init_window > 0 else 0.0
+    scored = prediction[test.scored_start :] + offset
+    truth = measured[test.scored_start :]
+    return Score(float(nmse(truth, scored)), float(max_error(truth, scored)), offset), scored
+
+
+def default_init_window(samples: int) -> int:
+    """The default initialisation window: 10 % of a test part's samples (at least 1)."""
+    return max(1, int(round(0.1 * samples)))
 
 
 @dataclasses.dataclass(frozen=True)
 class Split:
     """A record and its train / validation / test boundaries: train = [0, train_end), validation =
-    [train_end, validation_end), test = [validation_end, T). Hysteretic models are always simulated from the
-    start of the record, and scored on their part only, so they enter each part in the state their history
-    gives them (parlitz2004 and worden2007 simulate the whole record in the same way)."""
+    [train_end, validation_end), test = [validation_end, T) (empty when the models are tested on other
+    records). Hysteretic models are always simulated from the start of the record, and scored on their part
+    only, so they enter each part in the state their history gives them (parlitz2004 and worden2007 simulate the
+    whole record in the same way)."""
 
     full: FrictionData
     train_end: int
     validation_end: int
+
+    def __post_init__(self) -> None:
+        if not 0 < self.train_end < self.validation_end <= self.full.length:
+            raise CompareError(
+                f"the split edges {self.train_end}, {self.validation_end} of a {self.full.length}-sample record leave "
+                "an empty training or validation part; use --split TRAIN_END VALIDATION_END as fractions, e.g. 0.6 0.8"
+            )
+
+    @classmethod
+    def fractions(cls, full: FrictionData, train_end: float, validation_end: float) -> Split:
+        """Split at fractions of the record (`0 < train_end < validation_end <= 1`)."""
+        if not 0 < train_end < validation_end <= 1:
+            raise CompareError(
+                f"--split {train_end} {validation_end}: need 0 < TRAIN_END < VALIDATION_END <= 1 (fractions of the "
+                "training record)"
+            )
+        n = full.length
+        return cls(full, int(round(train_end * n)), int(round(validation_end * n)))
 
     @property
     def train(self) -> FrictionData:
@@ -106,8 +214,28 @@ class Split:
     def test(self) -> FrictionData:
         return self.full.slice(self.validation_end, self.full.length)
 
+    def test_record(self, init_window: int | None = None, reference: Any = None) -> TestRecord:
+        """The test part as a `TestRecord` simulated from the record's start; `init_window` samples of it (default
+        `default_init_window`) initialise the model and estimate the offset."""
+        samples = self.full.length - self.validation_end
+        if samples <= 0:
+            raise CompareError("the training record has no test part (its split ends at 1); pass --test records")
+        window = default_init_window(samples) if init_window is None else int(init_window)
+        ref = None if reference is None else np.asarray(reference, dtype=float)
+        return TestRecord("test part", self.full, self.validation_end, window, ref)
 
-def _lm(separable: tuple[str, ...], starts: int, steps: int = 40) -> Callable[..., FitResult]:
+
+@dataclasses.dataclass(frozen=True)
+class ModelSpec:
+    """How to start and fit one model family in `compare`: `build(scales)` and
+    `fit(start, split, seed, progress)`."""
+
+    label: str
+    build: Callable[[DataScales], Any]
+    fit: Callable[[Any, Split, int, bool], FitResult]
+
+
+def _lm(separable: tuple[str, ...], starts: int, settings: FitSettings) -> Callable[..., FitResult]:
     def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
         return fit(
             start,
@@ -116,49 +244,62 @@ def _lm(separable: tuple[str, ...], starts: int, steps: int = 40) -> Callable[..
             validation=split.until_validation_end,
             validation_burn_in=split.train_end,
             solver=levenberg_marquardt(),
-            steps=steps,
+            steps=settings.steps,
+            tolerance=settings.tolerance,
             separable=separable,
             multistart=MultiStart(starts, spread=0.5) if starts > 1 else None,
             seed=seed,
             progress=progress,
+            compute_std=True,
         )
 
     return run
 
 
-def _gms_fit(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
-    train, validation = split.train, split.until_validation_end
-    scales = DataScales.from_data(train)
-    eps_end = max(1e-3 * scales.dx, 1e-12)
-    coarse = fit(
-        start,
-        train,
-        scaling=ParameterScaling(),
-        validation=validation,
-        validation_burn_in=split.train_end,
-        solver=optax.adam(3e-2),
-        steps=300,
-        continuation=Continuation(100 * eps_end, eps_end, stages=3),
-        separable=("offset",),
-        seed=seed,
-        progress=progress,
-    )
-    polished = fit(
-        coarse.model,
-        train,
-        scaling=ParameterScaling(),
-        validation=validation,
-        validation_burn_in=split.train_end,
-        solver=levenberg_marquardt(),
-        steps=30,
-        separable=("offset",),
-    )
-    better = polished if polished.success and polished.train_loss <= coarse.train_loss else coarse
-    return dataclasses.replace(better, wall_time=coarse.wall_time + polished.wall_time)
+def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
+    """Adam with smoothing continuation from `gms_starts` starts, then a Levenberg-Marquardt polish."""
+
+    def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
+        train, validation = split.train, split.until_validation_end
+        scales = DataScales.from_data(train)
+        eps_end = max(1e-3 * scales.dx, 1e-12)
+        coarse = fit(
+            start,
+            train,
+            scaling=ParameterScaling(),
+            validation=validation,
+            validation_burn_in=split.train_end,
+            solver=optax.adam(3e-2),
+            steps=8 * settings.steps,
+            continuation=Continuation(100 * eps_end, eps_end, stages=3),
+            separable=("offset",),
+            multistart=MultiStart(settings.gms_starts, spread=0.3) if settings.gms_starts > 1 else None,
+            seed=seed,
+            progress=progress,
+        )
+        polished = fit(
+            coarse.model,
+            train,
+            scaling=ParameterScaling(),
+            validation=validation,
+            validation_burn_in=split.train_end,
+            solver=levenberg_marquardt(),
+            steps=settings.steps,
+            tolerance=settings.tolerance,
+            separable=("offset",),
+            compute_std=True,
+        )
+        better = polished if polished.success and polished.train_loss <= coarse.train_loss else coarse
+        return dataclasses.replace(better, wall_time=coarse.wall_time + polished.wall_time)
+
+    return run
 
 
-def default_models() -> dict[str, ModelSpec]:
-    """The physics models `compare` fits by default, keyed by their command-line names."""
+def default_models(settings: FitSettings | None = None) -> dict[str, ModelSpec]:
+    """The physics models `compare` fits by default, keyed by their command-line names; `settings` sets the step
+    budgets and element counts (`FitSettings()` by default)."""
+    settings = FitSettings() if settings is None else settings
+    n_gms, n_ms = settings.gms_elements, settings.maxwell_elements
 
     def stribeck(s: DataScales) -> ExponentialStribeck:
         return ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0)
@@ -166,55 +307,59 @@ def default_models() -> dict[str, ModelSpec]:
     def thresholds(s: DataScales, m: int) -> np.ndarray:
         return s.breakaway * np.geomspace(0.05, 1.0, m)
 
+    shares = np.arange(n_gms, 0, -1, dtype=float)  # stiffer elements first: k_i ~ N, N-1, ..., 1
     return {
         "stribeck": ModelSpec(
             "Stribeck (static)",
             lambda s: BoPavelescu(
                 Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0, Fv=0.0, smoothing=Smooth(max(1e-3 * s.vs, 1e-9))
             ),
-            _lm(("Fv", "offset"), starts=2),
+            _lm(("Fv", "offset"), 2, settings),
         ),
         "lugre": ModelSpec(
             "LuGre",
             lambda s: LuGre(
                 stribeck(s), sigma0=s.stiffness, sigma1=0.0, sigma2=0.0, smoothing=Smooth(max(1e-3 * s.vs, 1e-9))
             ),
-            _lm(("sigma1", "sigma2", "offset"), starts=2),
+            _lm(("sigma1", "sigma2", "offset"), 2, settings),
         ),
         "gms": ModelSpec(
-            "GMS (N=4)",
+            f"GMS (N={n_gms})",
             lambda s: GMS(
                 stribeck(s),
-                k=s.stiffness * np.array([0.4, 0.3, 0.2, 0.1]),
-                alpha=[0.25, 0.25, 0.25, 0.25],
+                k=s.stiffness * shares / shares.sum(),
+                alpha=np.full(n_gms, 1.0 / n_gms),
                 C=10.0 * s.Fs,
                 sigma2=0.0,
             ),
-            _gms_fit,
+            _gms_fit(settings),
         ),
         "nlr": ModelSpec(
-            "Maxwell-slip NLR(5)",
+            f"Maxwell-slip NLR({n_ms})",
             lambda s: MaxwellSlip.nlr(
-                k=s.Fs / 5 / thresholds(s, 5), thresholds=thresholds(s, 5), smoothing=Smooth(1e-3)
+                k=s.Fs / n_ms / thresholds(s, n_ms), thresholds=thresholds(s, n_ms), smoothing=Smooth(1e-3)
             ),
-            _lm(("force_map.offset",), starts=2),
+            _lm(("force_map.offset",), 2, settings),
         ),
         "dnlrx": ModelSpec(
-            "Maxwell-slip DNLRX(5,2,1)",
+            f"Maxwell-slip DNLRX({n_ms},2,1)",
             lambda s: MaxwellSlip.dnlrx(
-                thresholds=thresholds(s, 5),
-                theta=np.outer([1.0, 0.0, 0.0], np.full(5, s.Fs / 5)),
+                thresholds=thresholds(s, n_ms),
+                theta=np.outer([1.0, 0.0, 0.0], np.full(n_ms, s.Fs / n_ms)),
                 c=[0.0, 0.0],
                 smoothing=Smooth(1e-3),
             ),
-            _lm(("force_map.theta", "force_map.c", "force_map.offset"), starts=2),
+            _lm(("force_map.theta", "force_map.c", "force_map.offset"), 2, settings),
         ),
     }
 
 
 @dataclasses.dataclass
 class ModelScore:
-    """One row of the comparison table."""
+    """One row of the comparison table: `nmse`, `max_error` and `prediction` (offset-corrected, on the scored
+    part) are those of the first test record; `tests` holds the `Score` on every test record by name,
+    `test_predictions` the raw free-run prediction over each whole test record, `full_prediction` the one over
+    the training record (for ensemble weights), `validation_nmse` the NMSE [%] on the validation part."""
 
     name: str
     label: str
@@ -227,15 +372,20 @@ class ModelScore:
     prediction: np.ndarray
     full_prediction: np.ndarray | None = None
     message: str = ""
+    tests: dict[str, Score] = dataclasses.field(default_factory=dict)
+    test_predictions: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    validation_nmse: float = float("nan")
+    std: Any = None
 
 
-def score(model: Any, split: Split) -> tuple[float, float, np.ndarray]:
-    """Exact-mode NMSE [%] and normalised MAX error of `model` on the test part (simulated from the record's
-    start), and its prediction over the whole record."""
-    full_prediction = np.asarray(simulate(exact(model), split.full.motion))  # type: ignore[arg-type]
-    prediction = full_prediction[split.validation_end :]
-    measured = np.asarray(split.full.force)[split.validation_end :]
-    return float(nmse(measured, prediction)), float(max_error(measured, prediction)), full_prediction
+def score(model: Any, test: TestRecord | Split) -> tuple[float, float, np.ndarray]:
+    """Exact-mode NMSE [%] and normalised MAX error of `model` on a test record (a `Split` stands for its test
+    part without an initialisation window), and its free-run prediction over the whole record."""
+    if isinstance(test, Split):
+        test = test.test_record(init_window=0)
+    full_prediction = np.asarray(simulate(exact(model), test.record.motion))  # type: ignore[arg-type]
+    result, _ = score_prediction(full_prediction, test)
+    return result.nmse, result.max_error, full_prediction
 
 
 def count_parameters(model: Any) -> int:
@@ -248,17 +398,52 @@ def count_parameters(model: Any) -> int:
     return int(sum(np.size(leaf) for leaf in jax.tree_util.tree_leaves(params)))
 
 
+def _row(
+    name: str,
+    label: str,
+    model: Any,
+    full_prediction: np.ndarray,
+    test_predictions: dict[str, np.ndarray],
+    split: Split,
+    tests: list[TestRecord],
+    **extra: Any,
+) -> ModelScore:
+    scores, corrected = {}, {}
+    for test in tests:
+        scores[test.name], corrected[test.name] = score_prediction(test_predictions[test.name], test)
+    measured = np.asarray(split.full.force)
+    val = slice(split.train_end, split.validation_end)
+    first = scores[tests[0].name]
+    return ModelScore(
+        name,
+        label,
+        first.nmse,
+        first.max_error,
+        model=model,
+        prediction=corrected[tests[0].name],
+        full_prediction=full_prediction,
+        tests=scores,
+        test_predictions=test_predictions,
+        validation_nmse=float(nmse(measured[val], full_prediction[val])),
+        **extra,
+    )
+
+
 def fit_and_score(
     names: list[str],
     split: Split,
     *,
+    tests: list[TestRecord] | None = None,
+    settings: FitSettings | None = None,
     seed: int = 0,
     progress: bool = True,
     log: Callable[[str], None] = print,
 ) -> list[ModelScore]:
-    """Fit each named model on the train part (validation part for the choice among starts), score it in exact
-    mode on the test part."""
-    specs = default_models()
+    """Fit each named model on the train part (the validation part chooses among starts), then score it by
+    free-run simulation in exact mode on every test record (default: the split's test part, with the default
+    initialisation window)."""
+    specs = default_models(settings)
+    tests = [split.test_record()] if tests is None else list(tests)
     scales = DataScales.from_data(split.train)
     rows = []
     for name in names:
@@ -268,24 +453,36 @@ def fit_and_score(
         result = spec.fit(spec.build(scales), split, seed, progress)
         elapsed = time.perf_counter() - start_time
         model = result.model
-        test_nmse, test_max, full_prediction = score(model, split)
-        rows.append(
-            ModelScore(
-                name,
-                spec.label,
-                test_nmse,
-                test_max,
-                elapsed,
-                count_parameters(model),
-                result.result,
-                model,
-                full_prediction[split.validation_end :],
-                full_prediction,
-                result.message,
-            )
+        full_prediction = np.asarray(simulate(exact(model), split.full.motion))  # type: ignore[arg-type]
+        predictions = {
+            test.name: full_prediction
+            if test.record is split.full
+            else np.asarray(simulate(exact(model), test.record.motion))  # type: ignore[arg-type]
+            for test in tests
+        }
+        row = _row(
+            name,
+            spec.label,
+            model,
+            full_prediction,
+            predictions,
+            split,
+            tests,
+            fit_time=elapsed,
+            num_parameters=count_parameters(model),
+            result=result.result,
+            message=result.message,
+            std=result.std,
         )
-        log(f"  {spec.label}: test NMSE {test_nmse:.3f} %, MAX {test_max:.3f}, {elapsed:.1f} s: {result.message}")
+        rows.append(row)
+        log(f"  {spec.label}: test NMSE {row.nmse:.3f} %, MAX {row.max_error:.3f}, {elapsed:.1f} s: {result.message}")
     return rows
+
+
+def reference_scores(tests: list[TestRecord]) -> dict[str, Score]:
+    """The noise floor: each synthetic test record's `reference` force (true model + sensor drift and offset),
+    scored like the models (same initialisation window)."""
+    return {t.name: score_prediction(t.reference, t)[0] for t in tests if t.reference is not None}
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -293,42 +490,108 @@ def fit_and_score(
 # ----------------------------------------------------------------------------------------------------------------
 
 
-class CompareError(ValueError):
-    """A problem with the user's input to `compare`, reported as one line."""
+@dataclasses.dataclass(frozen=True)
+class LoadedRecord:
+    """A record named on the command line: the data (SI), its data card, its units, and for built-in synthetic
+    records the true model and the noise-free sensor reading (`reference`)."""
+
+    name: str
+    data: FrictionData
+    card: dict[str, Any]
+    units: Units
+    truth: Any = None
+    reference: np.ndarray | None = None
 
 
-def load_split(spec: str, *, seed: int = 0) -> tuple[Split, dict[str, Any], Any]:
-    """Resolve `--data`: `tribometer:REGIME`, or a `.npz` / `.csv` file with columns `t` or `dt`, `x` and/or
-    `v`, and `force`. **Returns:** `(split, data card, true model or None)`."""
+_TRIBOMETER_KEYS = {"seed": int, "offset": float, "duration": float, "drift": float}
+
+
+def load_record_spec(
+    spec: str, *, seed: int = 0, dt: float | None = None, x_unit: str | None = None, force_unit: str | None = None
+) -> LoadedRecord:
+    """Resolve a record named on the command line: `tribometer:REGIME[:key=value,...]` (keys `seed`, `offset`
+    [N] force-cell offset, `drift` [N], `duration` [s]; e.g. `tribometer:mixed:seed=1,offset=0.3`), or a `.npz`
+    / `.csv` file (`fj.load_record`: column aliases, units, `dt`)."""
     import pathlib
 
     from .._data._tribometer import make_tribometer
 
     if spec.startswith("tribometer"):
-        regime = spec.split(":", 1)[1] if ":" in spec else "mixed"
+        parts = spec.split(":")
+        regime = parts[1] if len(parts) > 1 and parts[1] else "mixed"
+        options: dict[str, Any] = {"seed": seed}
+        for item in ",".join(parts[2:]).split(",") if len(parts) > 2 else []:
+            key, _, value = item.partition("=")
+            if key not in _TRIBOMETER_KEYS or not value:
+                raise CompareError(
+                    f"{spec}: options are key=value pairs of {', '.join(_TRIBOMETER_KEYS)} (e.g. "
+                    "tribometer:mixed:seed=1,offset=0.3), got {item!r}"
+                )
+            try:
+                options[key] = _TRIBOMETER_KEYS[key](value)
+            except ValueError:
+                raise CompareError(f"{spec}: {key}={value!r} is not a number") from None
+        seed_value = options.pop("seed")
+        kwargs = {
+            "force_offset": options.get("offset", 0.0),
+            **({"drift": options["drift"]} if "drift" in options else {}),
+            **({"duration": options["duration"]} if "duration" in options else {}),
+        }
         try:
-            data = make_tribometer(regime, seed=seed)
-        except ValueError as err:
-            raise CompareError(f"--data {spec}: {err}") from err
-        edges = data.card["split_edges"]
-        return Split(data.full, int(edges[1]), int(edges[2])), dict(data.card), data.true_model
+            data = make_tribometer(regime, seed=seed_value, **kwargs)
+        except (ValueError, TypeError) as err:
+            raise CompareError(f"{spec}: {err}") from err
+        return LoadedRecord(
+            spec, data.full, dict(data.card), Units(), data.true_model, np.asarray(data.sensor_force, dtype=float)
+        )
     path = pathlib.Path(spec)
     if not path.is_file():
-        raise CompareError(f"--data {spec}: no such file (use tribometer:presliding|mixed|sliding, emps, or a file)")
+        raise CompareError(f"{spec}: no such file (use tribometer:presliding|mixed|sliding, emps, or a .csv / .npz)")
     try:
-        full, info = read_record(path)
+        full, info = read_record(path, dt=dt, x_unit=x_unit, force_unit=force_unit)
     except ValueError as err:
-        raise CompareError(f"--data {err}") from err
-    n = full.length
+        raise CompareError(str(err)) from err
     card = {
         "source": str(path),
-        "samples": n,
+        "samples": full.length,
         "columns": dict(info.columns),
         "ignored": list(info.ignored),
         "units": {"x": info.units.x, "force": info.units.force},
         "dt_s": float(np.asarray(full.motion.dt)),
     }
-    return Split(full, int(0.6 * n), int(0.8 * n)), card, None
+    return LoadedRecord(spec, full, card, info.units)
+
+
+def load_split(spec: str, *, seed: int = 0) -> tuple[Split, dict[str, Any], Any]:
+    """Resolve `--data` and split it 60 / 20 / 20 (the tribometer's own edges for built-in records).
+    **Returns:** `(split, data card, true model or None)`."""
+    loaded = load_record_spec(spec, seed=seed)
+    edges = loaded.card.get("split_edges")
+    if edges is not None:
+        return Split(loaded.data, int(edges[1]), int(edges[2])), loaded.card, loaded.truth
+    return Split.fractions(loaded.data, 0.6, 0.8), loaded.card, loaded.truth
+
+
+def statistics_warnings(split: Split, tests: list[TestRecord], units: Units) -> list[str]:
+    """Warnings when a test record's scored part differs sharply from the training part: force spread 3x
+    (its NMSE is then normalised by a very different variance) or displacement range 10x (the model is
+    extrapolated)."""
+    out = []
+    train_force = float(np.std(np.asarray(split.train.force)))
+    train_x = float(np.ptp(np.asarray(split.train.motion.samples().x)))
+    for test in tests:
+        force = np.asarray(test.record.force)[test.scored_start :]
+        x = np.asarray(test.record.motion.samples().x)[test.scored_start :]
+        for what, ours, theirs, unit, factor, limit in (
+            ("force std", float(np.std(force)), train_force, units.force, units.force_factor, 3.0),
+            ("displacement range", float(np.ptp(x)), train_x, units.x, units.x_factor, 10.0),
+        ):
+            if theirs > 0 and ours > 0 and not 1 / limit <= ours / theirs <= limit:
+                out.append(
+                    f"{test.name}: {what} {ours / factor:.3g} {unit} against {theirs / factor:.3g} {unit} in training "
+                    f"({ours / theirs:.2g}x): its scores are not comparable with the training fit's"
+                )
+    return out
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -336,58 +599,80 @@ def load_split(spec: str, *, seed: int = 0) -> tuple[Split, dict[str, Any], Any]
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def add_ensembles(rows: list[ModelScore], split: Split) -> list[ModelScore]:
+def add_ensembles(rows: list[ModelScore], split: Split, tests: list[TestRecord] | None = None) -> list[ModelScore]:
     """Average and least-squares-weighted ensembles (weights with intercept fitted on the validation part,
-    parlitz2004 §IV-H, emps-ensemble §3.3), and the PRESS forward selection of worden2007 §7."""
+    parlitz2004 §IV-H, emps-ensemble §3.3), and the PRESS forward selection of worden2007 §7, scored on every
+    test record like the single models (default: the split's test part)."""
     from .._estimation._ensemble_fit import select_forward
     from .._models.combine._ensemble import AverageEnsemble, WeightedEnsemble
 
     if len(rows) < 2:
         return []
+    tests = [split.test_record()] if tests is None else list(tests)
     members = [row.model for row in rows]
-    full = split.full
-    # the members' whole-record predictions were already simulated while scoring them
-    predictions = np.stack(
-        [row.full_prediction if row.full_prediction is not None else score(row.model, split)[2] for row in rows]
+    full_predictions = np.stack(
+        [
+            row.full_prediction
+            if row.full_prediction is not None
+            else np.asarray(simulate(exact(row.model), split.full.motion))  # type: ignore[arg-type]
+            for row in rows
+        ]
     )
-    val = slice(split.train_end, split.validation_end)
-    test = slice(split.validation_end, full.length)
-    measured = np.asarray(full.force)
-    val_data = full.slice(split.train_end, split.validation_end)
-    out = []
 
-    def row(name: str, label: str, ensemble: Any, prediction: np.ndarray, elapsed: float) -> ModelScore:
-        return ModelScore(
+    def member_predictions(test: TestRecord) -> np.ndarray:
+        if all(test.name in row.test_predictions for row in rows):
+            return np.stack([row.test_predictions[test.name] for row in rows])
+        return np.stack([score(row.model, test)[2] for row in rows])
+
+    per_test = {test.name: member_predictions(test) for test in tests}
+    val = slice(split.train_end, split.validation_end)
+    val_data = split.full.slice(split.train_end, split.validation_end)
+
+    def row(name: str, label: str, ensemble: Any, combine: Callable[[np.ndarray], np.ndarray], count: int) -> Any:
+        start = time.perf_counter()
+        full = combine(full_predictions)
+        predictions = {key: combine(value) for key, value in per_test.items()}
+        return _row(
             name,
             label,
-            float(nmse(measured[test], prediction)),
-            float(max_error(measured[test], prediction)),
-            elapsed,
-            len(members) if name != "ensemble_press" else int(np.size(ensemble.weights)) + 1,
-            "successful",
             ensemble,
-            prediction,
+            full,
+            predictions,
+            split,
+            tests,
+            fit_time=time.perf_counter() - start,
+            num_parameters=count,
+            result="successful",
         )
 
-    start = time.perf_counter()
-    average = AverageEnsemble(members)
-    out.append(row("ensemble_average", "Ensemble: average", average, predictions[:, test].mean(axis=0), 0.0))
-    weighted = WeightedEnsemble.fit(members, val_data, predictions=predictions[:, val])
-    prediction = np.asarray(weighted.combine(jnp.asarray(predictions[:, test].T)))
-    out.append(row("ensemble_weighted", "Ensemble: LS weights", weighted, prediction, time.perf_counter() - start))
-    start = time.perf_counter()
-    selection = select_forward(members, val_data, predictions=predictions[:, val])
-    chosen = predictions[list(selection.indices)][:, test]
-    prediction = np.asarray(selection.ensemble.combine(jnp.asarray(chosen.T)))
-    names = "+".join(rows[i].name for i in selection.indices)
+    out = [row("ensemble_average", "Ensemble: average", AverageEnsemble(members), lambda p: p.mean(axis=0), 0)]
+    weighted = WeightedEnsemble.fit(members, val_data, predictions=full_predictions[:, val])
     out.append(
-        row("ensemble_press", f"Ensemble: PRESS ({names})", selection.ensemble, prediction, time.perf_counter() - start)
+        row(
+            "ensemble_weighted",
+            "Ensemble: LS weights",
+            weighted,
+            lambda p: np.asarray(weighted.combine(jnp.asarray(p.T))),
+            len(members) + 1,
+        )
+    )
+    selection = select_forward(members, val_data, predictions=full_predictions[:, val])
+    chosen = list(selection.indices)
+    names = "+".join(rows[i].name for i in chosen)
+    out.append(
+        row(
+            "ensemble_press",
+            f"Ensemble: PRESS ({names})",
+            selection.ensemble,
+            lambda p: np.asarray(selection.ensemble.combine(jnp.asarray(p[chosen].T))),
+            len(chosen) + 1,
+        )
     )
     return out
 
 
 def by_score(row: ModelScore) -> tuple[bool, float]:
-    """Sort key of the table: by test NMSE, non-finite scores last."""
+    """Sort key of the table: by test NMSE (the first test record), non-finite scores last."""
     return (not np.isfinite(row.nmse), float(row.nmse) if np.isfinite(row.nmse) else 0.0)
 
 
@@ -396,13 +681,37 @@ def label_width(rows: list[ModelScore]) -> int:
     return max([44, *(len(r.label) for r in rows)])
 
 
-def format_table(rows: list[ModelScore]) -> str:
-    """The comparison table, sorted by test NMSE (kernel paper Table 1 / worden2007 Fig. 11 layout); MAX is the
-    largest absolute error divided by the standard deviation of the measured force."""
+def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = None) -> str:
+    """The comparison table, sorted by test NMSE (kernel paper Table 1 / worden2007 Fig. 11 layout): one NMSE
+    column per test record (where there are several), MAX as the largest absolute error divided by the standard
+    deviation of the measured force, the noise-floor reference row where there is one, and what the result
+    codes mean."""
     w = label_width(rows)
-    lines = [f"{'model':{w}s} {'params':>6s} {'NMSE %':>9s} {'MAX/std':>7s} {'fit s':>7s}  result"]
+    names = list(rows[0].tests) if rows and rows[0].tests else ["test"]
+    several = len(names) > 1
+    heads = [f"NMSE % {i + 1}" for i in range(len(names))] if several else ["NMSE %"]
+    lines = [
+        f"{'model':{w}s} {'params':>6s} "
+        + " ".join(f"{h:>10s}" for h in heads)
+        + f" {'MAX/std':>7s} {'fit s':>7s}  result"
+    ]
+
+    def values(tests: dict[str, Score], fallback: float) -> list[float]:
+        return [tests[n].nmse if n in tests else fallback for n in names] if tests else [fallback]
+
     for r in sorted(rows, key=by_score):
+        cells = " ".join(f"{v:10.4f}" for v in values(r.tests, r.nmse))
+        lines.append(f"{r.label:{w}s} {r.num_parameters:6d} {cells} {r.max_error:7.3f} {r.fit_time:7.1f}  {r.result}")
+    if reference:
+        floor = [reference[n].nmse if n in reference else float("nan") for n in names]
+        cells = " ".join(f"{v:10.4f}" for v in floor)
+        first = reference.get(names[0])
         lines.append(
-            f"{r.label:{w}s} {r.num_parameters:6d} {r.nmse:9.4f} {r.max_error:7.3f} {r.fit_time:7.1f}  {r.result}"
+            f"{'noise floor: true model + sensor drift/offset':{w}s} {'':6s} {cells} "
+            f"{(first.max_error if first else float('nan')):7.3f}"
         )
+    if several:
+        lines.append("test records: " + "; ".join(f"{i + 1} = {n}" for i, n in enumerate(names)))
+    codes = sorted({r.result for r in rows if r.result in RESULT_CODES})
+    lines.append("result: " + "; ".join(f"{c} = {RESULT_CODES[c]}" for c in codes))
     return "\n".join(lines)
