@@ -471,6 +471,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     compare.add_argument(
         "--maxwell-elements", type=int, default=5, help="Maxwell-slip NLR / DNLRX elements (default: %(default)s)"
     )
+    compare.add_argument(
+        "--drift",
+        default="linear",
+        choices=("linear", "leaky", "none"),
+        help="force-sensor drift fitted with every model (fj.SensorDrift), restarting at 0 on each test record "
+        "(default: %(default)s)",
+    )
     compare.add_argument("--dt", type=float, default=None, help="sample time [s] of the file records (overrides t)")
     compare.add_argument("--x-unit", default=None, help="displacement unit of the file records (m, mm, um, nm, in)")
     compare.add_argument("--force-unit", default=None, help="force unit of the file records (N, kN, mN, lbf, kip)")

@@ -26,6 +26,7 @@ from .._estimation._fit import fit, levenberg_marquardt
 from .._estimation._result import FitResult
 from .._estimation._strategies import Continuation, MultiStart, ParameterScaling
 from .._metrics import max_error, nmse
+from .._models.combine._sensor import SensorDrift
 from .._models.physics._gms import GMS
 from .._models.physics._lugre import LuGre
 from .._models.physics._maxwell_slip import MaxwellSlip
@@ -41,7 +42,8 @@ class DataScales:
 
     `force` [N]: half the 1-99 % range of the force; `Fc`, `Fs` [N]: the median and the 99.5 % level of
     |F| while sliding; `vs` [m/s]: a velocity below which sliding is rare; `stiffness` [N/m]: the typical
-    |dF/dx| right after reversals (pre-sliding); `breakaway` [m] = Fs / stiffness; `dx` [m]: the median step.
+    |dF/dx| right after reversals (pre-sliding); `breakaway` [m] = Fs / stiffness; `dx` [m]: the median step;
+    `duration` [s]: the record's length.
     """
 
     force: float
@@ -51,6 +53,7 @@ class DataScales:
     stiffness: float
     breakaway: float
     dx: float
+    duration: float = 1.0
 
     @classmethod
     def from_data(cls, data: FrictionData) -> DataScales:
@@ -71,7 +74,8 @@ class DataScales:
         stiffness = float(np.percentile(slopes, 90)) if slopes.size else scale / 1e-5
         steps = np.abs(np.diff(x))
         dx = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1e-9
-        return cls(scale, Fc, Fs, vs, stiffness, Fs / stiffness, dx)
+        duration = data.length * float(np.asarray(data.motion.dt))
+        return cls(scale, Fc, Fs, vs, stiffness, Fs / stiffness, dx, duration)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,6 +88,9 @@ class FitSettings:
       loss falls by less than `tolerance` (relative) over `steps / 8` steps; `max_steps` means not converged.
     - `gms_elements`, `maxwell_elements`: the element counts of GMS and of Maxwell-slip NLR / DNLRX.
     - `gms_starts`: starts of the GMS Adam stage (a vmap-ed multi-start: cold GMS fits have local minima).
+    - `drift`: the force sensor's drift fitted with every model (`fj.SensorDrift`): `"linear"` (default),
+      `"leaky"` (a leaky integrator, its time constant fitted from the training record's duration) or
+      `"none"`. It restarts at 0 on each test record; the record's offset is the initialisation window's.
     """
 
     steps: int = 40
@@ -91,8 +98,11 @@ class FitSettings:
     maxwell_elements: int = 5
     gms_starts: int = 2
     tolerance: float = 1e-4
+    drift: str = "linear"
 
     def __post_init__(self) -> None:
+        if self.drift not in ("linear", "leaky", "none"):
+            raise CompareError(f"--drift must be linear, leaky or none, got {self.drift!r}")
         for name in ("steps", "gms_elements", "maxwell_elements", "gms_starts"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
@@ -235,6 +245,13 @@ class ModelSpec:
     fit: Callable[[Any, Split, int, bool], FitResult]
 
 
+def _separable(start: Any, paths: tuple[str, ...]) -> tuple[str, ...]:
+    """The linear parameters of a (possibly drift-wrapped) model: the friction model's, and the drift rate."""
+    if isinstance(start, SensorDrift):
+        return (*(f"model.{path}" for path in paths), "rate")
+    return paths
+
+
 def _lm(separable: tuple[str, ...], starts: int, settings: FitSettings) -> Callable[..., FitResult]:
     def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
         return fit(
@@ -246,7 +263,7 @@ def _lm(separable: tuple[str, ...], starts: int, settings: FitSettings) -> Calla
             solver=levenberg_marquardt(),
             steps=settings.steps,
             tolerance=settings.tolerance,
-            separable=separable,
+            separable=_separable(start, separable),
             multistart=MultiStart(starts, spread=0.5) if starts > 1 else None,
             seed=seed,
             progress=progress,
@@ -272,7 +289,7 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
             solver=optax.adam(3e-2),
             steps=8 * settings.steps,
             continuation=Continuation(100 * eps_end, eps_end, stages=3),
-            separable=("offset",),
+            separable=_separable(start, ("offset",)),
             multistart=MultiStart(settings.gms_starts, spread=0.3) if settings.gms_starts > 1 else None,
             seed=seed,
             progress=progress,
@@ -286,7 +303,7 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
             solver=levenberg_marquardt(),
             steps=settings.steps,
             tolerance=settings.tolerance,
-            separable=("offset",),
+            separable=_separable(coarse.model, ("offset",)),
             compute_std=True,
         )
         better = polished if polished.success and polished.train_loss <= coarse.train_loss else coarse
@@ -308,7 +325,7 @@ def default_models(settings: FitSettings | None = None) -> dict[str, ModelSpec]:
         return s.breakaway * np.geomspace(0.05, 1.0, m)
 
     shares = np.arange(n_gms, 0, -1, dtype=float)  # stiffer elements first: k_i ~ N, N-1, ..., 1
-    return {
+    specs = {
         "stribeck": ModelSpec(
             "Stribeck (static)",
             lambda s: BoPavelescu(
@@ -352,6 +369,18 @@ def default_models(settings: FitSettings | None = None) -> dict[str, ModelSpec]:
             _lm(("force_map.theta", "force_map.c", "force_map.offset"), 2, settings),
         ),
     }
+    if settings.drift == "none":
+        return specs
+    return {name: _with_drift(spec, settings.drift) for name, spec in specs.items()}
+
+
+def _with_drift(spec: ModelSpec, kind: str) -> ModelSpec:
+    """The spec with its model wrapped in `SensorDrift` (rate 0; leaky: tau = the training record's duration)."""
+
+    def build(scales: DataScales) -> Any:
+        return SensorDrift(spec.build(scales), 0.0, None if kind == "linear" else scales.duration)
+
+    return ModelSpec(spec.label, build, spec.fit)
 
 
 @dataclasses.dataclass
@@ -707,7 +736,7 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
         cells = " ".join(f"{v:10.4f}" for v in floor)
         first = reference.get(names[0])
         lines.append(
-            f"{'noise floor: true model + sensor drift/offset':{w}s} {'':6s} {cells} "
+            f"{'noise floor (true model + sensor model)':{w}s} {'':6s} {cells} "
             f"{(first.max_error if first else float('nan')):7.3f}"
         )
     if several:
