@@ -138,7 +138,12 @@ def run_compare(args: argparse.Namespace) -> int:
         raise cmp.CompareError(f"--models: unknown model {unknown[0]!r}; choose from {', '.join(MODEL_NAMES)}")
     if args.init_window is not None and args.init_window < 0:
         raise cmp.CompareError(f"--init-window must be >= 0 samples, got {args.init_window}")
-    settings = cmp.FitSettings(steps=args.steps, gms_elements=args.gms_elements, maxwell_elements=args.maxwell_elements)
+    settings = cmp.FitSettings(
+        steps=args.steps,
+        gms_elements=args.gms_elements,
+        maxwell_elements=args.maxwell_elements,
+        drift=args.drift,
+    )
     _check_writable(out)
     if args.data == "emps":
         return _compare_emps(out, args)
