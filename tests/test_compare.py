@@ -246,3 +246,26 @@ def test_a_quiet_test_tail_is_warned_about():
     (warning,) = statistics_warnings(split, [test], fj.compare.load_record_spec("tribometer:mixed").units)
     assert "force std" in warning and "quiet" in warning
     assert statistics_warnings(split, [split.test_record()], load_record_spec("tribometer:mixed").units) == []
+
+
+@pytest.mark.slow
+def test_units_of_a_file_reach_the_report_and_the_fit_works_in_si(tmp_path):
+    """A record in um / kN with a rounded time column (fixed by --dt) and an extra column: fitted in SI, the
+    report names the record's units and the ignored column."""
+    data = fj.make_tribometer("sliding", seed=2, duration=1.5)
+    x_um = np.asarray(data.full.motion.x) * 1e6
+    force_kn = np.asarray(data.full.force) / 1e3
+    t = np.round(np.arange(x_um.size) * 5e-4, 3)
+    path = tmp_path / "record.csv"
+    header = "time [s],position [um],F [kN],temperature"
+    np.savetxt(path, np.c_[t, x_um, force_kn, np.zeros_like(t)], delimiter=",", header=header, comments="")
+    out = tmp_path / "out"
+    argv = ["compare", "--data", str(path), "--models", "nlr", "--out", str(out), "--no-progress"]
+    assert main(argv) == 2  # the rounded time column is refused ...
+    assert main([*argv, "--dt", "5e-4"]) == 0  # ... and --dt fixes it
+    report = json.loads((out / "report.json").read_text())
+    assert report["units"]["x"] == "um" and report["units"]["force"] == "kN"
+    assert report["data_card"]["ignored"] == ["temperature"]
+    (nlr,) = [m for m in report["models"] if m["name"] == "nlr"]
+    assert nlr["nmse_percent"] < 5.0  # a sensible fit: the SI conversion is right (thresholds in metres)
+    assert max(nlr["parameters"]["model.thresholds"]) < 1e-3
