@@ -767,8 +767,8 @@ def test_scaled_adam_fits_a_zero_initialised_bristle_deflection():
     result = fj.fit(start, data, steps=60, train="z0", scaling=fj.ParameterScaling())
     assert result.train_loss < 0.1 * start_loss, (result.train_loss, start_loss)
     assert abs(float(fj.unwrap(result.model).z0) - 6e-6) < 2e-6
-    unscaled = fj.fit(start, data, steps=20, train="z0")
-    assert "ParameterScaling" in unscaled.message or unscaled.train_loss < start_loss
+    unscaled = fj.fit(start, data, steps=20, train="z0")  # steps of ~1e-2 m: every one is worse
+    assert float(fj.unwrap(unscaled.model).z0) == 0.0 and "scaling=fj.ParameterScaling()" in unscaled.message
 
 
 @pytest.mark.parametrize("solver", [optax.adam(3e-2), fj.levenberg_marquardt(rtol=0.0, atol=0.0)], ids=["adam", "lm"])

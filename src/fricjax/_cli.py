@@ -150,23 +150,16 @@ def run_compare(args: argparse.Namespace) -> int:
     units_kw = {"dt": args.dt, "x_unit": args.x_unit, "force_unit": args.force_unit}
     training = cmp.load_record_spec(args.data, seed=args.seed, **units_kw)
     test_specs = list(args.test or [])
-    edges = training.card.get("split_edges")
-    if args.split is not None:
-        split = cmp.Split.fractions(training.data, *args.split)
-    elif test_specs:  # fit on the whole record but its validation tail
-        split = cmp.Split.fractions(training.data, 0.8, 1.0)
-    elif edges is not None:
-        split = cmp.Split(training.data, int(edges[1]), int(edges[2]))
-    else:
-        split = cmp.Split.fractions(training.data, 0.6, 0.8)
+    split = cmp.split_record(training, args.split, tested_elsewhere=bool(test_specs))
     tests: list[cmp.TestRecord] = []
+    cards: dict[str, Any] = {}  # the data cards of the other test records, by test name
     if split.validation_end < training.data.length:
         tests.append(split.test_record(args.init_window, training.reference))
-    loaded_tests = [cmp.load_record_spec(spec, seed=args.seed, **units_kw) for spec in test_specs]
-    for loaded in loaded_tests:
-        window = cmp.default_init_window(loaded.data.length) if args.init_window is None else args.init_window
+    for spec in test_specs:
+        loaded = cmp.load_record_spec(spec, seed=args.seed, **units_kw)
         name = loaded.name if loaded.name not in {t.name for t in tests} else f"{loaded.name} #{len(tests) + 1}"
-        tests.append(cmp.TestRecord(name, loaded.data, 0, window, loaded.reference))
+        tests.append(cmp.TestRecord.whole(loaded, args.init_window, name))
+        cards[name] = loaded.card
     if not tests:
         raise cmp.CompareError("nothing to test on: the split leaves no test part; pass --test records")
     units = training.units
@@ -217,7 +210,7 @@ def run_compare(args: argparse.Namespace) -> int:
                     "init_window": [t.start, t.scored_start],
                     "scored": [t.scored_start, t.record.length],
                     "noise_floor_nmse_percent": floor[t.name].nmse if t.name in floor else None,
-                    "card": loaded.card if (loaded := _loaded_for(t, loaded_tests)) is not None else None,
+                    "card": cards.get(t.name),
                 }
                 for t in tests
             ],
@@ -268,10 +261,6 @@ def run_compare(args: argparse.Namespace) -> int:
         f"models: {out / 'models'} ({time.perf_counter() - started:.0f} s)"
     )
     return 0
-
-
-def _loaded_for(test: Any, loaded: list[Any]) -> Any:
-    return next((item for item in loaded if item.data is test.record), None)
 
 
 def _compare_emps(out: pathlib.Path, args: argparse.Namespace) -> int:

@@ -1,9 +1,9 @@
 """The identification exercise behind `fricjax compare`, as a public namespace: `fj.compare.default_models()`.
 
 The recipe registry (`default_models`: each physics model's start from the data's scales and its fit recipe),
-data (`load_record_spec`, `load_split`, `Split`, `TestRecord`: a test part or another record, with an
+data (`load_record_spec`, `load_split`, `split_record`, `Split`, `TestRecord`: a test part or another record, with an
 initialisation window that estimates the force offset), budgets (`FitSettings`), fitting and exact-mode scoring
-(`fit_and_score`, `score`, `score_prediction`, `reference_scores`: the noise floor), ensembles of
+(`fit_and_score`, `free_run`, `score`, `score_prediction`, `reference_scores`: the noise floor), ensembles of
 the fitted models (`add_ensembles`) and the comparison table (`format_table`). Figures:
 `plot_prediction_errors`, `plot_test_loops`.
 
@@ -32,9 +32,11 @@ from ._protocols._compare import default_init_window as default_init_window
 from ._protocols._compare import default_models as default_models
 from ._protocols._compare import fit_and_score as fit_and_score
 from ._protocols._compare import format_table as format_table
+from ._protocols._compare import free_run as free_run
 from ._protocols._compare import load_record_spec as load_record_spec
 from ._protocols._compare import load_split as load_split
 from ._protocols._compare import reference_scores as reference_scores
 from ._protocols._compare import score as score
 from ._protocols._compare import score_prediction as score_prediction
+from ._protocols._compare import split_record as split_record
 from ._protocols._compare import statistics_warnings as statistics_warnings

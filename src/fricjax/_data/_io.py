@@ -238,7 +238,8 @@ def read_record(
         if x is not None:
             motion = Motion(x=x, v=v, dt=dt) if v is not None else Motion.from_position(x, dt)
         else:
-            motion = Motion.from_velocity(data["v"] * units.x_factor, dt)
+            assert v is not None  # checked above: x and/or v
+            motion = Motion.from_velocity(v, dt)
         record = FrictionData(motion, force)
     except (ValueError, TypeError) as err:
         raise RecordError(f"{path}: {err}") from err

@@ -30,7 +30,7 @@ from .._smoothing import Smooth, exact, is_concrete, with_smoothing
 from ._linear import lstsq, parameter_std
 from ._losses import AbstractLoss, SimulationLoss
 from ._result import FitResult
-from ._strategies import Continuation, MultiStart, ParameterScaling, where_from_path
+from ._strategies import Continuation, MultiStart, ParameterScaling, submodels, where_from_path
 
 # ----------------------------------------------------------------------------------------------------------------
 # parameter selection
@@ -183,19 +183,14 @@ def _nonnegative_mask(model: Any) -> Any:
     return mask
 
 
-def _nonnegative_paths(node: Any, prefix: str = "") -> list[str]:
-    out: list[str] = []
-    if isinstance(node, eqx.Module):
-        for field in dataclasses.fields(node):
-            child = getattr(node, field.name, None)
-            if field.name in getattr(type(node), "nonnegative_fields", ()) and eqx.is_inexact_array(child):
-                out.append(prefix + field.name)
-            else:
-                out += _nonnegative_paths(child, f"{prefix}{field.name}.")
-    elif isinstance(node, (tuple, list)):
-        for index, child in enumerate(node):
-            out += _nonnegative_paths(child, f"{prefix}{index}.")
-    return out
+def _nonnegative_paths(model: Any) -> list[str]:
+    return [
+        prefix + field.name
+        for prefix, node in submodels(model)
+        for field in dataclasses.fields(node)
+        if field.name in getattr(type(node), "nonnegative_fields", ())
+        and eqx.is_inexact_array(getattr(node, field.name, None))
+    ]
 
 
 def _nonnegative_flags(model: Any, linear_spec: Any, separable: Sequence[str]) -> tuple[bool, ...] | None:
@@ -394,9 +389,8 @@ def fit(
                     converged = _converged_message(tolerance, chunk, search.step_count)
                     break
     search.close()
-    if converged and not stop:
-        stop, result_code, message = True, "successful", converged
-        solver_codes = ["tolerance"] * max(len(solver_codes), 1)
+    if converged and not stop:  # the tolerance rule ended the last stage
+        result_code, message = "successful", converged
     best_states, best_scores, diverged, history = (
         search.best_states,
         search.best_scores,
@@ -411,11 +405,7 @@ def fit(
         best = 0
         best_states = (starts, extras)
     chosen = jax.tree_util.tree_map(lambda a: a[best], best_states)
-    if (
-        kind != "optax"
-        and result_code not in ("diverged",)
-        and not (solver_codes and solver_codes[best] == "tolerance")
-    ):
+    if kind != "optax" and result_code != "diverged" and not converged:
         code = solver_codes[best] if solver_codes else "successful"
         result_code = code.split(":")[0]
         message = {

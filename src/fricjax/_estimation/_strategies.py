@@ -124,22 +124,32 @@ class ParameterScaling:
         return scales
 
 
-def physical_ranges(model: Any, prefix: str = "") -> dict[str, float]:
+def submodels(model: Any, prefix: str = "") -> list[tuple[str, eqx.Module]]:
+    """Every equinox Module inside `model` (itself included) with the dotted prefix of its fields
+    (`""`, `"model."`, `"members.0."`): the one walk behind the per-class parameter declarations
+    (`parameter_ranges`, `nonnegative_fields`)."""
+    out: list[tuple[str, eqx.Module]] = []
+    if isinstance(model, eqx.Module):
+        out.append((prefix, model))
+        for field in dataclasses.fields(model):
+            out += submodels(getattr(model, field.name, None), f"{prefix}{field.name}.")
+    elif isinstance(model, (tuple, list)):
+        for index, child in enumerate(model):
+            out += submodels(child, f"{prefix}{index}.")
+    return out
+
+
+def physical_ranges(model: Any) -> dict[str, float]:
     """`{dotted path: magnitude}` over every model in `model` (ensemble members included) that declares
     `parameter_ranges()`; models whose parameters are traced (inside jit / vmap) give none."""
     out: dict[str, float] = {}
-    if isinstance(model, eqx.Module):
-        ranges = getattr(model, "parameter_ranges", None)
+    for prefix, node in submodels(model):
+        ranges = getattr(node, "parameter_ranges", None)
         if callable(ranges):
             try:
                 out.update({prefix + name: float(value) for name, value in ranges().items()})
             except (jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError, TypeError):
                 pass
-        for field in dataclasses.fields(model):
-            out.update(physical_ranges(getattr(model, field.name, None), f"{prefix}{field.name}."))
-    elif isinstance(model, (tuple, list)):
-        for index, child in enumerate(model):
-            out.update(physical_ranges(child, f"{prefix}{index}."))
     return out
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax.numpy as jnp
@@ -149,6 +149,12 @@ class TestRecord:
                 f"{self.name}: an initialisation window of {self.init_window} samples leaves nothing to score in a "
                 f"test part of {self.record.length - self.start} samples; lower --init-window"
             )
+
+    @classmethod
+    def whole(cls, loaded: LoadedRecord, init_window: int | None = None, name: str | None = None) -> TestRecord:
+        """A whole record loaded on the command line as a test record (default window: `default_init_window`)."""
+        window = default_init_window(loaded.data.length) if init_window is None else int(init_window)
+        return cls(loaded.name if name is None else name, loaded.data, 0, window, loaded.reference)
 
     @property
     def scored_start(self) -> int:
@@ -407,12 +413,17 @@ class ModelScore:
     std: Any = None
 
 
+def free_run(model: Any, record: FrictionData) -> np.ndarray:
+    """`model`'s exact-mode free-run force over the whole `record` (from its first sample), as NumPy."""
+    return np.asarray(simulate(exact(model), record.motion))  # type: ignore[arg-type]
+
+
 def score(model: Any, test: TestRecord | Split) -> tuple[float, float, np.ndarray]:
     """Exact-mode NMSE [%] and normalised MAX error of `model` on a test record (a `Split` stands for its test
     part without an initialisation window), and its free-run prediction over the whole record."""
     if isinstance(test, Split):
         test = test.test_record(init_window=0)
-    full_prediction = np.asarray(simulate(exact(model), test.record.motion))  # type: ignore[arg-type]
+    full_prediction = free_run(model, test.record)
     result, _ = score_prediction(full_prediction, test)
     return result.nmse, result.max_error, full_prediction
 
@@ -482,12 +493,9 @@ def fit_and_score(
         result = spec.fit(spec.build(scales), split, seed, progress)
         elapsed = time.perf_counter() - start_time
         model = result.model
-        full_prediction = np.asarray(simulate(exact(model), split.full.motion))  # type: ignore[arg-type]
+        full_prediction = free_run(model, split.full)
         predictions = {
-            test.name: full_prediction
-            if test.record is split.full
-            else np.asarray(simulate(exact(model), test.record.motion))  # type: ignore[arg-type]
-            for test in tests
+            test.name: full_prediction if test.record is split.full else free_run(model, test.record) for test in tests
         }
         row = _row(
             name,
@@ -591,14 +599,27 @@ def load_record_spec(
     return LoadedRecord(spec, full, card, info.units)
 
 
+def split_record(
+    loaded: LoadedRecord, fractions: Sequence[float] | None = None, *, tested_elsewhere: bool = False
+) -> Split:
+    """The training record's split: `fractions` (TRAIN_END, VALIDATION_END) where given; else 0.8 / 1.0 when the
+    models are tested on other records (`tested_elsewhere`), the tribometer's own edges for built-in records, and
+    60 / 20 / 20 otherwise."""
+    edges = loaded.card.get("split_edges")
+    if fractions is not None:
+        return Split.fractions(loaded.data, *fractions)
+    if tested_elsewhere:
+        return Split.fractions(loaded.data, 0.8, 1.0)
+    if edges is not None:
+        return Split(loaded.data, int(edges[1]), int(edges[2]))
+    return Split.fractions(loaded.data, 0.6, 0.8)
+
+
 def load_split(spec: str, *, seed: int = 0) -> tuple[Split, dict[str, Any], Any]:
     """Resolve `--data` and split it 60 / 20 / 20 (the tribometer's own edges for built-in records).
     **Returns:** `(split, data card, true model or None)`."""
     loaded = load_record_spec(spec, seed=seed)
-    edges = loaded.card.get("split_edges")
-    if edges is not None:
-        return Split(loaded.data, int(edges[1]), int(edges[2])), loaded.card, loaded.truth
-    return Split.fractions(loaded.data, 0.6, 0.8), loaded.card, loaded.truth
+    return split_record(loaded), loaded.card, loaded.truth
 
 
 def statistics_warnings(split: Split, tests: list[TestRecord], units: Units) -> list[str]:
@@ -640,25 +661,22 @@ def add_ensembles(rows: list[ModelScore], split: Split, tests: list[TestRecord] 
     tests = [split.test_record()] if tests is None else list(tests)
     members = [row.model for row in rows]
     full_predictions = np.stack(
-        [
-            row.full_prediction
-            if row.full_prediction is not None
-            else np.asarray(simulate(exact(row.model), split.full.motion))  # type: ignore[arg-type]
-            for row in rows
-        ]
+        [row.full_prediction if row.full_prediction is not None else free_run(row.model, split.full) for row in rows]
     )
 
     def member_predictions(test: TestRecord) -> np.ndarray:
         if all(test.name in row.test_predictions for row in rows):
             return np.stack([row.test_predictions[test.name] for row in rows])
-        return np.stack([score(row.model, test)[2] for row in rows])
+        return np.stack([free_run(row.model, test.record) for row in rows])
 
     per_test = {test.name: member_predictions(test) for test in tests}
     val = slice(split.train_end, split.validation_end)
     val_data = split.full.slice(split.train_end, split.validation_end)
 
-    def row(name: str, label: str, ensemble: Any, combine: Callable[[np.ndarray], np.ndarray], count: int) -> Any:
-        start = time.perf_counter()
+    def row(
+        name: str, label: str, ensemble: Any, combine: Callable[[np.ndarray], np.ndarray], count: int, start: float
+    ) -> Any:
+        """The ensemble's row; `start`: when its fit (weights, selection) began, for the fit time."""
         full = combine(full_predictions)
         predictions = {key: combine(value) for key, value in per_test.items()}
         return _row(
@@ -674,7 +692,9 @@ def add_ensembles(rows: list[ModelScore], split: Split, tests: list[TestRecord] 
             result="successful",
         )
 
-    out = [row("ensemble_average", "Ensemble: average", AverageEnsemble(members), lambda p: p.mean(axis=0), 0)]
+    start = time.perf_counter()
+    out = [row("ensemble_average", "Ensemble: average", AverageEnsemble(members), lambda p: p.mean(axis=0), 0, start)]
+    start = time.perf_counter()
     weighted = WeightedEnsemble.fit(members, val_data, predictions=full_predictions[:, val])
     out.append(
         row(
@@ -683,8 +703,10 @@ def add_ensembles(rows: list[ModelScore], split: Split, tests: list[TestRecord] 
             weighted,
             lambda p: np.asarray(weighted.combine(jnp.asarray(p.T))),
             len(members) + 1,
+            start,
         )
     )
+    start = time.perf_counter()
     selection = select_forward(members, val_data, predictions=full_predictions[:, val])
     chosen = list(selection.indices)
     names = "+".join(rows[i].name for i in chosen)
@@ -695,6 +717,7 @@ def add_ensembles(rows: list[ModelScore], split: Split, tests: list[TestRecord] 
             selection.ensemble,
             lambda p: np.asarray(selection.ensemble.combine(jnp.asarray(p[chosen].T))),
             len(chosen) + 1,
+            start,
         )
     )
     return out
