@@ -1,0 +1,187 @@
+"""NARX regressors: normalised input signals and their lags, and the model's own lagged outputs.
+
+A NARX model (worden2007 §5-6, parlitz2004 §IV) predicts `y_k = f(phi_k)` from the regressor vector
+
+`phi_k = [u_k, u_{k-1}, ..., u_{k-n_u}, y_{k-1}, ..., y_{k-n_y}]`
+
+where `u` holds the input signals (displacement, velocity, acceleration: any fields of `fj.MotionSample`) and
+`y` the model's past outputs (its predictions in a free run, the measurements under teacher forcing). Each
+signal is normalised by a fixed mean and scale read off the training record, so that one set of network
+weights suits records in metres and newtons alike.
+
+Sweeps over orders compare models of one maximal shape: `input_mask` (one entry per input lag 0..n_u) and
+`output_mask` (one per output lag 1..n_y) multiply the regressors, so a mask of zeros removes a lag without
+changing a shape (and so without recompiling). The masks are fixed (never trained).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..._constraints import Fixed, as_float_array, unwrap
+from ..._inputs import MotionSample
+from ..._smoothing import is_concrete
+
+SIGNALS = ("x", "v", "a", "dx")
+"""The `MotionSample` signals a NARX may take as inputs: displacement [m], velocity [m/s], acceleration
+[m/s^2], the step's displacement increment [m]."""
+
+
+class NARXState(eqx.Module):
+    """The regressor history: `inputs` the last `n_u` normalised input vectors (newest first, shape
+    `(n_u, S)`), `outputs` the last `n_y` outputs [N] (newest first, shape `(n_y,)`)."""
+
+    inputs: Float[Array, "L S"]
+    outputs: Float[Array, " Y"]
+
+
+class NARXRegressors(eqx.Module):
+    """The regressor map of a NARX model: which signals, how many lags, their normalisation and masks.
+
+    `phi_k = [((u_{k-i} - mean) / scale) * input_mask_i for i = 0..n_u,
+    ((y_{k-j} - output_mean) / output_scale) * output_mask_j for j = 1..n_y]`, of length `S (n_u + 1) + n_y`.
+
+    **Arguments:**
+
+    - `signals`: the input signals, names of `fj.MotionSample` fields (`"x"`, `"v"`, `"a"`, `"dx"`).
+    - `input_lags`: `n_u >= 0`, past samples of each input (0: the current sample only).
+    - `output_lags`: `n_y >= 0`, past outputs fed back (0: a static map of the inputs, no feedback).
+    - `input_mean`, `input_scale`: per signal, in its units (default 0 and 1); see `from_data`.
+    - `output_mean`, `output_scale`: the force's [N] (default 0 and 1).
+    - `input_mask`, `output_mask`: 0/1 per lag (default ones), for masked sweeps over orders.
+    """
+
+    signals: tuple[str, ...] = eqx.field(static=True)
+    input_lags: int = eqx.field(static=True)
+    output_lags: int = eqx.field(static=True)
+    input_mean: Any
+    input_scale: Any
+    output_mean: Any
+    output_scale: Any
+    input_mask: Any
+    output_mask: Any
+
+    def __init__(
+        self,
+        signals: Sequence[str] = ("x", "v", "a"),
+        input_lags: int = 0,
+        output_lags: int = 4,
+        *,
+        input_mean: Any = None,
+        input_scale: Any = None,
+        output_mean: Any = 0.0,
+        output_scale: Any = 1.0,
+        input_mask: Any = None,
+        output_mask: Any = None,
+    ):
+        signals = tuple(signals)
+        if not signals:
+            raise ValueError("NARXRegressors: give at least one input signal, e.g. signals=('x', 'v', 'a').")
+        unknown = [s for s in signals if s not in SIGNALS]
+        if unknown:
+            raise ValueError(f"NARXRegressors: unknown signals {unknown}; choose from {list(SIGNALS)}.")
+        if len(set(signals)) != len(signals):
+            raise ValueError(f"NARXRegressors: `signals` repeats a name: {signals}.")
+        for name, value in (("input_lags", input_lags), ("output_lags", output_lags)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+                raise ValueError(f"NARXRegressors: `{name}` must be an integer >= 0, got {value!r}.")
+        n = len(signals)
+        self.signals = signals
+        self.input_lags = int(input_lags)
+        self.output_lags = int(output_lags)
+        self.input_mean = _fixed(np.zeros(n) if input_mean is None else input_mean, (n,), "input_mean")
+        self.input_scale = _fixed(np.ones(n) if input_scale is None else input_scale, (n,), "input_scale", True)
+        self.output_mean = _fixed(output_mean, (), "output_mean")
+        self.output_scale = _fixed(output_scale, (), "output_scale", True)
+        mask_in = np.ones(self.input_lags + 1) if input_mask is None else input_mask
+        mask_out = np.ones(self.output_lags) if output_mask is None else output_mask
+        self.input_mask = _fixed(mask_in, (self.input_lags + 1,), "input_mask")
+        self.output_mask = _fixed(mask_out, (self.output_lags,), "output_mask")
+
+    @classmethod
+    def from_data(
+        cls,
+        data: Any,
+        signals: Sequence[str] = ("x", "v", "a"),
+        input_lags: int = 0,
+        output_lags: int = 4,
+    ) -> NARXRegressors:
+        """Regressors normalised by a training record (`fj.FrictionData`): each signal by its mean and standard
+        deviation, the force likewise."""
+        samples = data.motion.samples(frozenset(signals))
+        means, scales = [], []
+        for name in signals:
+            signal = np.asarray(getattr(samples, name), dtype=float)
+            means.append(0.0 if name in ("v", "a", "dx") else float(np.mean(signal)))
+            scales.append(float(np.std(signal)) or 1.0)
+        force = np.asarray(data.force, dtype=float)
+        return cls(
+            signals,
+            input_lags,
+            output_lags,
+            input_mean=np.asarray(means),
+            input_scale=np.asarray(scales),
+            output_mean=float(np.mean(force)),
+            output_scale=float(np.std(force)) or 1.0,
+        )
+
+    @property
+    def size(self) -> int:
+        """The length of the regressor vector: `S (n_u + 1) + n_y`."""
+        return len(self.signals) * (self.input_lags + 1) + self.output_lags
+
+    @property
+    def requires(self) -> frozenset[str]:
+        return frozenset(s for s in self.signals if s in ("x", "v", "a")) | (
+            frozenset({"x"}) if "dx" in self.signals else frozenset()
+        )
+
+    def init_state(self, dtype: Any) -> NARXState:
+        p = unwrap(self)
+        # at rest: every input at 0 (normalised: -mean / scale), every past output 0
+        rest = jnp.broadcast_to(-p.input_mean / p.input_scale, (self.input_lags, len(self.signals)))
+        return NARXState(jnp.asarray(rest, dtype), jnp.zeros((self.output_lags,), dtype))
+
+    def __call__(self, state: NARXState, sample: MotionSample) -> tuple[Array, Array]:
+        """`(phi_k, u_window)`: the regressor vector and the normalised input window `[u_k, ..., u_{k-n_u}]`."""
+        u = jnp.stack([jnp.asarray(getattr(sample, s)) for s in self.signals])
+        u = (u - self.input_mean) / self.input_scale
+        window = jnp.concatenate([u[None].astype(state.inputs.dtype), state.inputs], axis=0)
+        past = (state.outputs - self.output_mean) / self.output_scale
+        phi = jnp.concatenate([(window * self.input_mask[:, None]).reshape(-1), past * self.output_mask])
+        return phi, window
+
+    def advance(self, state: NARXState, window: Array, y: Array) -> NARXState:
+        """The history after sample k: the newest `n_u` input vectors and `y_k` pushed onto the outputs."""
+        outputs = jnp.concatenate([jnp.reshape(y, (1,)).astype(state.outputs.dtype), state.outputs])
+        return NARXState(window[: self.input_lags], outputs[: self.output_lags])
+
+    def feedback(self, state: NARXState, y_measured: Array) -> NARXState:
+        if self.output_lags == 0:
+            return state
+        return NARXState(state.inputs, state.outputs.at[0].set(jnp.asarray(y_measured, state.outputs.dtype)))
+
+    def denormalise(self, y_normalised: Array) -> Array:
+        return self.output_mean + self.output_scale * y_normalised
+
+
+def _fixed(value: Any, shape: tuple[int, ...], name: str, positive: bool = False) -> Fixed:
+    """A fixed (never trained) array field of the given shape, checked when concrete."""
+    if isinstance(value, Fixed):
+        value = value.value
+    array = as_float_array(value)
+    if array.shape != shape:
+        raise ValueError(f"NARXRegressors: `{name}` must have shape {shape}, got {array.shape}.")
+    if is_concrete(array):
+        concrete = np.asarray(array)
+        if not np.all(np.isfinite(concrete)) or (positive and not np.all(concrete > 0)):
+            raise ValueError(
+                f"NARXRegressors: `{name}` must be finite{' and positive' if positive else ''}, got {concrete!r}."
+            )
+    return Fixed(array)
