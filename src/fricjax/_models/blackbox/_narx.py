@@ -258,7 +258,7 @@ class GSNN(AbstractNARX):
 
     def network(self, phi: Array) -> Array:
         g, g_min = _DENOMINATORS[self.denominator]
-        a = self.bound - g_min + self.a_excess  # unwrapped: a_excess is the positive excess itself
+        a = self.bound - g_min + unwrap(self.a_excess)  # a no-op once unwrapped: the positive excess
         numerator = self.b + jnp.tanh(self.w @ phi + self.w0)
         denominator = a + g(self.c @ phi + self.c0)
         return jnp.dot(self.d, numerator / denominator * self.unit_mask) + self.d0
