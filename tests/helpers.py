@@ -61,8 +61,53 @@ SMOOTH_EPS = {
     "maxwell_lr": 1e-2,
     "maxwell_dlr": 1e-2,
     "maxwell_dnlrx": 1e-2,
+    # neural models: tanh / sigmoid networks have no switch (smooth == exact); the recurrent network's
+    # piecewise-linear sigmoid is smoothed in its (dimensionless) drive
+    "mlp_narx": 1e-2,
+    "gsnn": 1e-2,
+    "gsnn_exp": 1e-2,
+    "gsnn_tanh": 1e-2,
+    "avd": 1e-2,
+    "rnn": 1e-2,
 }
 
 
 def smooth(name: str, model: fj.AbstractFrictionModel) -> fj.AbstractFrictionModel:
     return fj.with_smoothing(model, fj.Smooth(SMOOTH_EPS[name]))
+
+
+def neural_record(n: int = 300) -> fj.FrictionData:
+    """A LuGre force record (pre-sliding into sliding) to normalise the neural models by."""
+    motion = presliding_to_sliding(n)
+    lugre = fj.LuGre(stribeck(), sigma0=1e5, sigma1=300.0, sigma2=40.0)
+    return fj.FrictionData(motion, fj.simulate(lugre, motion))
+
+
+def neural_table() -> dict[str, fj.AbstractFrictionModel]:
+    """One small instance of each neural black-box model, with random weights large enough to be nonlinear."""
+    import jax
+
+    data = neural_record()
+    key = jax.random.PRNGKey(7)
+    reg = fj.NARXRegressors.from_data(data, ("x", "v", "a"), 1, 2)
+    rnn = fj.RecurrentNetwork.init(data, 6, key=key, delays=(0, 5, 12), connectivity=0.4, input_weight=3.0)
+    rnn = fj.RecurrentNetwork(
+        rnn.alpha_raw, rnn.w, rnn.w0, rnn.v, np.linspace(-1.0, 1.0, 6), 0.1,
+        connectivity=rnn.connectivity, signals=rnn.signals, delays=rnn.delays, input_mean=rnn.input_mean,
+        input_scale=rnn.input_scale, output_mean=rnn.output_mean, output_scale=rnn.output_scale,
+    )  # fmt: skip
+    return {
+        "mlp_narx": _bigger_output(fj.MLPNARX.init(reg, 5, key=key)),
+        "gsnn": _bigger_output(fj.GSNN.init(reg, 3, key=key)),
+        "gsnn_exp": _bigger_output(fj.GSNN.init(reg, 2, key=key, denominator="exp")),
+        "gsnn_tanh": _bigger_output(fj.GSNN.init(reg, 2, key=key, denominator="tanh", bound=0.3)),
+        "avd": _bigger_output(fj.AVDNetwork(data, 4, key=key)),
+        "rnn": rnn,
+    }
+
+
+def _bigger_output(model):
+    """Output weights of order 1 (the random initialisation's are 0.1 / sqrt(width), nearly linear outputs)."""
+    import equinox as eqx
+
+    return eqx.tree_at(lambda m: m.d, model, model.d * 10.0)

@@ -13,9 +13,10 @@ import pytest
 
 import fricjax as fj
 
-from helpers import model_table, presliding_to_sliding, smooth
+from helpers import model_table, neural_table, presliding_to_sliding, smooth
 
-MODELS = model_table()
+# the GSNN's other denominators are checked against NumPy in test_neural.py
+MODELS = {**model_table(), **{k: m for k, m in neural_table().items() if k not in ("gsnn_exp", "gsnn_tanh")}}
 NAMES = sorted(MODELS)
 MOTION = presliding_to_sliding(300)
 

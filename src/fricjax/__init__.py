@@ -25,9 +25,9 @@ from ._models._base import AbstractFrictionModel as AbstractFrictionModel
 from ._models._base import AbstractModel as AbstractModel
 from ._models._base import AbstractSystem as AbstractSystem
 from ._models.blackbox._narx import GSNN as GSNN
+from ._models.blackbox._narx import MLPNARX as MLPNARX
 from ._models.blackbox._narx import AbstractNARX as AbstractNARX
 from ._models.blackbox._narx import AVDNetwork as AVDNetwork
-from ._models.blackbox._narx import MLPNARX as MLPNARX
 from ._models.blackbox._regressors import NARXRegressors as NARXRegressors
 from ._models.blackbox._regressors import NARXState as NARXState
 from ._models.blackbox._rnn import RecurrentNetwork as RecurrentNetwork

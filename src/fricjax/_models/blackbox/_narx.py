@@ -232,6 +232,8 @@ class GSNN(AbstractNARX):
         """Random weights (`w ~ N(0, 1/P)`, `c ~ N(0, 0.1/P)`), `b = 0`, denominators near 1, output `d ~ N(0,
         0.1/J)`."""
         units = _check_width(units, "GSNN.init", "units")
+        if denominator not in _DENOMINATORS:
+            raise ValueError(f"GSNN: `denominator` must be one of {sorted(_DENOMINATORS)}, got {denominator!r}.")
         size = regressors.size
         keys = jax.random.split(key, 5)
         g, g_min = _DENOMINATORS[denominator]
