@@ -107,6 +107,9 @@ from ._estimation._serialise import save_model as save_model
 from ._estimation._strategies import Continuation as Continuation
 from ._estimation._strategies import MultiStart as MultiStart
 from ._estimation._strategies import ParameterScaling as ParameterScaling
+from ._estimation._sweep import SweepResult as SweepResult
+from ._estimation._sweep import stack_models as stack_models
+from ._estimation._sweep import sweep as sweep
 from ._models.combine._ensemble import AbstractEnsemble as AbstractEnsemble
 from ._models.combine._ensemble import AverageEnsemble as AverageEnsemble
 from ._models.combine._ensemble import WeightedEnsemble as WeightedEnsemble

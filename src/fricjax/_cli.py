@@ -117,7 +117,13 @@ def _demo_eps(model: Any) -> float:
     return 1e-8  # m/s
 
 
-MODEL_NAMES = ("stribeck", "lugre", "gms", "nlr", "dnlrx")
+def _model_names() -> tuple[tuple[str, ...], tuple[str, ...]]:
+    from ._protocols._compare import MODEL_NAMES, PHYSICS_MODELS
+
+    return MODEL_NAMES, PHYSICS_MODELS
+
+
+MODEL_NAMES, DEFAULT_MODELS = _model_names()
 
 
 def run_compare(args: argparse.Namespace) -> int:
@@ -133,6 +139,8 @@ def run_compare(args: argparse.Namespace) -> int:
 
     out = pathlib.Path(args.out)
     args.models = [m.lower() for m in args.models]  # model names are case-insensitive
+    if args.models == ["all"]:
+        args.models = list(MODEL_NAMES)
     unknown = [m for m in args.models if m not in MODEL_NAMES]
     if unknown:
         raise cmp.CompareError(f"--models: unknown model {unknown[0]!r}; choose from {', '.join(MODEL_NAMES)}")
@@ -143,6 +151,7 @@ def run_compare(args: argparse.Namespace) -> int:
         gms_elements=args.gms_elements,
         maxwell_elements=args.maxwell_elements,
         drift=args.drift,
+        neural_steps=args.neural_steps,
     )
     _check_writable(out)
     if args.data == "emps":
@@ -452,8 +461,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     compare.add_argument(
         "--models",
         nargs="+",
-        default=list(MODEL_NAMES),
-        help=f"models to fit, any of {', '.join(MODEL_NAMES)} (case-insensitive; default: all)",
+        default=list(DEFAULT_MODELS),
+        help=f"models to fit, any of {', '.join(MODEL_NAMES)} (case-insensitive), or all (default: the physics "
+        f"models {', '.join(DEFAULT_MODELS)}; the neural ones take a few minutes each)",
+    )
+    compare.add_argument(
+        "--neural-steps",
+        type=int,
+        default=1500,
+        metavar="N",
+        help="output-error (NOE) Adam steps of the neural models mlp, gsnn, rnn, avd (default: %(default)s)",
     )
     compare.add_argument(
         "--steps",

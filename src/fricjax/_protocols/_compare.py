@@ -23,6 +23,7 @@ import optax
 from .._data._io import Units, read_record
 from .._data._record import FrictionData
 from .._estimation._fit import fit, levenberg_marquardt
+from .._estimation._losses import OneStepLoss
 from .._estimation._result import FitResult
 from .._estimation._strategies import Continuation, MultiStart, ParameterScaling
 from .._metrics import max_error, nmse
@@ -43,7 +44,7 @@ class DataScales:
     `force` [N]: half the 1-99 % range of the force; `Fc`, `Fs` [N]: the median and the 99.5 % level of
     |F| while sliding; `vs` [m/s]: a velocity below which sliding is rare; `stiffness` [N/m]: the typical
     |dF/dx| right after reversals (pre-sliding); `breakaway` [m] = Fs / stiffness; `dx` [m]: the median step;
-    `duration` [s]: the record's length.
+    `duration` [s]: the record's length; `train`: the record itself (black-box models normalise by it).
     """
 
     force: float
@@ -54,6 +55,7 @@ class DataScales:
     breakaway: float
     dx: float
     duration: float = 1.0
+    train: FrictionData | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @classmethod
     def from_data(cls, data: FrictionData) -> DataScales:
@@ -75,7 +77,7 @@ class DataScales:
         steps = np.abs(np.diff(x))
         dx = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1e-9
         duration = data.length * float(np.asarray(data.motion.dt))
-        return cls(scale, Fc, Fs, vs, stiffness, Fs / stiffness, dx, duration)
+        return cls(scale, Fc, Fs, vs, stiffness, Fs / stiffness, dx, duration, data)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,6 +90,8 @@ class FitSettings:
       loss falls by less than `tolerance` (relative) over `steps / 8` steps; `max_steps` means not converged.
     - `gms_elements`, `maxwell_elements`: the element counts of GMS and of Maxwell-slip NLR / DNLRX.
     - `gms_starts`: starts of the GMS Adam stage (a vmap-ed multi-start: cold GMS fits have local minima).
+    - `neural_steps`: the output-error (NOE) Adam steps of the neural models (`mlp`, `gsnn`, `rnn`, `avd`; see
+      `neural_models`), after their teacher-forced stage.
     - `drift`: the force sensor's drift fitted with every model (`fj.SensorDrift`): `"linear"` (default),
       `"leaky"` (a leaky integrator, its time constant fitted from the training record's duration) or
       `"none"`. It restarts at 0 on each test record; the record's offset is the initialisation window's.
@@ -99,11 +103,12 @@ class FitSettings:
     gms_starts: int = 2
     tolerance: float = 1e-4
     drift: str = "linear"
+    neural_steps: int = 1500
 
     def __post_init__(self) -> None:
         if self.drift not in ("linear", "leaky", "none"):
             raise CompareError(f"--drift must be linear, leaky or none, got {self.drift!r}")
-        for name in ("steps", "gms_elements", "maxwell_elements", "gms_starts"):
+        for name in ("steps", "gms_elements", "maxwell_elements", "gms_starts", "neural_steps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise CompareError(f"--{name.replace('_', '-')} must be a positive integer, got {value!r}")
@@ -375,9 +380,117 @@ def default_models(settings: FitSettings | None = None) -> dict[str, ModelSpec]:
             _lm(("force_map.theta", "force_map.c", "force_map.offset"), 2, settings),
         ),
     }
+    specs.update(neural_models(settings))
     if settings.drift == "none":
         return specs
     return {name: _with_drift(spec, settings.drift) for name, spec in specs.items()}
+
+
+PHYSICS_MODELS = ("stribeck", "lugre", "gms", "nlr", "dnlrx")
+NEURAL_MODELS = ("mlp", "gsnn", "rnn", "avd")
+MODEL_NAMES = PHYSICS_MODELS + NEURAL_MODELS
+"""Every model `compare` can fit; the command line fits `PHYSICS_MODELS` unless told otherwise."""
+
+
+def neural_models(settings: FitSettings) -> dict[str, ModelSpec]:
+    """The neural black-box models of `compare` (worden2007 §5-6, parlitz2004 §III-G, the kernel paper §4.2):
+
+    - `mlp`: `MLPNARX`, 10 tanh units on displacement increment, velocity, acceleration (lags 0-2) and 4
+      past outputs; `gsnn`: `GSNN`, 5 neurons (tanh / logistic sigmoid), the same regressors;
+    - `rnn`: `RecurrentNetwork`, 45 elements, 11 % connectivity, displacement delayed by 0, 80, 160 samples;
+    - `avd`: `AVDNetwork`, 10 tanh units on acceleration, velocity and displacement (no memory).
+
+    NARX networks: teacher forcing first (`OneStepLoss`), then output error (`SimulationLoss`, the full NOE
+    gradient) with Adam; the recurrent network: least-squares readout, then Adam on every weight with the readout
+    solved by least squares inside each evaluation (`separable`).
+    """
+    import jax
+
+    from .._models.blackbox._narx import GSNN, MLPNARX, AVDNetwork
+    from .._models.blackbox._regressors import NARXRegressors
+    from .._models.blackbox._rnn import RecurrentNetwork
+
+    def narx_regressors(train: FrictionData) -> NARXRegressors:
+        return NARXRegressors.from_data(train, ("dx", "v", "a"), input_lags=2, output_lags=4)
+
+    def builder(make: Callable[[FrictionData], Any]) -> Callable[[DataScales], Any]:
+        def build(scales: DataScales) -> Any:  # the data, not only its scales: networks normalise by it
+            assert scales.train is not None
+            return make(scales.train)
+
+        return build
+
+    key = jax.random.PRNGKey(0)
+    return {
+        "mlp": ModelSpec(
+            "MLP NARX (10)", builder(lambda t: MLPNARX.init(narx_regressors(t), 10, key=key)), _noe_fit(settings)
+        ),
+        "gsnn": ModelSpec(
+            "GSNN NARX (5)", builder(lambda t: GSNN.init(narx_regressors(t), 5, key=key)), _noe_fit(settings)
+        ),
+        "rnn": ModelSpec(
+            "recurrent network (45)",
+            builder(lambda t: RecurrentNetwork.init(t, 45, key=key, smoothing=Smooth(1e-2))),
+            _rnn_fit(settings),
+        ),
+        "avd": ModelSpec("AVD network (10)", builder(lambda t: AVDNetwork(t, 10, key=key)), _noe_fit(settings)),
+    }
+
+
+def _paths(start: Any, paths: tuple[str, ...]) -> tuple[str, ...]:
+    return tuple(f"model.{p}" for p in paths) if isinstance(start, SensorDrift) else paths
+
+
+def _noe_fit(settings: FitSettings) -> Callable[..., FitResult]:
+    """Teacher forcing (one-step loss), then output error through the whole free run (NOE), Adam throughout."""
+
+    def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
+        teacher = fit(
+            start,
+            split.train,
+            loss=OneStepLoss(),
+            solver=optax.adam(1e-2),
+            steps=max(1, settings.neural_steps // 2),
+            seed=seed,
+            progress=progress,
+        )
+        noe = fit(
+            teacher.model,
+            split.train,
+            solver=optax.adam(1e-3),
+            steps=settings.neural_steps,
+            validation=split.until_validation_end,
+            validation_burn_in=split.train_end,
+            separable=_separable(teacher.model, ()),
+            seed=seed,
+            progress=progress,
+        )
+        return dataclasses.replace(noe, wall_time=teacher.wall_time + noe.wall_time)
+
+    return run
+
+
+def _rnn_fit(settings: FitSettings) -> Callable[..., FitResult]:
+    """Least-squares readout (echo-state start), then Adam on every weight with the readout separable."""
+
+    def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
+        readout = _separable(start, ())
+        readout = (*_paths(start, ("theta", "theta0")), *readout)
+        first = fit(start, split.train, train=readout, separable=readout, steps=1)
+        trained = fit(
+            first.model,
+            split.train,
+            solver=optax.adam(3e-3),
+            steps=settings.neural_steps,
+            validation=split.until_validation_end,
+            validation_burn_in=split.train_end,
+            separable=readout,
+            seed=seed,
+            progress=progress,
+        )
+        return dataclasses.replace(trained, wall_time=first.wall_time + trained.wall_time)
+
+    return run
 
 
 def _with_drift(spec: ModelSpec, kind: str) -> ModelSpec:

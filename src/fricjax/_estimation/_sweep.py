@@ -1,0 +1,195 @@
+"""Hyperparameter sweeps as one vmap-ed program: `stack_models` and `sweep`.
+
+Models of different orders, widths or network sizes are compared in one compiled program by giving them one
+maximal shape and masking what a configuration does not use (`fj.NARXRegressors(input_mask=, output_mask=)`,
+`unit_mask=` of the networks): the masks are array leaves, so a batch of configurations is a batch of arrays,
+and `jax.vmap` trains them side by side. Seeds are a batch of initial weights; learning rates a batch of
+numbers (`optax.inject_hyperparams`). This is the design card's "vmap-ed hyperparameter sweeps".
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from .._constraints import trainable_filter
+from ._losses import AbstractLoss, SimulationLoss
+
+
+def stack_models(models: Sequence[Any]) -> Any:
+    """Stack models of one structure (same classes, static fields and array shapes) along a new leading axis,
+    for `jax.vmap` / `fj.sweep`. Configurations that differ in order or width must share one maximal shape and
+    differ by their masks; the error names the first field that differs."""
+    models = list(models)
+    if not models:
+        raise ValueError("stack_models: give at least one model.")
+    first = jax.tree_util.tree_structure(models[0])
+    for i, model in enumerate(models[1:], start=1):
+        if jax.tree_util.tree_structure(model) != first:  # type: ignore[operator]
+            raise ValueError(
+                f"stack_models: model {i} differs in structure from model 0 (class, static fields such as the "
+                "number of lags, or None fields); build every configuration at one maximal shape and switch "
+                "lags and units off with masks (NARXRegressors(input_mask=, output_mask=), unit_mask=)."
+            )
+        for (path, a), b in zip(
+            jax.tree_util.tree_leaves_with_path(models[0]), jax.tree_util.tree_leaves(model), strict=True
+        ):
+            if np.shape(a) != np.shape(b):
+                raise ValueError(
+                    f"stack_models: model {i} has shape {np.shape(b)} at {jax.tree_util.keystr(path)}, model 0 has "
+                    f"{np.shape(a)}; use one maximal shape and masks."
+                )
+    return jax.tree_util.tree_map(lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]), *models)
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepResult:
+    """The outcome of `fj.sweep`: `models` (stacked, leading axis B: index with `result.model(i)`),
+    `train_loss` and `val_loss` (B,) of the returned models, `history` (`step`, `train_loss` of shape (checks, B)),
+    `diverged` (B,) bools (a configuration whose loss became non-finite keeps its last finite parameters), and
+    `wall_time` [s] (compilation included)."""
+
+    models: Any
+    train_loss: np.ndarray
+    val_loss: np.ndarray
+    history: dict[str, np.ndarray]
+    diverged: np.ndarray
+    wall_time: float
+
+    def model(self, i: int) -> Any:
+        """Configuration `i` as an ordinary (unbatched) model."""
+        return jax.tree_util.tree_map(lambda leaf: leaf[i] if eqx.is_array(leaf) else leaf, self.models)
+
+    @property
+    def best(self) -> int:
+        """The index with the lowest validation loss (training loss when no validation data was given)."""
+        scores = self.val_loss if np.isfinite(self.val_loss).any() else self.train_loss
+        return int(np.nanargmin(np.where(np.isfinite(scores), scores, np.nan)))
+
+
+def sweep(
+    models: Any,
+    data: Any,
+    *,
+    loss: AbstractLoss | None = None,
+    learning_rate: float | Sequence[float] | np.ndarray = 1e-2,
+    optimiser: Any = optax.adam,
+    steps: int = 500,
+    validation: Any = None,
+    validation_burn_in: int = 0,
+    checks: int = 10,
+    progress: bool = False,
+) -> SweepResult:
+    """Train a batch of configurations side by side in one vmap-ed, jit-compiled program.
+
+    **Arguments:**
+
+    - `models`: a list of models of one structure (`fj.stack_models` is applied) or an already stacked batch.
+    - `data`: the training `fj.FrictionData`, shared by every configuration.
+    - `loss`: any fricjax loss (default `fj.SimulationLoss()`, output error; `fj.OneStepLoss()` teacher forcing).
+    - `learning_rate`: one number, or one per configuration (a sweep over learning rates).
+    - `optimiser`: an optax optimiser factory taking `learning_rate` (default `optax.adam`).
+    - `steps`: optimiser steps; `checks`: how often the training loss is recorded (and the bar advanced).
+    - `validation`, `validation_burn_in`: a record scored by free run after the burn-in samples.
+
+    **Returns:** a `SweepResult`.
+
+    ```python
+    >>> import jax, numpy as np, fricjax as fj
+    >>> data = fj.make_tribometer("sliding", seed=0, duration=0.5).train
+    >>> reg = lambda mask: fj.NARXRegressors(("v",), 0, 2, output_mask=mask)
+    >>> models = [fj.MLPNARX.init(reg(m), 4, key=jax.random.PRNGKey(0)) for m in ([1, 0], [1, 1])]
+    >>> result = fj.sweep(models, data, loss=fj.OneStepLoss(), steps=20)
+    >>> result.train_loss.shape
+    (2,)
+    ```
+    """
+    start_time = time.perf_counter()
+    loss = SimulationLoss() if loss is None else loss
+    if not isinstance(loss, AbstractLoss):
+        raise TypeError(f"sweep: `loss` must be a fricjax loss (fj.SimulationLoss(), ...), got {type(loss).__name__}.")
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise ValueError(f"sweep: `steps` must be a positive integer, got {steps!r}.")
+    batch = stack_models(models) if isinstance(models, (list, tuple)) else models
+    sizes = {np.shape(leaf)[0] for leaf in jax.tree_util.tree_leaves(batch) if eqx.is_array(leaf) and np.ndim(leaf)}
+    if len(sizes) != 1:
+        raise ValueError("sweep: `models` must be a list of models or a stack of them (one leading batch axis).")
+    count = sizes.pop()
+    rates = jnp.broadcast_to(jnp.asarray(learning_rate, dtype=float), (count,))
+    if rates.shape != (count,) or not bool(jnp.all(rates > 0)):
+        raise ValueError(f"sweep: `learning_rate` must be positive, one number or one per model ({count}).")
+
+    one = jax.tree_util.tree_map(lambda leaf: leaf[0] if eqx.is_array(leaf) else leaf, batch)
+    spec = trainable_filter(one)
+    params, static = eqx.partition(batch, spec)
+    extra0 = loss.init_extra(one, data)
+    make = optax.inject_hyperparams(optimiser)
+
+    # `static` holds the fixed arrays (masks, normalisations), batched like the parameters: both are vmapped
+    def value(p: Any, fixed: Any) -> Any:
+        return loss(eqx.combine(p, fixed), extra0, data)
+
+    def update(p: Any, fixed: Any, opt_state: Any) -> tuple[Any, Any, Any]:
+        current, grads = jax.value_and_grad(value)(p, fixed)
+        updates, new_state = make(learning_rate=1.0).update(grads, opt_state, p)
+        new = optax.apply_updates(p, updates)
+        ok = jnp.isfinite(current) & jnp.all(
+            jnp.asarray([jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)])
+        )
+        keep = lambda a, b: jnp.where(ok, a, b)  # noqa: E731 - a non-finite step keeps the last good parameters
+        return jax.tree_util.tree_map(keep, new, p), jax.tree_util.tree_map(keep, new_state, opt_state), current
+
+    @eqx.filter_jit
+    def run(p: Any, opt_state: Any, n: int) -> tuple[Any, Any, Any]:
+        def body(carry: Any, _: Any) -> tuple[Any, Any]:
+            q, s = carry
+            q, s, current = jax.vmap(update)(q, static, s)
+            return (q, s), current
+
+        (p, opt_state), values = jax.lax.scan(body, (p, opt_state), None, length=n)
+        return p, opt_state, values
+
+    opt_state = jax.vmap(lambda p, lr: make(learning_rate=lr).init(p))(params, rates)
+    chunk = max(1, steps // max(1, checks))
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=steps, desc=f"sweep x{count}", leave=False)
+    done, history_steps, history_loss = 0, [], []
+    diverged = np.zeros(count, dtype=bool)
+    while done < steps:
+        n = min(chunk, steps - done)
+        params, opt_state, values = run(params, opt_state, n)
+        done += n
+        values = np.asarray(values)
+        diverged |= ~np.isfinite(values).all(axis=0)
+        history_steps.append(done)
+        history_loss.append(values[-1])
+        if bar is not None:
+            bar.update(n)
+    if bar is not None:
+        bar.close()
+    trained = eqx.combine(params, static)
+    evaluate = eqx.filter_jit(eqx.filter_vmap(lambda m: loss(m, extra0, data)))
+    train_loss = np.asarray(evaluate(trained))
+    val_loss = np.full(count, np.nan)
+    if validation is not None:
+        scorer = SimulationLoss(burn_in=validation_burn_in)
+        val_loss = np.asarray(eqx.filter_jit(eqx.filter_vmap(lambda m: scorer(m, None, validation)))(trained))
+    return SweepResult(
+        models=trained,
+        train_loss=train_loss,
+        val_loss=val_loss,
+        history={"step": np.asarray(history_steps), "train_loss": np.asarray(history_loss)},
+        diverged=diverged,
+        wall_time=time.perf_counter() - start_time,
+    )
