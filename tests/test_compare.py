@@ -78,7 +78,7 @@ def test_best_single_and_ensemble_reach_the_noise_floor():
     data = fj.make_tribometer("mixed", seed=0)
     split, _, _ = load_split("tribometer:mixed", seed=0)
     test = split.test_record(reference=data.sensor_force)
-    rows = fit_and_score(list(fj.compare.default_models()), split, tests=[test], progress=False, log=lambda _: None)
+    rows = fit_and_score(list(fj.compare.PHYSICS_MODELS), split, tests=[test], progress=False, log=lambda _: None)
     ensembles = add_ensembles(rows, split, [test])
     floor = reference_scores([test])["test part"].nmse
     best_single = min(r.nmse for r in rows)
@@ -269,3 +269,23 @@ def test_units_of_a_file_reach_the_report_and_the_fit_works_in_si(tmp_path):
     (nlr,) = [m for m in report["models"] if m["name"] == "nlr"]
     assert nlr["nmse_percent"] < 5.0  # a sensible fit: the SI conversion is right (thresholds in metres)
     assert max(nlr["parameters"]["model.thresholds"]) < 1e-3
+
+
+@pytest.mark.slow
+def test_compare_fits_the_neural_models(record_csv, tmp_path, capsys):
+    """`--models mlp gsnn rnn avd` (small budgets): each is fitted, scored, saved, reloadable and in the ensembles."""
+    out = tmp_path / "neural"
+    code = main(
+        ["compare", "--data", str(record_csv), "--models", "MLP", "gsnn", "rnn", "avd", "stribeck"]
+        + ["--neural-steps", "20", "--out", str(out), "--no-progress"]
+    )
+    assert code == 0
+    printed = capsys.readouterr().out
+    report = json.loads((out / "report.json").read_text())
+    rows = {m["name"]: m for m in report["models"]}
+    assert {"mlp", "gsnn", "rnn", "avd", "ensemble_average", "ensemble_weighted"} <= set(rows)
+    assert all(np.isfinite(rows[name]["nmse_percent"]) for name in ("mlp", "gsnn", "rnn", "avd"))
+    for name, kind in (("mlp", fj.MLPNARX), ("gsnn", fj.GSNN), ("rnn", fj.RecurrentNetwork), ("avd", fj.MLPNARX)):
+        reloaded = fj.load_model(out / "models" / f"{name}.eqx")
+        assert isinstance(reloaded, fj.SensorDrift) and isinstance(reloaded.model, kind)
+    assert "GSNN NARX (5)" in printed and "recurrent network (45)" in printed

@@ -1,6 +1,7 @@
 """The identification exercise behind `fricjax compare`, as a public namespace: `fj.compare.default_models()`.
 
-The recipe registry (`default_models`: each physics model's start from the data's scales and its fit recipe),
+The recipe registry (`default_models`: each model's start from the training record and its fit recipe; the
+names in `PHYSICS_MODELS`, fitted by default, and `NEURAL_MODELS`, `MODEL_NAMES` for all),
 data (`load_record_spec`, `load_split`, `split_record`, `Split`, `TestRecord`: a test part or another record, with an
 initialisation window that estimates the force offset), budgets (`FitSettings`), fitting and exact-mode scoring
 (`fit_and_score`, `free_run`, `score`, `score_prediction`, `reference_scores`: the noise floor), ensembles of
@@ -10,12 +11,15 @@ the fitted models (`add_ensembles`) and the comparison table (`format_table`). F
 ```python
 >>> import fricjax as fj
 >>> sorted(fj.compare.default_models())[:3]
-['dnlrx', 'gms', 'lugre']
+['avd', 'dnlrx', 'gms']
 ```
 """
 
 from ._plot import plot_prediction_errors as plot_prediction_errors
 from ._plot import plot_test_loops as plot_test_loops
+from ._protocols._compare import MODEL_NAMES as MODEL_NAMES
+from ._protocols._compare import NEURAL_MODELS as NEURAL_MODELS
+from ._protocols._compare import PHYSICS_MODELS as PHYSICS_MODELS
 from ._protocols._compare import RESULT_CODES as RESULT_CODES
 from ._protocols._compare import CompareError as CompareError
 from ._protocols._compare import DataScales as DataScales
