@@ -44,9 +44,9 @@ class AbstractNARX(AbstractFrictionModel):
 
     def step(self, state: NARXState, sample: MotionSample) -> tuple[NARXState, Array]:
         p = unwrap(self)
-        phi, window = p.regressors(state, sample)
+        phi, partial = p.regressors(state, sample)
         y = p.regressors.denormalise(p.network(phi))
-        return p.regressors.advance(state, window, y), y
+        return p.regressors.advance(partial, y), y
 
     def feedback(self, state: NARXState, y_measured: Array) -> NARXState:
         return self.regressors.feedback(state, y_measured)

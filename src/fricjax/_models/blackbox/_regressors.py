@@ -9,6 +9,13 @@ where `u` holds the input signals (displacement, velocity, acceleration: any fie
 signal is normalised by a fixed mean and scale read off the training record, so that one set of network
 weights suits records in metres and newtons alike.
 
+Optionally, the regressors include a bank of play operators of the displacement (`plays=` thresholds [m]):
+`p_i(k) = clip(p_i(k-1) + dx_k / Delta_i, -1, 1)`, the rate-independent memory elements of Maxwell-slip and
+Prandtl-Ishlinskii hysteresis models (parlitz2004 §III-B: one element per threshold). A NARX with a few lags
+cannot hold the state of a hysteretic system with non-local memory (nested loops after each reversal); the
+play states carry it, so the network becomes a static map of the play states and the current inputs. This is
+an extension of the papers' NARX networks (their memory was the lags alone), not part of them.
+
 Sweeps over orders compare models of one maximal shape: `input_mask` (one entry per input lag 0..n_u) and
 `output_mask` (one per output lag 1..n_y) multiply the regressors, so a mask of zeros removes a lag without
 changing a shape (and so without recompiling). The masks are fixed (never trained).
@@ -26,7 +33,7 @@ from jaxtyping import Array, Float
 
 from ..._constraints import Fixed, as_float_array, unwrap
 from ..._inputs import MotionSample
-from ..._smoothing import is_concrete
+from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 
 SIGNALS = ("x", "v", "a", "dx")
 """The `MotionSample` signals a NARX may take as inputs: displacement [m], velocity [m/s], acceleration
@@ -35,17 +42,20 @@ SIGNALS = ("x", "v", "a", "dx")
 
 class NARXState(eqx.Module):
     """The regressor history: `inputs` the last `n_u` normalised input vectors (newest first, shape
-    `(n_u, S)`), `outputs` the last `n_y` outputs [N] (newest first, shape `(n_y,)`)."""
+    `(n_u, S)`), `outputs` the last `n_y` outputs [N] (newest first, shape `(n_y,)`), `plays` the play-operator
+    states (dimensionless, in [-1, 1], shape `(K,)`; empty without plays)."""
 
     inputs: Float[Array, "L S"]
     outputs: Float[Array, " Y"]
+    plays: Float[Array, " K"]
 
 
 class NARXRegressors(eqx.Module):
     """The regressor map of a NARX model: which signals, how many lags, their normalisation and masks.
 
     `phi_k = [((u_{k-i} - mean) / scale) * input_mask_i for i = 0..n_u,
-    ((y_{k-j} - output_mean) / output_scale) * output_mask_j for j = 1..n_y]`, of length `S (n_u + 1) + n_y`.
+    p_1(k), ..., p_K(k), ((y_{k-j} - output_mean) / output_scale) * output_mask_j for j = 1..n_y]`, of length
+    `S (n_u + 1) + K + n_y` (`K` play operators, 0 by default).
 
     **Arguments:**
 
@@ -55,6 +65,9 @@ class NARXRegressors(eqx.Module):
     - `input_mean`, `input_scale`: per signal, in its units (default 0 and 1); see `from_data`.
     - `output_mean`, `output_scale`: the force's [N] (default 0 and 1).
     - `input_mask`, `output_mask`: 0/1 per lag (default ones), for masked sweeps over orders.
+    - `plays`: thresholds `Delta_i > 0` [m] of play operators on the displacement (default none).
+    - `smoothing`: the play operators' saturation, `Exact()` (default, evaluation) or `Smooth(eps)` (training;
+      `eps` dimensionless). Without plays the regressors are smooth and it has no effect.
     """
 
     signals: tuple[str, ...] = eqx.field(static=True)
@@ -66,6 +79,8 @@ class NARXRegressors(eqx.Module):
     output_scale: Any
     input_mask: Any
     output_mask: Any
+    plays: Any
+    smoothing: AbstractSmoothing
 
     def __init__(
         self,
@@ -79,6 +94,8 @@ class NARXRegressors(eqx.Module):
         output_scale: Any = 1.0,
         input_mask: Any = None,
         output_mask: Any = None,
+        plays: Any = None,
+        smoothing: AbstractSmoothing | None = None,
     ):
         signals = tuple(signals)
         if not signals:
@@ -103,6 +120,9 @@ class NARXRegressors(eqx.Module):
         mask_out = np.ones(self.output_lags) if output_mask is None else output_mask
         self.input_mask = _fixed(mask_in, (self.input_lags + 1,), "input_mask")
         self.output_mask = _fixed(mask_out, (self.output_lags,), "output_mask")
+        thresholds = np.zeros(0) if plays is None else (plays.value if isinstance(plays, Fixed) else plays)
+        self.plays = _fixed(thresholds, (int(np.size(thresholds)),), "plays", True)
+        self.smoothing = Exact() if smoothing is None else smoothing
 
     @classmethod
     def from_data(
@@ -111,9 +131,12 @@ class NARXRegressors(eqx.Module):
         signals: Sequence[str] = ("x", "v", "a"),
         input_lags: int = 0,
         output_lags: int = 4,
+        *,
+        plays: Any = None,
+        smoothing: AbstractSmoothing | None = None,
     ) -> NARXRegressors:
         """Regressors normalised by a training record (`fj.FrictionData`): each signal by its mean and standard
-        deviation, the force likewise."""
+        deviation, the force likewise; `plays` and `smoothing` as in the constructor."""
         samples = data.motion.samples(frozenset(signals))
         means, scales = [], []
         for name in signals:
@@ -129,43 +152,57 @@ class NARXRegressors(eqx.Module):
             input_scale=np.asarray(scales),
             output_mean=float(np.mean(force)),
             output_scale=float(np.std(force)) or 1.0,
+            plays=plays,
+            smoothing=smoothing,
         )
 
     @property
     def size(self) -> int:
-        """The length of the regressor vector: `S (n_u + 1) + n_y`."""
-        return len(self.signals) * (self.input_lags + 1) + self.output_lags
+        """The length of the regressor vector: `S (n_u + 1) + K + n_y`."""
+        return len(self.signals) * (self.input_lags + 1) + self.num_plays + self.output_lags
+
+    @property
+    def num_plays(self) -> int:
+        """The number K of play operators."""
+        return int(np.shape(unwrap(self.plays))[0])
 
     @property
     def requires(self) -> frozenset[str]:
         return frozenset(s for s in self.signals if s in ("x", "v", "a")) | (
-            frozenset({"x"}) if "dx" in self.signals else frozenset()
+            frozenset({"x"}) if "dx" in self.signals or self.num_plays else frozenset()
         )
 
     def init_state(self, dtype: Any) -> NARXState:
         p = unwrap(self)
         # at rest: every input at 0 (normalised: -mean / scale), every past output 0
         rest = jnp.broadcast_to(-p.input_mean / p.input_scale, (self.input_lags, len(self.signals)))
-        return NARXState(jnp.asarray(rest, dtype), jnp.zeros((self.output_lags,), dtype))
+        return NARXState(
+            jnp.asarray(rest, dtype), jnp.zeros((self.output_lags,), dtype), jnp.zeros((self.num_plays,), dtype)
+        )
 
-    def __call__(self, state: NARXState, sample: MotionSample) -> tuple[Array, Array]:
-        """`(phi_k, u_window)`: the regressor vector and the normalised input window `[u_k, ..., u_{k-n_u}]`."""
+    def __call__(self, state: NARXState, sample: MotionSample) -> tuple[Array, NARXState]:
+        """`(phi_k, partial)`: the regressor vector and the history with the inputs of sample k pushed (window
+        `[u_k, ..., u_{k-n_u}]`) and the play operators advanced; `advance` then pushes the output."""
         u = jnp.stack([jnp.asarray(getattr(sample, s)) for s in self.signals])
         u = (u - self.input_mean) / self.input_scale
         window = jnp.concatenate([u[None].astype(state.inputs.dtype), state.inputs], axis=0)
+        plays = state.plays
+        if self.num_plays:  # a play operator per threshold, driven by the displacement step
+            plays = self.smoothing.clip(plays + jnp.asarray(sample.dx, plays.dtype) / self.plays, 1.0)
         past = (state.outputs - self.output_mean) / self.output_scale
-        phi = jnp.concatenate([(window * self.input_mask[:, None]).reshape(-1), past * self.output_mask])
-        return phi, window
+        phi = jnp.concatenate([(window * self.input_mask[:, None]).reshape(-1), plays, past * self.output_mask])
+        return phi, NARXState(window, state.outputs, plays)
 
-    def advance(self, state: NARXState, window: Array, y: Array) -> NARXState:
+    def advance(self, partial: NARXState, y: Array) -> NARXState:
         """The history after sample k: the newest `n_u` input vectors and `y_k` pushed onto the outputs."""
-        outputs = jnp.concatenate([jnp.reshape(y, (1,)).astype(state.outputs.dtype), state.outputs])
-        return NARXState(window[: self.input_lags], outputs[: self.output_lags])
+        outputs = jnp.concatenate([jnp.reshape(y, (1,)).astype(partial.outputs.dtype), partial.outputs])
+        return NARXState(partial.inputs[: self.input_lags], outputs[: self.output_lags], partial.plays)
 
     def feedback(self, state: NARXState, y_measured: Array) -> NARXState:
         if self.output_lags == 0:
             return state
-        return NARXState(state.inputs, state.outputs.at[0].set(jnp.asarray(y_measured, state.outputs.dtype)))
+        outputs = state.outputs.at[0].set(jnp.asarray(y_measured, state.outputs.dtype))
+        return NARXState(state.inputs, outputs, state.plays)
 
     def denormalise(self, y_normalised: Array) -> Array:
         return self.output_mean + self.output_scale * y_normalised
