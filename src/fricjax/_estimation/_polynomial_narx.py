@@ -87,7 +87,7 @@ def identify_polynomial_narx(
     >>> data = fj.FrictionData(fj.Motion.from_velocity(v, dt=1e-3), F)
     >>> regressors = fj.NARXRegressors(("v",), input_lags=0, output_lags=1)
     >>> result = fj.identify_polynomial_narx(data, regressors=regressors, degree=3)
-    >>> result.model.describe(), np.round(result.model.theta, 6).tolist()
+    >>> result.model.describe(), [round(float(t), 6) for t in result.model.theta]
     (['v[k]', 'F[k-1]', 'v[k]^2*F[k-1]'], [0.5, 0.7, -0.2])
     ```
     """

@@ -128,7 +128,7 @@ class PolynomialNARX(AbstractNARX):
     >>> regressors = fj.NARXRegressors(("v",), input_lags=0, output_lags=1)        # x_k = [v_k, y_{k-1}]
     >>> model = fj.PolynomialNARX(regressors, terms=((1, 0), (0, 1), (1, 1)), theta=[0.5, 0.8, 0.1])
     >>> motion = fj.Motion.from_velocity(np.ones(3), dt=1e-3)
-    >>> np.round(fj.simulate(model, motion), 4).tolist()                         # y = 0.5 v + 0.8 y1 + 0.1 v y1
+    >>> [round(float(f), 4) for f in fj.simulate(model, motion)]                 # y = 0.5 v + 0.8 y1 + 0.1 v y1
     [0.5, 0.95, 1.355]
     ```
     """
