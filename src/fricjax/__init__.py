@@ -28,6 +28,8 @@ from ._models.blackbox._narx import GSNN as GSNN
 from ._models.blackbox._narx import MLPNARX as MLPNARX
 from ._models.blackbox._narx import AbstractNARX as AbstractNARX
 from ._models.blackbox._narx import AVDNetwork as AVDNetwork
+from ._models.blackbox._polynomial import PolynomialNARX as PolynomialNARX
+from ._models.blackbox._polynomial import monomial_terms as monomial_terms
 from ._models.blackbox._regressors import NARXRegressors as NARXRegressors
 from ._models.blackbox._regressors import NARXState as NARXState
 from ._models.blackbox._rnn import RecurrentNetwork as RecurrentNetwork
@@ -100,6 +102,8 @@ from ._estimation._losses import AbstractLoss as AbstractLoss
 from ._estimation._losses import MultipleShootingLoss as MultipleShootingLoss
 from ._estimation._losses import OneStepLoss as OneStepLoss
 from ._estimation._losses import SimulationLoss as SimulationLoss
+from ._estimation._polynomial_narx import PolynomialNARXResult as PolynomialNARXResult
+from ._estimation._polynomial_narx import identify_polynomial_narx as identify_polynomial_narx
 from ._estimation._result import RESULT_CODES as RESULT_CODES
 from ._estimation._result import FitResult as FitResult
 from ._estimation._serialise import load_model as load_model

@@ -137,6 +137,7 @@ class NARXRegressors(eqx.Module):
     ) -> NARXRegressors:
         """Regressors normalised by a training record (`fj.FrictionData`): each signal by its mean and standard
         deviation, the force likewise; `plays` and `smoothing` as in the constructor."""
+        cls(signals, input_lags, output_lags)  # the structure's checks first (signal names, lags)
         samples = data.motion.samples(frozenset(signals))
         means, scales = [], []
         for name in signals:
@@ -206,6 +207,41 @@ class NARXRegressors(eqx.Module):
 
     def denormalise(self, y_normalised: Array) -> Array:
         return self.output_mean + self.output_scale * y_normalised
+
+    def teacher_forced(self, samples: MotionSample, measured: Any) -> Float[Array, "T P"]:
+        """The regressor vectors `phi_k` of a whole record under teacher forcing, as rows: `(T, size)`.
+
+        Row k is the `phi_k` that `fj.simulate(model, motion, measured=measured)` feeds the model at sample k:
+        inputs `u_k .. u_{k-n_u}` and measured outputs `y_{k-1} .. y_{k-n_y}`, with the state at rest before the
+        record (inputs 0, outputs 0, as `init_state`). Built by shifting, not by a scan: the regressors of a
+        model linear in its parameters (least squares, term selection) without simulating it.
+
+        **Arguments:** `samples`, the record's per-step signals (`motion.samples(regressors.requires)`);
+        `measured`, the force [N], shape `(T,)`.
+        """
+        if self.num_plays:
+            raise ValueError(
+                "NARXRegressors.teacher_forced: regressors with play operators have a state of their own; build "
+                "their rows by simulating (fj.simulate), or use regressors without `plays`."
+            )
+        p = unwrap(self)
+        u = jnp.stack([jnp.asarray(getattr(samples, s)) for s in self.signals], axis=-1)  # (T, S)
+        y = jnp.asarray(measured, u.dtype)
+        if u.ndim != 2 or y.shape != u.shape[:1]:
+            raise ValueError(
+                f"NARXRegressors.teacher_forced: `measured` must have shape ({u.shape[0]},) (one force per sample), "
+                f"got {y.shape}."
+            )
+        length, n_u, n_y = u.shape[0], self.input_lags, self.output_lags
+        u = (u - p.input_mean) / p.input_scale
+        rest = jnp.broadcast_to(-p.input_mean / p.input_scale, (n_u, u.shape[1])).astype(u.dtype)
+        inputs = jnp.concatenate([rest, u])  # inputs[n_u + k] = u_k
+        window = jnp.stack([inputs[n_u - i : n_u - i + length] for i in range(n_u + 1)], axis=1)  # (T, n_u+1, S)
+        window = (window * p.input_mask[:, None]).reshape(length, -1)
+        outputs = jnp.concatenate([jnp.zeros((n_y,), y.dtype), y])  # outputs[n_y + k] = y_k
+        past = jnp.stack([outputs[n_y - j : n_y - j + length] for j in range(1, n_y + 1)], axis=1)
+        past = ((past - p.output_mean) / p.output_scale * p.output_mask).reshape(length, n_y)
+        return jnp.concatenate([window, past], axis=1)
 
 
 def _fixed(value: Any, shape: tuple[int, ...], name: str, positive: bool = False) -> Fixed:
