@@ -468,7 +468,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     compare.add_argument(
         "--neural-steps",
         type=int,
-        default=1500,
+        default=600,
         metavar="N",
         help="output-error (NOE) Adam steps of the neural models mlp, gsnn, rnn, avd (default: %(default)s)",
     )

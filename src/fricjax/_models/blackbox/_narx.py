@@ -59,6 +59,19 @@ def _unit_mask(value: Any, units: int, name: str) -> Fixed:
     return Fixed(mask)
 
 
+def _linear_part(theta: Any, regressors: NARXRegressors, name: str) -> Array | None:
+    if theta is None:
+        return None
+    array = as_float_array(theta)
+    if array.shape != (regressors.size,):
+        raise ValueError(f"{name}: `theta` (the linear part) must have shape ({regressors.size},), got {array.shape}.")
+    return array
+
+
+def _linear(theta: Array | None, phi: Array) -> Array | float:
+    return 0.0 if theta is None else jnp.dot(theta, phi)
+
+
 def _check_width(width: Any, name: str, what: str = "width") -> int:
     if isinstance(width, bool) or not isinstance(width, (int, np.integer)) or width < 1:
         raise ValueError(f"{name}: `{what}` must be a positive integer, got {width!r}.")
@@ -77,8 +90,10 @@ class MLPNARX(AbstractNARX):
     (`fj.NARXRegressors`: displacement, velocity, acceleration, their lags and lagged outputs).
 
     **Arguments:** `regressors` (`fj.NARXRegressors`); `W` `(width, P)`, `b` `(width,)`, `d` `(width,)`, `d0`
-    (weights in normalised units); `unit_mask` 0/1 per hidden unit (default ones; for sweeps over widths).
-    Build from random weights with `MLPNARX.init(regressors, width, key)`.
+    (weights in normalised units); `unit_mask` 0/1 per hidden unit (default ones; for sweeps over widths);
+    `theta` `(P,)` or None: an optional linear part `+ theta . phi_k` (as MATLAB's nonlinear ARX networks).
+    Build from random weights with `MLPNARX.init(regressors, width, key)`. The output layer `(d, d0, theta)`
+    is linear: `fj.fit(..., separable=("d", "d0", "theta"))` solves it by least squares.
 
     ```python
     >>> import jax, numpy as np, fricjax as fj
@@ -94,9 +109,20 @@ class MLPNARX(AbstractNARX):
     d: Array
     d0: Array
     unit_mask: Any
+    theta: Array | None
 
-    def __init__(self, regressors: NARXRegressors, W: Any, b: Any, d: Any, d0: Any = 0.0, unit_mask: Any = None):
+    def __init__(
+        self,
+        regressors: NARXRegressors,
+        W: Any,
+        b: Any,
+        d: Any,
+        d0: Any = 0.0,
+        unit_mask: Any = None,
+        theta: Any = None,
+    ):
         self.regressors = regressors
+        self.theta = _linear_part(theta, regressors, "MLPNARX")
         self.W, self.b, self.d = as_float_array(W), as_float_array(b), as_float_array(d)
         self.d0 = as_float_array(d0)
         width = self.b.shape[0] if self.b.ndim == 1 else -1
@@ -108,8 +134,11 @@ class MLPNARX(AbstractNARX):
         self.unit_mask = _unit_mask(unit_mask, width, "MLPNARX")
 
     @classmethod
-    def init(cls, regressors: NARXRegressors, width: int = 10, *, key: Array, unit_mask: Any = None) -> MLPNARX:
-        """Random weights: `W ~ N(0, 1/P)`, `b ~ N(0, 0.1)`, `d ~ N(0, 0.1/width)`, `d0 = 0`."""
+    def init(
+        cls, regressors: NARXRegressors, width: int = 10, *, key: Array, unit_mask: Any = None, linear: bool = False
+    ) -> MLPNARX:
+        """Random weights: `W ~ N(0, 1/P)`, `b ~ N(0, 0.1)`, `d ~ N(0, 0.1/width)`, `d0 = 0`; `linear=True` adds
+        the linear part (`theta = 0`)."""
         width = _check_width(width, "MLPNARX.init")
         k1, k2, k3 = jax.random.split(key, 3)
         size = regressors.size
@@ -120,11 +149,12 @@ class MLPNARX(AbstractNARX):
             _normal(k3, (width,), 0.1 / np.sqrt(width)),
             0.0,
             unit_mask,
+            np.zeros(size) if linear else None,
         )
 
     def network(self, phi: Array) -> Array:
         hidden = jnp.tanh(self.W @ phi + self.b) * self.unit_mask
-        return jnp.dot(self.d, hidden) + self.d0
+        return jnp.dot(self.d, hidden) + self.d0 + _linear(self.theta, phi)
 
 
 def AVDNetwork(  # noqa: N802 - a model constructor, named as the model
@@ -161,7 +191,8 @@ class GSNN(AbstractNARX):
 
     **Arguments:** `regressors`; `w` `(J, P)`, `w0` `(J,)`, `c` `(J, P)`, `c0` `(J,)`, `b` `(J,)`, `a` `(J,)`
     (each `a_j > p - inf g`), `d` `(J,)`, `d0`; `denominator` (`"logsig"`, `"exp"`, `"tanh"`); `bound` `p > 0`;
-    `unit_mask` (sweeps over the number of neurons).
+    `unit_mask` (sweeps over the number of neurons); `theta` `(P,)` or None, an optional linear part
+    `+ theta . phi_k` (not in worden2007). The output layer `(d, d0, theta)` is linear (separable).
     """
 
     regressors: NARXRegressors
@@ -174,6 +205,7 @@ class GSNN(AbstractNARX):
     d: Array
     d0: Array
     unit_mask: Any
+    theta: Array | None
     denominator: str = eqx.field(static=True)
     bound: float = eqx.field(static=True)
 
@@ -192,9 +224,11 @@ class GSNN(AbstractNARX):
         denominator: Literal["logsig", "exp", "tanh"] = "logsig",
         bound: float = 0.1,
         unit_mask: Any = None,
+        theta: Any = None,
     ):
         if denominator not in _DENOMINATORS:
             raise ValueError(f"GSNN: `denominator` must be one of {sorted(_DENOMINATORS)}, got {denominator!r}.")
+        self.theta = _linear_part(theta, regressors, "GSNN")
         if not np.isfinite(bound) or bound <= 0:
             raise ValueError(f"GSNN: `bound` (the denominator's lower bound p, eq. 32) must be > 0, got {bound!r}.")
         self.regressors = regressors
@@ -228,9 +262,10 @@ class GSNN(AbstractNARX):
         denominator: Literal["logsig", "exp", "tanh"] = "logsig",
         bound: float = 0.1,
         unit_mask: Any = None,
+        linear: bool = False,
     ) -> GSNN:
         """Random weights (`w ~ N(0, 1/P)`, `c ~ N(0, 0.1/P)`), `b = 0`, denominators near 1, output `d ~ N(0,
-        0.1/J)`."""
+        0.1/J)`; `linear=True` adds the linear part (`theta = 0`)."""
         units = _check_width(units, "GSNN.init", "units")
         if denominator not in _DENOMINATORS:
             raise ValueError(f"GSNN: `denominator` must be one of {sorted(_DENOMINATORS)}, got {denominator!r}.")
@@ -251,6 +286,7 @@ class GSNN(AbstractNARX):
             denominator=denominator,
             bound=bound,
             unit_mask=unit_mask,
+            theta=np.zeros(size) if linear else None,
         )
 
     @property
@@ -263,4 +299,4 @@ class GSNN(AbstractNARX):
         a = self.bound - g_min + unwrap(self.a_excess)  # a no-op once unwrapped: the positive excess
         numerator = self.b + jnp.tanh(self.w @ phi + self.w0)
         denominator = a + g(self.c @ phi + self.c0)
-        return jnp.dot(self.d, numerator / denominator * self.unit_mask) + self.d0
+        return jnp.dot(self.d, numerator / denominator * self.unit_mask) + self.d0 + _linear(self.theta, phi)

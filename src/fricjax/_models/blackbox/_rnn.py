@@ -83,8 +83,8 @@ class RecurrentNetwork(AbstractFrictionModel):
     ):
         self.signals = tuple(signals)
         self.delays = tuple(int(d) for d in delays)
-        if not self.signals or any(s not in ("x", "v", "a") for s in self.signals):
-            raise ValueError(f"RecurrentNetwork: `signals` must name 'x', 'v' or 'a', got {signals!r}.")
+        if not self.signals or any(s not in ("x", "v", "a", "dx") for s in self.signals):
+            raise ValueError(f"RecurrentNetwork: `signals` must name 'x', 'v', 'a' or 'dx', got {signals!r}.")
         if not self.delays or min(self.delays) < 0:
             raise ValueError(f"RecurrentNetwork: `delays` must be sample counts >= 0, got {delays!r}.")
         self.alpha_raw, self.w, self.w0, self.v = (as_float_array(t) for t in (alpha_raw, w, w0, v))
@@ -139,10 +139,10 @@ class RecurrentNetwork(AbstractFrictionModel):
         if radius > 0:
             w *= spectral_radius / radius
         alpha = np.asarray(jax.random.uniform(keys[2], (n,), minval=0.3, maxval=0.95))
-        samples = data.motion.samples(frozenset(signals))
+        samples = data.motion.samples(frozenset("x" if s == "dx" else s for s in signals))
         means, scales = [], []
         for name in signals:
-            signal = np.asarray(getattr(samples, name), dtype=float)
+            signal = np.asarray(getattr(samples, name), dtype=float)  # "dx" is derived with "x"
             means.append(float(np.mean(signal)) if name == "x" else 0.0)
             scales.append(float(np.std(signal)) or 1.0)
         force = np.asarray(data.force, dtype=float)
@@ -163,9 +163,69 @@ class RecurrentNetwork(AbstractFrictionModel):
             smoothing=smoothing,
         )
 
+    @classmethod
+    def hysteretic(
+        cls,
+        data: Any,
+        thresholds: Any,
+        static: int = 8,
+        *,
+        key: Array,
+        static_gain: float = 2.0,
+        smoothing: AbstractSmoothing | None = None,
+    ) -> RecurrentNetwork:
+        """A dynamical network of play elements and static velocity elements, normalised by the record `data`.
+
+        parlitz2004 (§III-G) notes that the elements of a dynamical network may be any stable dynamical system.
+        With `alpha_i = 0` and a self-connection `w_ii = 1` inside the saturation (eq. 27 sums over `j != i`; the
+        constructor accepts any `connectivity`), element i driven by the displacement step is a play (backlash)
+        operator, `x_i(t) = clip(x_i(t-1) + dx(t) / Delta_i, -1, 1)`: a Maxwell-slip element of threshold
+        `Delta_i` [m], the rate-independent, non-local memory of pre-sliding hysteresis. The `static` further
+        elements are uncoupled, `x_i = clip(v_i v(t) / std(v) + w_i0)`: a basis for the velocity-dependent
+        (Stribeck, viscous) force. Inputs: `("dx", "v")`, no delays. Train the readout by least squares
+        (`separable=("theta", "theta0")`), then, optionally, every weight by output error.
+
+        **Arguments:** `data` (the training record); `thresholds` [m] (one play element each, e.g. log-spaced over
+        0.03-3 x the breakaway displacement); `static` elements; `key`; `static_gain` (spread of their input
+        weights); `smoothing`.
+        """
+        thresholds = np.asarray(thresholds, dtype=float).reshape(-1)
+        if thresholds.size == 0 or not np.all(thresholds > 0):
+            raise ValueError(f"RecurrentNetwork.hysteretic: `thresholds` must be positive [m], got {thresholds!r}.")
+        if isinstance(static, bool) or not isinstance(static, (int, np.integer)) or static < 0:
+            raise ValueError(f"RecurrentNetwork.hysteretic: `static` must be an integer >= 0, got {static!r}.")
+        samples = data.motion.samples(frozenset({"x", "v"}))
+        dx_scale = float(np.std(np.asarray(samples.dx))) or 1.0
+        v_scale = float(np.std(np.asarray(samples.v))) or 1.0
+        k, n = thresholds.size, thresholds.size + int(static)
+        connectivity = np.zeros((n, n))
+        connectivity[np.arange(k), np.arange(k)] = 1.0
+        k1, k2 = jax.random.split(key)
+        v = np.zeros((n, 2))
+        v[:k, 0] = dx_scale / thresholds  # normalised dx -> dx / Delta_i
+        v[k:, 1] = static_gain * np.asarray(jax.random.normal(k1, (int(static),)))
+        w0 = np.concatenate([np.zeros(k), 0.5 * np.asarray(jax.random.normal(k2, (int(static),)))])
+        force = np.asarray(data.force, dtype=float)
+        return cls(
+            np.zeros(n),
+            connectivity.copy(),
+            w0,
+            v,
+            np.zeros(n),
+            0.0,
+            connectivity=connectivity,
+            signals=("dx", "v"),
+            delays=(0,),
+            input_mean=np.zeros(2),
+            input_scale=np.array([dx_scale, v_scale]),
+            output_mean=float(np.mean(force)),
+            output_scale=float(np.std(force)) or 1.0,
+            smoothing=smoothing,
+        )
+
     @property
     def requires(self) -> frozenset[str]:  # type: ignore[override]
-        return frozenset(self.signals)
+        return frozenset("x" if s == "dx" else s for s in self.signals)
 
     @property
     def alpha(self) -> Array:
