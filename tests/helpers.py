@@ -69,6 +69,8 @@ SMOOTH_EPS = {
     "gsnn_tanh": 1e-2,
     "avd": 1e-2,
     "rnn": 1e-2,
+    "mlp_plays": 1e-2,
+    "gsnn_plays": 1e-2,
 }
 
 
@@ -90,6 +92,7 @@ def neural_table() -> dict[str, fj.AbstractFrictionModel]:
     data = neural_record()
     key = jax.random.PRNGKey(7)
     reg = fj.NARXRegressors.from_data(data, ("x", "v", "a"), 1, 2)
+    plays = fj.NARXRegressors.from_data(data, ("v",), 0, 1, plays=[2e-6, 1e-5, 5e-5])
     rnn = fj.RecurrentNetwork.init(data, 6, key=key, delays=(0, 5, 12), connectivity=0.4, input_weight=3.0)
     rnn = fj.RecurrentNetwork(
         rnn.alpha_raw, rnn.w, rnn.w0, rnn.v, np.linspace(-1.0, 1.0, 6), 0.1,
@@ -102,8 +105,17 @@ def neural_table() -> dict[str, fj.AbstractFrictionModel]:
         "gsnn_exp": _bigger_output(fj.GSNN.init(reg, 2, key=key, denominator="exp")),
         "gsnn_tanh": _bigger_output(fj.GSNN.init(reg, 2, key=key, denominator="tanh", bound=0.3)),
         "avd": _bigger_output(fj.AVDNetwork(data, 4, key=key)),
+        "mlp_plays": _bigger_output(fj.MLPNARX.init(plays, 4, key=key, linear=True)),
+        "gsnn_plays": _with_linear(_bigger_output(fj.GSNN.init(plays, 3, key=key, linear=True))),
         "rnn": rnn,
     }
+
+
+def _with_linear(model):
+    """A nonzero linear part, so that its terms are exercised."""
+    import equinox as eqx
+
+    return eqx.tree_at(lambda m: m.theta, model, 0.3 * np.cos(np.arange(model.theta.size)))
 
 
 def _bigger_output(model):

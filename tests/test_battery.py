@@ -15,8 +15,9 @@ import fricjax as fj
 
 from helpers import model_table, neural_table, presliding_to_sliding, smooth
 
-# the GSNN's other denominators are checked against NumPy in test_neural.py
-MODELS = {**model_table(), **{k: m for k, m in neural_table().items() if k not in ("gsnn_exp", "gsnn_tanh")}}
+# the GSNN's other denominators and its play-operator variant are checked against NumPy in test_neural.py
+NOT_IN_BATTERY = ("gsnn_exp", "gsnn_tanh", "gsnn_plays")
+MODELS = {**model_table(), **{k: m for k, m in neural_table().items() if k not in NOT_IN_BATTERY}}
 NAMES = sorted(MODELS)
 MOTION = presliding_to_sliding(300)
 

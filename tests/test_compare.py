@@ -289,3 +289,18 @@ def test_compare_fits_the_neural_models(record_csv, tmp_path, capsys):
         reloaded = fj.load_model(out / "models" / f"{name}.eqx")
         assert isinstance(reloaded, fj.SensorDrift) and isinstance(reloaded.model, kind)
     assert "GSNN NARX (5)" in printed and "recurrent network (45)" in printed
+
+
+@pytest.mark.slow
+def test_neural_models_reach_the_noise_floor():
+    """Issue 10's acceptance on the default regime (mixed, seed 0, the default sizes of `fricjax compare`): the
+    recurrent network and the GSNN within 3x, the MLP within 5x of the noise floor (measured 2.5x, 2.7x, 2.5x)."""
+    data = fj.make_tribometer("mixed", seed=0)
+    split, _, _ = load_split("tribometer:mixed", seed=0)
+    test = split.test_record(reference=data.sensor_force)
+    rows = {r.name: r for r in fit_and_score(["rnn", "gsnn", "mlp"], split, tests=[test], progress=False, log=print)}
+    floor = reference_scores([test])["test part"].nmse
+    print({name: round(row.nmse / floor, 3) for name, row in rows.items()})
+    assert rows["rnn"].nmse <= 3 * floor, (rows["rnn"].nmse, floor)
+    assert rows["gsnn"].nmse <= 3 * floor, (rows["gsnn"].nmse, floor)
+    assert rows["mlp"].nmse <= 5 * floor, (rows["mlp"].nmse, floor)

@@ -37,11 +37,14 @@ def numpy_narx(model, motion, measured=None):
     rest = -mean / scale
     y = np.zeros(T)
     past = np.zeros(T)  # what is fed back: predictions (free run) or measurements
+    thresholds = np.asarray(reg.plays)
+    plays = np.zeros(thresholds.size)
     for k in range(T):
         lags = [u[k - i] if k - i >= 0 else rest for i in range(reg.input_lags + 1)]
         phi_in = np.concatenate([lag * in_mask[i] for i, lag in enumerate(lags)])
+        plays = np.clip(plays + signals["dx"][k] / thresholds, -1.0, 1.0)  # play operators (exact)
         outs = np.array([past[k - j] if k - j >= 0 else 0.0 for j in range(1, reg.output_lags + 1)])
-        phi = np.concatenate([phi_in, (outs - y_mean) / y_scale * out_mask])
+        phi = np.concatenate([phi_in, plays, (outs - y_mean) / y_scale * out_mask])
         y[k] = y_mean + y_scale * numpy_network(p, phi)
         past[k] = y[k] if measured is None else measured[k]
     return y
@@ -49,14 +52,15 @@ def numpy_narx(model, motion, measured=None):
 
 def numpy_network(p, phi):
     mask = np.asarray(p.unit_mask)
+    linear = 0.0 if p.theta is None else float(np.asarray(p.theta) @ phi)
     if isinstance(p, fj.MLPNARX):
         hidden = np.tanh(np.asarray(p.W) @ phi + np.asarray(p.b)) * mask
-        return float(np.asarray(p.d) @ hidden + float(p.d0))
+        return float(np.asarray(p.d) @ hidden + float(p.d0)) + linear
     g = {"logsig": lambda z: 1 / (1 + np.exp(-z)), "exp": np.exp, "tanh": np.tanh}[p.denominator]
     numerator = np.asarray(p.b) + np.tanh(np.asarray(p.w) @ phi + np.asarray(p.w0))
     denominator = np.asarray(p.a_excess) + p.bound - {"logsig": 0.0, "exp": 0.0, "tanh": -1.0}[p.denominator]
     denominator = denominator + g(np.asarray(p.c) @ phi + np.asarray(p.c0))
-    return float(np.asarray(p.d) @ (numerator / denominator * mask) + float(p.d0))
+    return float(np.asarray(p.d) @ (numerator / denominator * mask) + float(p.d0)) + linear
 
 
 def numpy_rnn(model, motion, eps=None):
@@ -87,7 +91,7 @@ def numpy_rnn(model, motion, eps=None):
     return out
 
 
-NARX_NAMES = ["mlp_narx", "gsnn", "gsnn_exp", "gsnn_tanh", "avd"]
+NARX_NAMES = ["mlp_narx", "gsnn", "gsnn_exp", "gsnn_tanh", "avd", "mlp_plays", "gsnn_plays"]
 
 
 @pytest.mark.parametrize("name", NARX_NAMES)
@@ -283,3 +287,68 @@ def test_model_files_round_trip(tmp_path, name):
     loaded = fj.load_model(tmp_path / "m.eqx")
     assert type(loaded) is type(model)
     np.testing.assert_array_equal(fj.simulate(loaded, MOTION), fj.simulate(model, MOTION))
+
+
+def test_play_regressors_are_maxwell_slip_elements():
+    """A play state is a Maxwell-slip element's normalised force: it follows the displacement with unit slope
+    (1 / threshold) after a reversal and saturates at +-1 once the displacement has moved 2 thresholds."""
+    x = 1e-6 * np.concatenate([np.linspace(0, 5, 51), np.linspace(5, 2, 31)[1:], np.linspace(2, 6, 41)[1:]])
+    motion = fj.Motion.from_position(x, dt=1e-3)
+    reg = fj.NARXRegressors(("x",), 0, 0, plays=[1e-6, 4e-6])
+    model = fj.MLPNARX(reg, np.zeros((1, 3)), np.zeros(1), np.zeros(1), 0.0, theta=[0.0, 1.0, 0.0])
+    first = np.asarray(fj.simulate(model, motion))  # theta picks the first play state
+    expected = np.clip(np.cumsum(np.r_[0.0, np.diff(x)]) / 1e-6, -1, 1)  # from rest: saturates after 1 um
+    np.testing.assert_allclose(first[:51], expected[:51], atol=1e-12)
+    reversal = first[50 : 50 + 31]  # back from +1 by (5 - x) / 1 um, saturating at -1 after 2 um
+    np.testing.assert_allclose(reversal, np.clip(1.0 - (5e-6 - x[50:81]) / 1e-6, -1, 1), atol=1e-12)
+    model4 = fj.MLPNARX(reg, np.zeros((1, 3)), np.zeros(1), np.zeros(1), 0.0, theta=[0.0, 0.0, 1.0])
+    second = np.asarray(fj.simulate(model4, motion))
+    assert second.max() == pytest.approx(1.0) and second[80] == pytest.approx(1.0 - 3e-6 / 4e-6)
+
+
+def test_hysteretic_recurrent_network_elements_are_plays_and_static_units():
+    data = neural_record()
+    thresholds = np.array([2e-6, 1e-5, 5e-5])
+    model = fj.RecurrentNetwork.hysteretic(data, thresholds, 2, key=jax.random.PRNGKey(0))
+    assert model.signals == ("dx", "v") and model.requires == frozenset({"x", "v"})
+    out = np.asarray(fj.simulate(model, MOTION))
+    np.testing.assert_allclose(out, numpy_rnn(model, MOTION), rtol=1e-10, atol=1e-12)
+    # the readout of element i alone: play i is clip(cumulative dx / Delta_i) with memory, statics are static
+    p = fj.unwrap(model)
+    dx = np.asarray(MOTION.samples().dx)
+    for i, delta in enumerate(thresholds):
+        element = fj.RecurrentNetwork(
+            p.alpha_raw, p.w, p.w0, p.v, np.eye(5)[i], 0.0, connectivity=p.connectivity, signals=p.signals,
+            delays=p.delays, input_mean=p.input_mean, input_scale=p.input_scale,
+        )  # fmt: skip
+        state, expected = 0.0, []
+        for step in dx:
+            state = min(1.0, max(-1.0, state + step / delta))
+            expected.append(state)
+        np.testing.assert_allclose(fj.simulate(element, MOTION), expected, rtol=1e-9, atol=1e-12)
+    with pytest.raises(ValueError, match="thresholds"):
+        fj.RecurrentNetwork.hysteretic(data, [1e-6, -1e-6], key=jax.random.PRNGKey(0))
+
+
+def test_output_layer_is_linear_and_solved_by_least_squares():
+    """With the hidden weights fixed, (d, d0, theta) enter the force linearly: a fit of them alone is one
+    least-squares solve, reaching the NumPy solution (no fed-back outputs: with them the force is not linear)."""
+    data = neural_record()
+    regressors = fj.NARXRegressors.from_data(data, ("v",), 0, 0, plays=[2e-6, 1e-5, 5e-5])
+    model = fj.GSNN.init(regressors, 3, key=jax.random.PRNGKey(2), linear=True)
+    layer = ("d", "d0", "theta")
+    result = fj.fit(model, data, train=layer, separable=layer, steps=1)
+    assert result.result == "successful"
+    basis = []
+    p = fj.unwrap(model)
+    for vector in np.eye(p.d.size + 1 + p.theta.size):
+        probe = fj.GSNN(
+            model.regressors, p.w, p.w0, p.c, p.c0, p.b, p.a, vector[: p.d.size], vector[p.d.size],
+            denominator=p.denominator, bound=p.bound, theta=vector[p.d.size + 1 :],
+        )  # fmt: skip
+        basis.append(np.asarray(fj.simulate(probe, data.motion)) - float(p.regressors.output_mean))
+    A = np.column_stack(basis) / float(p.regressors.output_scale)
+    target = (np.asarray(data.force) - float(p.regressors.output_mean)) / float(p.regressors.output_scale)
+    coef = np.linalg.lstsq(A, target, rcond=None)[0]
+    np.testing.assert_allclose(result.model.d, coef[: p.d.size], rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(result.model.theta, coef[p.d.size + 1 :], rtol=1e-6, atol=1e-8)
