@@ -4,10 +4,13 @@ worden2007 §6.2 trained the GSNN by "NOE" with a Jacobian truncated to a window
 because the full gradient through the feedback was impractical. Here the full gradient is one reverse pass
 through `fj.simulate`. This script prints JSON lines:
 
-- `{"kind": "noe_fit", ...}`: the GSNN NARX of `fricjax compare` (5 neurons; dx, v, a with lags 0-2; 4 past
+- `{"kind": "noe_fit", "model": "gsnn5", ...}`: the papers' GSNN NARX (5 neurons; dx, v, a with lags 0-2; 4 past
   outputs) trained on `--samples` samples of the mixed tribometer regime: teacher forcing (`fj.OneStepLoss`,
   Adam) then NOE (`fj.SimulationLoss`, Adam), each through `fj.fit`; fit times (compilation included), the
   free-run NMSE [%] on the training record and on the held-out rest of the record.
+- `{"kind": "noe_fit", "model": "gsnn5_plays", ...}`: the `gsnn` of `fricjax compare` (5 neurons and a linear
+  part on the velocity and 20 play operators) with its recipe (output layer by least squares, then 600 NOE
+  steps), same records and fields.
 - `{"kind": "gradient", "window": W, ...}`: from the same teacher-forced start, `--noe-steps` Adam steps with
   the full NOE gradient (`window: null`) and with gradients truncated to windows of W samples (the state
   entering each window is a constant for differentiation; the forward pass is the same free run): time per
@@ -149,6 +152,26 @@ def main() -> None:
         "train_nmse_percent": round(held_out_nmse(noe.model, train, 0), 4),
         "held_out_nmse_percent": round(held_out_nmse(noe.model, full, args.samples), 4),
         "result": noe.result,
+        **env,
+    }
+    print(json.dumps(line), flush=True)
+
+    from fricjax._protocols import _compare as C
+
+    spec = C.default_models(C.FitSettings())["gsnn"]
+    split = C.Split(full, int(0.8 * args.samples), args.samples)  # validation: the last 20 % of the training part
+    tic = time.perf_counter()
+    result = spec.fit(spec.build(C.DataScales.from_data(split.train)), split, 0, False)
+    fit_s = time.perf_counter() - tic
+    line = {
+        "kind": "noe_fit",
+        "model": "gsnn5_plays",
+        "samples": args.samples,
+        "noe_steps": C.FitSettings().neural_steps,
+        "fit_s": round(fit_s, 2),
+        "train_nmse_percent": round(held_out_nmse(fj.exact(result.model), train, 0), 4),
+        "held_out_nmse_percent": round(held_out_nmse(fj.exact(result.model), full, args.samples), 4),
+        "result": result.result,
         **env,
     }
     print(json.dumps(line), flush=True)

@@ -1,7 +1,7 @@
 """The identification exercise behind `fricjax compare`, as a public namespace: `fj.compare.default_models()`.
 
 The recipe registry (`default_models`: each model's start from the training record and its fit recipe; the
-names in `PHYSICS_MODELS`, fitted by default, and `NEURAL_MODELS`, `MODEL_NAMES` for all),
+names in `PHYSICS_MODELS`, fitted by default, `NEURAL_MODELS` and `LINEAR_MODELS`, `MODEL_NAMES` for all),
 data (`load_record_spec`, `load_split`, `split_record`, `Split`, `TestRecord`: a test part or another record, with an
 initialisation window that estimates the force offset), budgets (`FitSettings`), fitting and exact-mode scoring
 (`fit_and_score`, `free_run`, `score`, `score_prediction`, `reference_scores`: the noise floor), ensembles of
@@ -17,6 +17,7 @@ the fitted models (`add_ensembles`) and the comparison table (`format_table`). F
 
 from ._plot import plot_prediction_errors as plot_prediction_errors
 from ._plot import plot_test_loops as plot_test_loops
+from ._protocols._compare import LINEAR_MODELS as LINEAR_MODELS
 from ._protocols._compare import MODEL_NAMES as MODEL_NAMES
 from ._protocols._compare import NEURAL_MODELS as NEURAL_MODELS
 from ._protocols._compare import PHYSICS_MODELS as PHYSICS_MODELS

@@ -380,6 +380,7 @@ def default_models(settings: FitSettings | None = None) -> dict[str, ModelSpec]:
         ),
     }
     specs.update(neural_models(settings))
+    specs.update(linear_in_parameters_models(settings))
     if settings.drift == "none":
         return specs
     return {name: _with_drift(spec, settings.drift) for name, spec in specs.items()}
@@ -387,7 +388,8 @@ def default_models(settings: FitSettings | None = None) -> dict[str, ModelSpec]:
 
 PHYSICS_MODELS = ("stribeck", "lugre", "gms", "nlr", "dnlrx")
 NEURAL_MODELS = ("mlp", "gsnn", "rnn", "avd")
-MODEL_NAMES = PHYSICS_MODELS + NEURAL_MODELS
+LINEAR_MODELS = ("narx",)
+MODEL_NAMES = PHYSICS_MODELS + NEURAL_MODELS + LINEAR_MODELS
 """Every model `compare` can fit; the command line fits `PHYSICS_MODELS` unless told otherwise."""
 
 
@@ -450,6 +452,25 @@ def neural_models(settings: FitSettings) -> dict[str, ModelSpec]:
         ),
         "avd": ModelSpec("AVD network (10)", avd, _least_squares_then_noe(("d", "d0"), settings)),
     }
+
+
+def linear_in_parameters_models(settings: FitSettings) -> dict[str, ModelSpec]:
+    """Black boxes linear in their parameters once the structure is chosen (issue 11; so far the polynomial NARX):
+
+    - `narx`: `PolynomialNARX` of degree 3 in the displacement step, the velocity (lags 0-2) and 2 past forces,
+      its terms chosen by forward orthogonal least squares with the PRESS stopping rule on the teacher-forced
+      regression (parlitz2004 §III-D, worden2007 §5.1), then its coefficients refined by output error
+      (Levenberg-Marquardt, as the physics models).
+    """
+    from .._estimation._polynomial_narx import identify_polynomial_narx
+
+    def polynomial_narx(scales: DataScales) -> Any:
+        assert scales.train is not None
+        return identify_polynomial_narx(
+            scales.train, signals=("dx", "v"), input_lags=2, output_lags=2, degree=3, criterion="press"
+        ).model
+
+    return {"narx": ModelSpec("polynomial NARX (FROLS/PRESS)", polynomial_narx, _lm((), 1, settings))}
 
 
 def _least_squares_then_noe(linear: tuple[str, ...], settings: FitSettings) -> Callable[..., FitResult]:
