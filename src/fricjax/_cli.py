@@ -250,7 +250,7 @@ def run_compare(args: argparse.Namespace) -> int:
                     "result": r.result,
                     "result_message": r.message,
                     "parameters": _parameters(r.model),
-                    "parameter_std": _parameters(r.std) if r.std is not None else None,
+                    "parameter_std": _estimated_std(r.std) if r.std is not None else None,
                 }
                 for r in sorted(rows, key=cmp.by_score)
             ],
@@ -344,6 +344,15 @@ def _parameters(model: Any) -> dict[str, Any]:
     from ._smoothing import exact
 
     return {path: value.tolist() for path, value in parameter_arrays(unwrap(exact(model))).items()}
+
+
+def _estimated_std(std: Any) -> dict[str, Any]:
+    """The Gauss-Newton standard deviations that were estimated: fixed and untrained leaves (NaN) are left out."""
+    import numpy as np
+
+    from ._constraints import parameter_arrays
+
+    return {path: value.tolist() for path, value in parameter_arrays(std).items() if not np.all(np.isnan(value))}
 
 
 def _versions() -> dict[str, str]:
