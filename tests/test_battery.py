@@ -16,7 +16,8 @@ import fricjax as fj
 from helpers import model_table, neural_table, presliding_to_sliding, smooth
 
 # the GSNN's other denominators and its play-operator variant are checked against NumPy in test_neural.py
-NOT_IN_BATTERY = ("gsnn_exp", "gsnn_tanh", "gsnn_plays")
+# (the AVD network is an MLPNARX without lags: its forward pass is checked there too)
+NOT_IN_BATTERY = ("gsnn_exp", "gsnn_tanh", "gsnn_plays", "mlp_plays", "avd")
 MODELS = {**model_table(), **{k: m for k, m in neural_table().items() if k not in NOT_IN_BATTERY}}
 NAMES = sorted(MODELS)
 MOTION = presliding_to_sliding(300)

@@ -412,6 +412,7 @@ def test_summary_keeps_significant_digits():
 # ----------------------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # about 10 s: the fast tier stays under 5 minutes
 def test_separable_offset_and_viscous_coefficient(noisy_fits):
     """Fv and offset solved inside the fit from a wrong start; their fitted values are the least-squares values
     for the fitted Fc (noisy data, so these are not simply the true values)."""
@@ -436,6 +437,7 @@ def test_separable_offset_and_viscous_coefficient(noisy_fits):
         assert np.isfinite(std) and std > 0, (name, std)
 
 
+@pytest.mark.slow  # about 7 s
 def test_separable_lugre_sigma2_and_offset(lugre_problem):
     model, data = lugre_problem
     start = eqx.tree_at(lambda m: (m.sigma2, m.offset), model, (jnp.asarray(5.0), jnp.asarray(-1.0)))

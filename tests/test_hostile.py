@@ -97,6 +97,7 @@ def test_emps_command_on_wrong_files_is_one_line(tmp_path, monkeypatch, capsys):
     assert len(err.splitlines()) == 1 and "MATLAB" in err, err
 
 
+@pytest.mark.slow  # about 6 s (a compare subprocess)
 def test_sigterm_stops_compare_quietly(tmp_path):
     out = tmp_path / "out"
     code = f"import fricjax as fj, sys; sys.exit(fj.main(['compare', '--out', {str(out)!r}, '--no-progress']))"

@@ -181,22 +181,22 @@ def test_recurrent_network_structure():
 def test_rnn_readout_least_squares_is_the_whole_fit():
     """The readout is linear: a fit of theta and theta0 alone is one least-squares solve, equal to NumPy's."""
     data = neural_record()
-    model = fj.RecurrentNetwork.init(data, 12, key=jax.random.PRNGKey(1), delays=(0, 4, 9))
+    model = fj.RecurrentNetwork.init(data, 6, key=jax.random.PRNGKey(1), delays=(0, 4, 9))
     result = fj.fit(model, data, train=("theta", "theta0"), separable=("theta", "theta0"), steps=1)
     assert result.result == "successful"
     # NumPy: the element states do not depend on the readout; regress the force on [x_i(t), 1]
     p = fj.unwrap(model)
     basis = []
-    for i in range(12):
+    for i in range(6):
         unit = fj.RecurrentNetwork(
-            p.alpha_raw, p.w, p.w0, p.v, np.eye(12)[i], 0.0, connectivity=p.connectivity, signals=p.signals,
+            p.alpha_raw, p.w, p.w0, p.v, np.eye(6)[i], 0.0, connectivity=p.connectivity, signals=p.signals,
             delays=p.delays, input_mean=p.input_mean, input_scale=p.input_scale,
         )  # fmt: skip
         basis.append(np.asarray(fj.simulate(unit, data.motion)))
     A = np.column_stack([*basis, np.ones(data.length)])
     coef = np.linalg.lstsq(A, (np.asarray(data.force) - float(p.output_mean)) / float(p.output_scale), rcond=None)[0]
-    np.testing.assert_allclose(result.model.theta, coef[:12], rtol=1e-6, atol=1e-8)
-    np.testing.assert_allclose(result.model.theta0, coef[12], rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(result.model.theta, coef[:6], rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(result.model.theta0, coef[6], rtol=1e-6, atol=1e-8)
 
 
 def test_gsnn_denominator_bound_holds_for_any_parameters():

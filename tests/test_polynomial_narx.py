@@ -282,6 +282,7 @@ def test_selection_matches_sysidentpy(record):
 # ----------------------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # about 3 s
 def test_jit_equals_no_jit(record):
     _, motion, _, noisy = record
     part = fj.FrictionData(motion, noisy).slice(0, 30)

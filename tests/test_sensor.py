@@ -23,6 +23,7 @@ def test_drift_is_added_from_the_first_sample_as_documented(tau):
     np.testing.assert_allclose(np.asarray(fj.simulate(model, MOTION)), inner + drift, rtol=1e-6, atol=1e-9)
 
 
+@pytest.mark.slow  # about 9 s
 def test_fit_recovers_offset_and_drift_rate_by_least_squares():
     truth = fj.SensorDrift(fj.CoulombViscous(Fc=1.0, Fv=20.0, offset=0.3, smoothing=fj.Smooth(1e-4)), rate=-0.2)
     noise = 0.01 * np.random.default_rng(0).normal(size=T.size)

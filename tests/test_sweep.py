@@ -68,6 +68,7 @@ def test_sweep_equals_each_configuration_alone():
         assert result.train_loss[i] < float(loss(model, None, data))
 
 
+@pytest.mark.slow  # about 4 s
 def test_masked_configuration_trains_like_the_smaller_model():
     """Masked lags and units get zero gradients, so the sweep's masked model is the smaller model, trained."""
     data = neural_record(SAMPLES)
@@ -106,6 +107,7 @@ def test_masked_configuration_trains_like_the_smaller_model():
     np.testing.assert_array_equal(np.asarray(result.model(1).W)[3:], np.asarray(full.W)[3:])  # masked units untouched
 
 
+@pytest.mark.slow  # about 3 s
 def test_sweep_keeps_finite_parameters_when_a_configuration_diverges():
     data = neural_record(SAMPLES)
     models = [fj.GSNN.init(regressors(data), 2, key=jax.random.PRNGKey(s)) for s in (0, 1)]
