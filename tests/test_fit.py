@@ -734,6 +734,7 @@ def test_save_to_unwritable_path(tmp_path):
 # ----------------------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # the fast tier stays under 5 minutes
 def test_fit_never_returns_a_model_worse_than_its_start():
     """Default Adam moves LuGre's zero-initialised z0 [m] by ~1e-2 per step: every step is worse than the start."""
     truth = lugre()
@@ -759,6 +760,7 @@ def test_parameter_scaling_uses_physical_ranges_for_zero_parameters():
     assert float(fj.ParameterScaling({"z0": 3e-6}).scales(params, start).z0) == pytest.approx(3e-6)
 
 
+@pytest.mark.slow  # the fast tier stays under 5 minutes
 def test_scaled_adam_fits_a_zero_initialised_bristle_deflection():
     """With physical ranges one learning rate moves z0 by a fraction of Fc / sigma0 per step: the fit improves
     (without them it moved z0 by ~1e-2 m per step and every step was worse than the start)."""
@@ -793,6 +795,7 @@ def test_validation_burn_in_covering_the_record_is_refused():
         fj.fit(START, train, validation=val, validation_burn_in=val.length, steps=1)
 
 
+@pytest.mark.slow  # the fast tier stays under 5 minutes
 def test_separable_least_squares_keeps_damping_nonnegative():
     """Data with a falling force-velocity slope: unconstrained least squares would give Fv ~ -5 N s/m."""
     v = np.asarray(MOTION.v)

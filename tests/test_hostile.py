@@ -58,6 +58,7 @@ def test_constant_force_is_named_not_called_divergence():
         fj.fit(fj.Coulomb(Fc=1.0), data, steps=1)
 
 
+@pytest.mark.slow  # the fast tier stays under 5 minutes
 def test_float64_data_with_x64_off_warns_once():
     code = (
         "import warnings, numpy as np, fricjax as fj\n"

@@ -178,6 +178,7 @@ def test_recurrent_network_structure():
     assert np.max(np.abs(np.linalg.eigvals(w))) == pytest.approx(0.8, rel=1e-6)  # echo-state scaling
 
 
+@pytest.mark.slow  # the fast tier stays under 5 minutes
 def test_rnn_readout_least_squares_is_the_whole_fit():
     """The readout is linear: a fit of theta and theta0 alone is one least-squares solve, equal to NumPy's."""
     data = neural_record()
@@ -330,6 +331,7 @@ def test_hysteretic_recurrent_network_elements_are_plays_and_static_units():
         fj.RecurrentNetwork.hysteretic(data, [1e-6, -1e-6], key=jax.random.PRNGKey(0))
 
 
+@pytest.mark.slow  # the fast tier stays under 5 minutes
 def test_output_layer_is_linear_and_solved_by_least_squares():
     """With the hidden weights fixed, (d, d0, theta) enter the force linearly: a fit of them alone is one
     least-squares solve, reaching the NumPy solution (no fed-back outputs: with them the force is not linear)."""

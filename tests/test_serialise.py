@@ -100,6 +100,7 @@ def test_every_family_round_trips(name, tmp_path):
     assert type(round_trip(tmp_path, model)) is type(model)
 
 
+@pytest.mark.slow  # the fast tier stays under 5 minutes
 def test_loaded_models_simulate_as_saved(tmp_path):
     names = sorted(MODELS)
     models = [MODELS[name]() for name in names]
