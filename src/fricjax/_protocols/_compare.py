@@ -2,11 +2,13 @@
 exact mode on held-out data, add ensembles, and report (parlitz2004 Fig. 6, worden2007 Fig. 11, the kernel
 paper's Table 1).
 
-`default_models(train)` proposes starting models from the data itself (force levels, pre-sliding stiffness,
-breakaway displacement), and `fit_model(name, train, validation)` fits one with settings chosen for that
-family: Levenberg-Marquardt with the linear parameters solved by least squares where the model allows
-(static curve, LuGre, Maxwell-slip), Adam with smoothing continuation then a Levenberg-Marquardt polish for
-GMS (whose stick/slip landscape defeats a cold Gauss-Newton start).
+`default_models(settings)` is the recipe registry: for each model name, a start built from the training record
+(`DataScales`: force levels, pre-sliding stiffness, breakaway displacement; the networks normalise by the record
+itself) and a fit recipe. Physics models (`PHYSICS_MODELS`, fitted by default): Levenberg-Marquardt with the
+linear parameters solved by least squares where the model allows (static curve, LuGre, Maxwell-slip), Adam with
+smoothing continuation then a Levenberg-Marquardt polish for GMS (whose stick/slip landscape defeats a cold
+Gauss-Newton start). Neural models (`NEURAL_MODELS`): the output layer by least squares, then output error
+(`neural_models`). Linear-in-parameters models (`LINEAR_MODELS`): term selection, then output error.
 """
 
 from __future__ import annotations
