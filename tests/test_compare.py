@@ -288,7 +288,7 @@ def test_compare_fits_the_neural_models(record_csv, tmp_path, capsys):
     for name, kind in (("mlp", fj.MLPNARX), ("gsnn", fj.GSNN), ("rnn", fj.RecurrentNetwork), ("avd", fj.MLPNARX)):
         reloaded = fj.load_model(out / "models" / f"{name}.eqx")
         assert isinstance(reloaded, fj.SensorDrift) and isinstance(reloaded.model, kind)
-    assert "GSNN NARX (5)" in printed and "recurrent network (45)" in printed
+    assert "GSNN (5) on 20 plays" in printed and "recurrent network (20 play + 8)" in printed
 
 
 @pytest.mark.slow

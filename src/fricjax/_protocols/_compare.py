@@ -483,7 +483,8 @@ def _least_squares_then_noe(linear: tuple[str, ...], settings: FitSettings) -> C
         paths = _separable(start, linear)
         first = fit(start, split.train, train=paths, separable=paths, steps=1, **validation)
         rate = 3e-3
-        schedule = optax.warmup_cosine_decay_schedule(rate / 10, rate, 30, settings.neural_steps, rate / 30)
+        warmup = min(30, settings.neural_steps // 5)  # 30 steps, less for short budgets (decay needs > warm-up)
+        schedule = optax.warmup_cosine_decay_schedule(rate / 10, rate, warmup, settings.neural_steps, rate / 30)
         noe = fit(
             first.model,
             split.train,
