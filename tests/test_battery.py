@@ -15,9 +15,8 @@ import fricjax as fj
 
 from helpers import model_table, neural_table, presliding_to_sliding, smooth
 
-# the GSNN's other denominators and its play-operator variant are checked against NumPy in test_neural.py
-# (the AVD network is an MLPNARX without lags: its forward pass is checked there too)
-NOT_IN_BATTERY = ("gsnn_exp", "gsnn_tanh", "gsnn_plays", "mlp_plays", "avd")
+# the GSNN's other denominators and the play-operator variants are checked against NumPy in test_neural.py
+NOT_IN_BATTERY = ("gsnn_exp", "gsnn_tanh", "gsnn_plays", "mlp_plays")
 MODELS = {**model_table(), **{k: m for k, m in neural_table().items() if k not in NOT_IN_BATTERY}}
 NAMES = sorted(MODELS)
 MOTION = presliding_to_sliding(300)
@@ -43,7 +42,7 @@ def test_shape_dtype_finite(name, mode):
 
 
 # the neural models' step loops are checked against NumPy loops in test_neural.py; one stays here
-@pytest.mark.parametrize("name", [n for n in NAMES if n not in ("gsnn", "rnn")])
+@pytest.mark.parametrize("name", [n for n in NAMES if n not in ("gsnn", "rnn", "avd")])
 def test_step_loop_equals_simulate_and_no_jit(name):
     model = smooth(name, MODELS[name])
     motion = presliding_to_sliding(60)
