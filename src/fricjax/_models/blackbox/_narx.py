@@ -21,7 +21,7 @@ from jaxtyping import Array, Float
 from ..._constraints import Fixed, Positive, as_float_array, unwrap
 from ..._inputs import MotionSample
 from .._base import AbstractFrictionModel
-from ._regressors import NARXRegressors, NARXState
+from ._regressors import NARXRegressors, NARXState, fixed_array
 
 
 class AbstractNARX(AbstractFrictionModel):
@@ -52,11 +52,12 @@ class AbstractNARX(AbstractFrictionModel):
         return self.regressors.feedback(state, y_measured)
 
 
-def _unit_mask(value: Any, units: int, name: str) -> Fixed:
-    mask = as_float_array(np.ones(units) if value is None else (value.value if isinstance(value, Fixed) else value))
-    if mask.shape != (units,):
-        raise ValueError(f"{name}: `unit_mask` must have shape ({units},), one entry per unit; got {mask.shape}.")
-    return Fixed(mask)
+def unit_mask_field(value: Any, units: int, owner: str, per: str = "unit") -> Fixed:
+    """The fixed 0/1 mask of a model's units or terms (default ones): sweeps over sizes switch them off with it."""
+    mask = np.ones(units) if value is None else (value.value if isinstance(value, Fixed) else value)
+    if np.shape(mask) != (units,):
+        raise ValueError(f"{owner}: `unit_mask` must have shape ({units},), one entry per {per}; got {np.shape(mask)}.")
+    return fixed_array(mask, (units,), "unit_mask", owner)
 
 
 def _linear_part(theta: Any, regressors: NARXRegressors, name: str) -> Array | None:
@@ -131,7 +132,7 @@ class MLPNARX(AbstractNARX):
                 f"MLPNARX: shapes W {self.W.shape}, b {self.b.shape}, d {self.d.shape}, d0 {self.d0.shape} do not "
                 f"match (width, {regressors.size} regressors); use MLPNARX.init(regressors, width, key)."
             )
-        self.unit_mask = _unit_mask(unit_mask, width, "MLPNARX")
+        self.unit_mask = unit_mask_field(unit_mask, width, "MLPNARX")
 
     @classmethod
     def init(
@@ -250,7 +251,7 @@ class GSNN(AbstractNARX):
                 f"(eq. 32, denominator {denominator!r}), got {np.asarray(a)!r}."
             )
         self.a_excess = Positive(excess, name="a")
-        self.unit_mask = _unit_mask(unit_mask, units, "GSNN")
+        self.unit_mask = unit_mask_field(unit_mask, units, "GSNN")
 
     @classmethod
     def init(
@@ -295,8 +296,7 @@ class GSNN(AbstractNARX):
         return self.bound - _DENOMINATORS[self.denominator][1] + unwrap(self.a_excess)
 
     def network(self, phi: Array) -> Array:
-        g, g_min = _DENOMINATORS[self.denominator]
-        a = self.bound - g_min + unwrap(self.a_excess)  # a no-op once unwrapped: the positive excess
+        g, _ = _DENOMINATORS[self.denominator]
         numerator = self.b + jnp.tanh(self.w @ phi + self.w0)
-        denominator = a + g(self.c @ phi + self.c0)
+        denominator = self.a + g(self.c @ phi + self.c0)
         return jnp.dot(self.d, numerator / denominator * self.unit_mask) + self.d0 + _linear(self.theta, phi)

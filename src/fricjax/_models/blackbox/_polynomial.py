@@ -21,9 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..._constraints import Fixed, as_float_array
+from ..._constraints import as_float_array
 from ..._inputs import Motion
-from ._narx import AbstractNARX
+from ._narx import AbstractNARX, unit_mask_field
 from ._regressors import NARXRegressors
 
 Terms = tuple[tuple[int, ...], ...]
@@ -160,14 +160,7 @@ class PolynomialNARX(AbstractNARX):
                 f"PolynomialNARX: `theta` must have shape ({len(self.terms)},) (one coefficient per term) and "
                 f"`theta0` be a scalar; got {self.theta.shape} and {self.theta0.shape}."
             )
-        mask = np.ones(len(self.terms)) if unit_mask is None else unit_mask
-        mask = as_float_array(mask.value if isinstance(mask, Fixed) else mask)
-        if mask.shape != (len(self.terms),):
-            raise ValueError(
-                f"PolynomialNARX: `unit_mask` must have shape ({len(self.terms)},), one entry per term; "
-                f"got {mask.shape}."
-            )
-        self.unit_mask = Fixed(mask)
+        self.unit_mask = unit_mask_field(unit_mask, len(self.terms), "PolynomialNARX", "term")
 
     @property
     def degree(self) -> int:

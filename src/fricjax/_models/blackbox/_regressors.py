@@ -138,21 +138,15 @@ class NARXRegressors(eqx.Module):
         """Regressors normalised by a training record (`fj.FrictionData`): each signal by its mean and standard
         deviation, the force likewise; `plays` and `smoothing` as in the constructor."""
         cls(signals, input_lags, output_lags)  # the structure's checks first (signal names, lags)
-        samples = data.motion.samples(frozenset(signals))
-        means, scales = [], []
-        for name in signals:
-            signal = np.asarray(getattr(samples, name), dtype=float)
-            means.append(0.0 if name in ("v", "a", "dx") else float(np.mean(signal)))
-            scales.append(float(np.std(signal)) or 1.0)
-        force = np.asarray(data.force, dtype=float)
+        means, scales, force_mean, force_scale = record_statistics(data, signals)
         return cls(
             signals,
             input_lags,
             output_lags,
-            input_mean=np.asarray(means),
-            input_scale=np.asarray(scales),
-            output_mean=float(np.mean(force)),
-            output_scale=float(np.std(force)) or 1.0,
+            input_mean=means,
+            input_scale=scales,
+            output_mean=force_mean,
+            output_scale=force_scale,
             plays=plays,
             smoothing=smoothing,
         )
@@ -244,17 +238,36 @@ class NARXRegressors(eqx.Module):
         return jnp.concatenate([window, past], axis=1)
 
 
-def _fixed(value: Any, shape: tuple[int, ...], name: str, positive: bool = False) -> Fixed:
-    """A fixed (never trained) array field of the given shape, checked when concrete."""
+def fixed_array(value: Any, shape: tuple[int, ...], name: str, owner: str, positive: bool = False) -> Fixed:
+    """A fixed (never trained) array field of `owner` with the given shape (normalisations, masks, thresholds),
+    checked when concrete: finite, and > 0 with `positive`."""
     if isinstance(value, Fixed):
         value = value.value
     array = as_float_array(value)
     if array.shape != shape:
-        raise ValueError(f"NARXRegressors: `{name}` must have shape {shape}, got {array.shape}.")
+        raise ValueError(f"{owner}: `{name}` must have shape {shape}, got {array.shape}.")
     if is_concrete(array):
         concrete = np.asarray(array)
         if not np.all(np.isfinite(concrete)) or (positive and not np.all(concrete > 0)):
             raise ValueError(
-                f"NARXRegressors: `{name}` must be finite{' and positive' if positive else ''}, got {concrete!r}."
+                f"{owner}: `{name}` must be finite{' and positive' if positive else ''}, got {concrete!r}."
             )
     return Fixed(array)
+
+
+def _fixed(value: Any, shape: tuple[int, ...], name: str, positive: bool = False) -> Fixed:
+    return fixed_array(value, shape, name, "NARXRegressors", positive)
+
+
+def record_statistics(data: Any, signals: Sequence[str]) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The normalisation a black-box model reads off a training record (`fj.FrictionData`): per input signal its
+    mean (the displacement's; 0 for the zero-mean v, a, dx) and standard deviation, then the force's mean and
+    standard deviation [N] (a zero deviation becomes 1)."""
+    samples = data.motion.samples(frozenset("x" if s == "dx" else s for s in signals))
+    means, scales = [], []
+    for name in signals:
+        signal = np.asarray(getattr(samples, name), dtype=float)
+        means.append(float(np.mean(signal)) if name == "x" else 0.0)
+        scales.append(float(np.std(signal)) or 1.0)
+    force = np.asarray(data.force, dtype=float)
+    return np.asarray(means), np.asarray(scales), float(np.mean(force)), float(np.std(force)) or 1.0

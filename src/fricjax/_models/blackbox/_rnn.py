@@ -16,6 +16,7 @@ from ..._constraints import Fixed, as_float_array, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact
 from .._base import AbstractFrictionModel
+from ._regressors import fixed_array, record_statistics
 
 
 class RecurrentNetworkState(eqx.Module):
@@ -139,13 +140,7 @@ class RecurrentNetwork(AbstractFrictionModel):
         if radius > 0:
             w *= spectral_radius / radius
         alpha = np.asarray(jax.random.uniform(keys[2], (n,), minval=0.3, maxval=0.95))
-        samples = data.motion.samples(frozenset("x" if s == "dx" else s for s in signals))
-        means, scales = [], []
-        for name in signals:
-            signal = np.asarray(getattr(samples, name), dtype=float)  # "dx" is derived with "x"
-            means.append(float(np.mean(signal)) if name == "x" else 0.0)
-            scales.append(float(np.std(signal)) or 1.0)
-        force = np.asarray(data.force, dtype=float)
+        means, scales, force_mean, force_scale = record_statistics(data, signals)
         return cls(
             np.arctanh(alpha),
             w,
@@ -156,10 +151,10 @@ class RecurrentNetwork(AbstractFrictionModel):
             connectivity=mask.astype(float),
             signals=signals,
             delays=delays,
-            input_mean=np.asarray(means),
-            input_scale=np.asarray(scales),
-            output_mean=float(np.mean(force)),
-            output_scale=float(np.std(force)) or 1.0,
+            input_mean=means,
+            input_scale=scales,
+            output_mean=force_mean,
+            output_scale=force_scale,
             smoothing=smoothing,
         )
 
@@ -194,9 +189,7 @@ class RecurrentNetwork(AbstractFrictionModel):
             raise ValueError(f"RecurrentNetwork.hysteretic: `thresholds` must be positive [m], got {thresholds!r}.")
         if isinstance(static, bool) or not isinstance(static, (int, np.integer)) or static < 0:
             raise ValueError(f"RecurrentNetwork.hysteretic: `static` must be an integer >= 0, got {static!r}.")
-        samples = data.motion.samples(frozenset({"x", "v"}))
-        dx_scale = float(np.std(np.asarray(samples.dx))) or 1.0
-        v_scale = float(np.std(np.asarray(samples.v))) or 1.0
+        _, (dx_scale, v_scale), force_mean, force_scale = record_statistics(data, ("dx", "v"))
         k, n = thresholds.size, thresholds.size + int(static)
         connectivity = np.zeros((n, n))
         connectivity[np.arange(k), np.arange(k)] = 1.0
@@ -205,7 +198,6 @@ class RecurrentNetwork(AbstractFrictionModel):
         v[:k, 0] = dx_scale / thresholds  # normalised dx -> dx / Delta_i
         v[k:, 1] = static_gain * np.asarray(jax.random.normal(k1, (int(static),)))
         w0 = np.concatenate([np.zeros(k), 0.5 * np.asarray(jax.random.normal(k2, (int(static),)))])
-        force = np.asarray(data.force, dtype=float)
         return cls(
             np.zeros(n),
             connectivity.copy(),
@@ -218,8 +210,8 @@ class RecurrentNetwork(AbstractFrictionModel):
             delays=(0,),
             input_mean=np.zeros(2),
             input_scale=np.array([dx_scale, v_scale]),
-            output_mean=float(np.mean(force)),
-            output_scale=float(np.std(force)) or 1.0,
+            output_mean=force_mean,
+            output_scale=force_scale,
             smoothing=smoothing,
         )
 
@@ -253,7 +245,4 @@ class RecurrentNetwork(AbstractFrictionModel):
 
 
 def _fixed(value: Any, shape: tuple[int, ...], name: str) -> Fixed:
-    array = as_float_array(value.value if isinstance(value, Fixed) else value)
-    if array.shape != shape:
-        raise ValueError(f"RecurrentNetwork: `{name}` must have shape {shape}, got {array.shape}.")
-    return Fixed(array)
+    return fixed_array(value, shape, name, "RecurrentNetwork")
