@@ -152,6 +152,33 @@ def test_regressor_matrix_is_the_one_step_regression(record):
     np.testing.assert_allclose(one_step, fj.simulate(model, motion, measured=noisy), rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("smoothing", [fj.Exact(), fj.Smooth(0.05)])
+def test_regressor_matrix_with_play_operators(record, smoothing):
+    """With play operators among the regressors, the teacher-forced rows hold their states along the record (one
+    recursion of the displacement, exact or smoothed as the model's step) and the one-step prediction of
+    `fj.simulate` is linear in them; the play states match a NumPy loop."""
+    u, motion, _, noisy = record
+    thresholds = np.array([2e-3, 1e-2])
+    base = regressors(plays=thresholds, smoothing=smoothing)
+    terms = fj.monomial_terms(base.size, 2)
+    theta = 0.01 * np.cos(np.arange(len(terms)))
+    model = fj.PolynomialNARX(base, terms, theta, 0.1)
+    matrix = np.asarray(model.regressor_matrix(motion, noisy))
+    one_step = OUTPUT_MEAN + OUTPUT_SCALE * (0.1 + matrix @ theta)
+    np.testing.assert_allclose(one_step, fj.simulate(model, motion, measured=noisy), rtol=0, atol=1e-12)
+    dx = u[:, 0]  # dx_0 = 0 (the motion's convention)
+    plays, expected = np.zeros(2), []
+    for step in dx:
+        z = plays + step / thresholds
+        if isinstance(smoothing, fj.Exact):
+            plays = np.clip(z, -1, 1)
+        else:  # (|z + 1| - |z - 1|) / 2 with |s| = s tanh(s / eps)
+            plays = 0.5 * ((z + 1) * np.tanh((z + 1) / 0.05) - (z - 1) * np.tanh((z - 1) / 0.05))
+        expected.append(plays)
+    rows = np.asarray(base.teacher_forced(motion.samples(base.requires), noisy))
+    np.testing.assert_allclose(rows[:, 4:6], expected, rtol=1e-12, atol=1e-12)
+
+
 def test_monomial_terms_are_every_monomial_once():
     terms = fj.monomial_terms(4, 3)
     assert len(terms) == len(set(terms)) == 34  # binom(4 + 3, 3) - 1

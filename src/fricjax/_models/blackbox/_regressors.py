@@ -27,6 +27,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -206,18 +207,14 @@ class NARXRegressors(eqx.Module):
         """The regressor vectors `phi_k` of a whole record under teacher forcing, as rows: `(T, size)`.
 
         Row k is the `phi_k` that `fj.simulate(model, motion, measured=measured)` feeds the model at sample k:
-        inputs `u_k .. u_{k-n_u}` and measured outputs `y_{k-1} .. y_{k-n_y}`, with the state at rest before the
-        record (inputs 0, outputs 0, as `init_state`). Built by shifting, not by a scan: the regressors of a
-        model linear in its parameters (least squares, term selection) without simulating it.
+        inputs `u_k .. u_{k-n_u}`, the play states `p_i(k)` and measured outputs `y_{k-1} .. y_{k-n_y}`, with the
+        state at rest before the record (inputs 0, plays 0, outputs 0, as `init_state`). Built by shifting (the
+        play operators, which depend on the displacement alone, by one scan): the regressors of a model linear in
+        its parameters (least squares, term selection) without simulating it.
 
         **Arguments:** `samples`, the record's per-step signals (`motion.samples(regressors.requires)`);
         `measured`, the force [N], shape `(T,)`.
         """
-        if self.num_plays:
-            raise ValueError(
-                "NARXRegressors.teacher_forced: regressors with play operators have a state of their own; build "
-                "their rows by simulating (fj.simulate), or use regressors without `plays`."
-            )
         p = unwrap(self)
         u = jnp.stack([jnp.asarray(getattr(samples, s)) for s in self.signals], axis=-1)  # (T, S)
         y = jnp.asarray(measured, u.dtype)
@@ -235,7 +232,22 @@ class NARXRegressors(eqx.Module):
         outputs = jnp.concatenate([jnp.zeros((n_y,), y.dtype), y])  # outputs[n_y + k] = y_k
         past = jnp.stack([outputs[n_y - j : n_y - j + length] for j in range(1, n_y + 1)], axis=1)
         past = ((past - p.output_mean) / p.output_scale * p.output_mask).reshape(length, n_y)
-        return jnp.concatenate([window, past], axis=1)
+        plays = self.play_states(samples, u.dtype)
+        return jnp.concatenate([window, plays, past], axis=1)
+
+    def play_states(self, samples: MotionSample, dtype: Any = None) -> Float[Array, "T K"]:
+        """The play operators' states `p_i(k)` along a record from rest, `(T, K)` (dimensionless; `(T, 0)`
+        without plays): the same recursion, and the same smoothing, as the model's step."""
+        dx = jnp.asarray(samples.dx, dtype)
+        if not self.num_plays:
+            return jnp.zeros((dx.shape[0], 0), dx.dtype)
+        p = unwrap(self)
+
+        def play(state: Array, step: Array) -> tuple[Array, Array]:
+            state = p.smoothing.clip(state + step / p.plays, 1.0)
+            return state, state
+
+        return jax.lax.scan(play, jnp.zeros((self.num_plays,), dx.dtype), dx)[1]
 
 
 def fixed_array(value: Any, shape: tuple[int, ...], name: str, owner: str, positive: bool = False) -> Fixed:
