@@ -304,3 +304,18 @@ def test_neural_models_reach_the_noise_floor():
     assert rows["rnn"].nmse <= 3 * floor, (rows["rnn"].nmse, floor)
     assert rows["gsnn"].nmse <= 3 * floor, (rows["gsnn"].nmse, floor)
     assert rows["mlp"].nmse <= 5 * floor, (rows["mlp"].nmse, floor)
+
+
+@pytest.mark.slow
+def test_linear_in_parameters_models_reach_the_noise_floor():
+    """Issue 11's acceptance on the default regime (mixed, seed 0): the polynomial NARX within 10x of the noise
+    floor (measured 2.75x: the validation part chooses the degree-1 structure on the velocity and the play
+    operators), its structure and every candidate's validation score named in the fit's message."""
+    data = fj.make_tribometer("mixed", seed=0)
+    split, _, _ = load_split("tribometer:mixed", seed=0)
+    test = split.test_record(reference=data.sensor_force)
+    rows = {r.name: r for r in fit_and_score(["narx"], split, tests=[test], progress=False, log=print)}
+    floor = reference_scores([test])["test part"].nmse
+    print({name: round(row.nmse / floor, 3) for name, row in rows.items()})
+    assert rows["narx"].nmse <= 10 * floor, (rows["narx"].nmse, floor)
+    assert "structure: v and 20 plays" in rows["narx"].message and "lags of dx, v and F" in rows["narx"].message

@@ -327,6 +327,37 @@ def test_select_terms_without_intercept_and_press_is_leave_one_out():
         assert selection.press[size] == pytest.approx(np.sum(np.square(loo)), rel=1e-9)
 
 
+def test_select_terms_with_fixed_columns():
+    """Fixed columns (a drift) are in every model: the selection equals a selection on the candidates with the
+    fixed columns projected out, PRESS is leave-one-out with them in the design, and the coefficients are the
+    joint least-squares ones."""
+    rng = np.random.default_rng(12)
+    n = 80
+    X = rng.standard_normal((n, 7))
+    drift = np.linspace(0.0, 1.0, n)
+    y = 0.3 + 1.2 * drift + 0.9 * X[:, 1] - 0.4 * X[:, 5] + 0.05 * rng.standard_normal(n)
+    selection = fj.select_terms(X, y, fixed=drift)
+    assert set(selection.indices[:2]) == {1, 5}
+    design = np.column_stack([np.ones(n), X[:, list(selection.indices)], drift])
+    reference, *_ = np.linalg.lstsq(design, y, rcond=None)
+    np.testing.assert_allclose(
+        [selection.intercept, *selection.coefficients, *selection.fixed_coefficients], reference, rtol=1e-10
+    )
+    for size in range(len(selection.indices) + 1):
+        design = np.column_stack([np.ones(n), drift, X[:, list(selection.indices[:size])]])
+        loo = []
+        for k in range(n):
+            keep = np.arange(n) != k
+            theta, *_ = np.linalg.lstsq(design[keep], y[keep], rcond=None)
+            loo.append(y[k] - design[k] @ theta)
+        assert selection.press[size] == pytest.approx(np.sum(np.square(loo)), rel=1e-9)
+    assert fj.select_terms(X, y).fixed_coefficients.shape == (0,)
+    with pytest.raises(ValueError, match="fixed"):
+        fj.select_terms(X, y, fixed=np.ones(n))  # spanned by the intercept
+    with pytest.raises(ValueError, match="fixed"):
+        fj.select_terms(X, y, fixed=np.ones(n - 1))
+
+
 def _old_orthogonal_forward(forces: np.ndarray, target: np.ndarray, max_members: int, criterion: str):
     """The ensemble's selection before `select_terms` replaced it (verbatim, members as rows): the oracle."""
 

@@ -209,6 +209,32 @@ def test_identification_recovers_a_known_model(record):
     assert "v[k]*F[k-1]" in model.describe() and "dx[k]*v[k-1]^2" in model.describe()
 
 
+@pytest.mark.parametrize("drift", ["linear", 0.2])
+def test_identification_with_a_sensor_drift(record, drift):
+    """A static polynomial of the velocity and two play operators (no fed-back outputs), read by a drifting
+    sensor (linear, or leaky with tau = 0.2 s): with `drift=`, FROLS selects the true terms, and the coefficients
+    and the drift rate are recovered; the model comes back as `fj.SensorDrift`, its free run the record's."""
+    _, motion, _, _ = record
+    base = fj.NARXRegressors(("v",), 0, 0, input_scale=[0.5], plays=[2e-3, 1e-2])
+    terms = ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (0, 0, 2))
+    theta = np.array([0.7, 1.5, 0.8, -0.3, 0.2])
+    tau = None if drift == "linear" else drift
+    truth = fj.SensorDrift(fj.PolynomialNARX(base, terms, theta, 0.1), rate=-0.4, tau=tau)
+    data = fj.FrictionData(motion, fj.simulate(truth, motion))
+    result = fj.identify_polynomial_narx(data, regressors=base, degree=2, drift=drift)
+    model = result.model
+    assert isinstance(model, fj.SensorDrift)
+    assert model.tau is None if tau is None else float(fj.unwrap(model).tau) == pytest.approx(tau)
+    assert sorted(model.model.terms) == sorted(terms)
+    order = [model.model.terms.index(term) for term in terms]
+    np.testing.assert_allclose(np.asarray(model.model.theta)[order], theta, rtol=1e-8)
+    np.testing.assert_allclose(float(model.rate), -0.4, rtol=1e-8)
+    np.testing.assert_allclose(fj.simulate(model, motion), data.force, rtol=0, atol=1e-10)
+    # without the drift column the trend leaks into the terms
+    plain = fj.identify_polynomial_narx(data, regressors=base, degree=2).model
+    assert float(fj.nmse(data.force, fj.simulate(plain, motion))) > 1e-6
+
+
 def test_identification_with_data_normalisation_predicts_the_record(record):
     """Default path: regressors normalised by the record itself (`NARXRegressors.from_data`). In these
     coordinates the truth has 11 terms (its products of shifted regressors expand: `(dx - m)(v - m')^2` gives
@@ -391,6 +417,9 @@ def test_errors(record):
         fj.identify_polynomial_narx(data.slice(0, 60), signals=SIGNALS, input_lags=2, output_lags=2, degree=3)
     with pytest.raises(ValueError, match="criterion"):
         fj.identify_polynomial_narx(data, degree=1, criterion="aic")
+    for drift in (-1.0, "leaky", True):
+        with pytest.raises(ValueError, match="`drift`"):
+            fj.identify_polynomial_narx(data, degree=1, drift=drift)
     with pytest.raises(ValueError, match="one coefficient per term"):
         fj.PolynomialNARX(regressors(), TERMS, THETA[:3])
     with pytest.raises(ValueError, match="non-negative exponents"):

@@ -497,6 +497,8 @@ class TermSelection(NamedTuple):
     - `press`: the PRESS statistic (leave-one-out squared error, units of y^2) of the base model (intercept only,
       or no term), then after each selected term: length `len(indices) + 1`.
     - `rss`: the residual sum of squares at the same steps.
+    - `fixed_coefficients`: the coefficients of the `fixed` columns (in the model from the start), refitted
+      with the selected terms; empty without them.
     """
 
     indices: tuple[int, ...]
@@ -505,6 +507,7 @@ class TermSelection(NamedTuple):
     err: np.ndarray
     press: np.ndarray
     rss: np.ndarray
+    fixed_coefficients: np.ndarray = np.zeros(0)
 
 
 def select_terms(
@@ -514,6 +517,7 @@ def select_terms(
     criterion: Literal["press", "err"] = "press",
     max_terms: int | None = None,
     intercept: bool = True,
+    fixed: Float[ArrayLike, "N F"] | None = None,
 ) -> TermSelection:
     """Choose regressors by forward orthogonal least squares (FROLS) with the PRESS statistic.
 
@@ -548,9 +552,11 @@ def select_terms(
     - `max_terms`: the most terms to select (default: M).
     - `intercept`: include a constant term from the start (default True); with False the base model is empty
       and a constant column among the candidates competes like any other.
+    - `fixed`: columns in the model from the start, shape `(N, F)` (e.g. a sensor drift): never selected or
+      dropped, their coefficients refitted with the selected terms (`TermSelection.fixed_coefficients`).
 
-    **Returns:** a `TermSelection(indices, coefficients, intercept, err, press, rss)`. Runs in NumPy (float64);
-    candidates as columns cost `O(N M)` memory and `O(N M k)` time per step with k terms chosen.
+    **Returns:** a `TermSelection(indices, coefficients, intercept, err, press, rss, fixed_coefficients)`. Runs in
+    NumPy (float64); candidates as columns cost `O(N M)` memory and `O(N M k)` time per step with k terms chosen.
 
     ```python
     >>> import numpy as np, fricjax as fj
@@ -578,11 +584,27 @@ def select_terms(
         raise TypeError(f"select_terms: `intercept` must be True or False, got {intercept!r}.")
 
     eps = np.finfo(np.float64).eps
+    forced = np.zeros((n, 0)) if fixed is None else np.asarray(fixed, dtype=np.float64)
+    if forced.ndim == 1:
+        forced = forced[:, None]
+    if forced.ndim != 2 or forced.shape[0] != n or not np.all(np.isfinite(forced)):
+        raise ValueError(
+            f"select_terms: `fixed` must be finite columns of shape ({n}, F) (one row per sample), got {forced.shape}."
+        )
     if intercept:
         basis = [np.full(n, 1.0 / np.sqrt(n))]
         residual, leverage, remainders = y - y.mean(), np.full(n, 1.0 / n), X - X.mean(axis=0)
     else:
         basis, residual, leverage, remainders = [], y.copy(), np.zeros(n), X.copy()
+    for column in forced.T:  # the fixed columns join the base model, orthogonalised like chosen terms
+        w = column - (np.column_stack(basis) @ (np.column_stack(basis).T @ column) if basis else 0.0)
+        if np.linalg.norm(w) <= np.sqrt(eps) * max(np.linalg.norm(column), np.finfo(float).tiny):
+            raise ValueError("select_terms: a `fixed` column is spanned by the others (or the intercept); drop it.")
+        q = w / np.linalg.norm(w)
+        basis.append(q)
+        residual = residual - q * (q @ residual)
+        leverage = leverage + q**2
+        remainders = remainders - np.outer(q, q @ remainders)
     sizes = np.linalg.norm(X, axis=0)
     available = sizes > 0
     yy = float(y @ y)
@@ -626,14 +648,15 @@ def select_terms(
         press.append(_press(residual, leverage))
         rss.append(float(residual @ residual))
 
-    coefficients, constant = _refit(X[:, chosen], y, intercept)
+    coefficients, constant = _refit(np.column_stack([X[:, chosen], forced]), y, intercept)
     return TermSelection(
         indices=tuple(chosen),
-        coefficients=coefficients,
+        coefficients=coefficients[: len(chosen)],
         intercept=constant,
         err=np.asarray(err, dtype=np.float64),
         press=np.asarray(press),
         rss=np.asarray(rss),
+        fixed_coefficients=coefficients[len(chosen) :],
     )
 
 

@@ -15,19 +15,21 @@ import numpy as np
 from .._constraints import unwrap
 from .._models.blackbox._polynomial import PolynomialNARX, Terms, evaluate_monomials, monomial_terms
 from .._models.blackbox._regressors import NARXRegressors
+from .._models.combine._sensor import SensorDrift
 from ._linear import TermSelection, select_terms
 
 
 class PolynomialNARXResult(NamedTuple):
     """What `identify_polynomial_narx` returns.
 
-    - `model`: the identified `PolynomialNARX` (its terms in the order they were selected).
+    - `model`: the identified `PolynomialNARX` (its terms in the order they were selected), wrapped in
+      `fj.SensorDrift` when a `drift` was identified with it.
     - `selection`: the `TermSelection` of `select_terms` (ERR of each term, PRESS and RSS traces, ...); its
       `indices` index `candidates`.
     - `candidates`: every candidate monomial, as exponent tuples over the regressor vector.
     """
 
-    model: PolynomialNARX
+    model: PolynomialNARX | SensorDrift
     selection: TermSelection
     candidates: Terms
 
@@ -44,6 +46,7 @@ def identify_polynomial_narx(
     intercept: bool = True,
     regressors: NARXRegressors | None = None,
     burn_in: int | None = None,
+    drift: Literal["linear"] | float | None = None,
 ) -> PolynomialNARXResult:
     """Identify a polynomial NARX model (`fj.PolynomialNARX`) from a record by FROLS term selection.
 
@@ -57,6 +60,11 @@ def identify_polynomial_narx(
        ratio; with `criterion="press"` a term is added only while the leave-one-out error (PRESS) falls, with
        `"err"` until `max_terms` (or round-off).
     4. Coefficients: least squares of the normalised force on the selected monomials (and a constant).
+
+    With `drift`, the force sensor's slow drift (`fj.SensorDrift`: `rate * t`, or the leaky
+    `rate * tau * (1 - exp(-t / tau))`, t from the record's first sample) is a column of the regression from the
+    start, never selected or dropped (`select_terms(fixed=)`), so the trend of the record does not bias the
+    choice of terms; the model comes back wrapped in `fj.SensorDrift` with the estimated rate.
 
     The model minimises the one-step (equation) error; its free run may be refined by output error:
     `fj.fit(result.model, data, loss=fj.SimulationLoss())` (optionally wrapped in `fj.SensorDrift`).
@@ -74,6 +82,8 @@ def identify_polynomial_narx(
     - `regressors`: an `fj.NARXRegressors` to use as it is (its normalisation included) instead of
       `signals` / `input_lags` / `output_lags` and the record's normalisation.
     - `burn_in`: samples at the start of the record not used as equations; default `max(n_u, n_y)`.
+    - `drift`: `None` (default: no sensor drift), `"linear"`, or the leaky integrator's time constant `tau` [s]
+      (e.g. the record's duration).
 
     **Returns:** a `PolynomialNARXResult(model, selection, candidates)`.
 
@@ -116,6 +126,14 @@ def identify_polynomial_narx(
             f"more than {wanted + 1} are needed. Pass a longer record, or lower `degree`, the lags or `max_terms`."
         )
 
+    if (
+        drift is not None
+        and drift != "linear"
+        and not (isinstance(drift, (float, int, np.floating, np.integer)) and not isinstance(drift, bool) and drift > 0)
+    ):
+        raise ValueError(
+            f"{where}: `drift` must be None, 'linear' or a positive time constant tau [s] (leaky drift), got {drift!r}."
+        )
     template = PolynomialNARX(regressors, candidates, np.zeros(len(candidates)))
     template.check_inputs(data.motion)
     phi = np.asarray(regressors.teacher_forced(data.motion.samples(regressors.requires), data.force), np.float64)
@@ -123,7 +141,16 @@ def identify_polynomial_narx(
     scales = unwrap(regressors)
     force = np.asarray(data.force, np.float64)[burn_in:]
     target = (force - float(scales.output_mean)) / float(scales.output_scale)
-    selection = select_terms(matrix, target, criterion=criterion, max_terms=max_terms, intercept=intercept)
+    tau = None if drift in (None, "linear") else float(drift)  # type: ignore[arg-type]
+    fixed = None
+    if drift is not None:
+        dt = np.broadcast_to(np.asarray(data.motion.samples(frozenset({"dt"})).dt, np.float64), (data.length,))
+        t = np.concatenate([[0.0], np.cumsum(dt)[:-1]])  # SensorDrift's clock: 0 at the record's first sample
+        column = t if tau is None else tau * -np.expm1(-t / tau)
+        fixed = column[burn_in:] / float(scales.output_scale)
+    selection = select_terms(matrix, target, criterion=criterion, max_terms=max_terms, intercept=intercept, fixed=fixed)
     terms = tuple(candidates[i] for i in selection.indices)
-    model = PolynomialNARX(regressors, terms, selection.coefficients, selection.intercept)
+    model: PolynomialNARX | SensorDrift = PolynomialNARX(regressors, terms, selection.coefficients, selection.intercept)
+    if drift is not None:
+        model = SensorDrift(model, float(selection.fixed_coefficients[0]), tau)
     return PolynomialNARXResult(model, selection, candidates)
