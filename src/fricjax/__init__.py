@@ -108,6 +108,8 @@ from ._estimation._result import RESULT_CODES as RESULT_CODES
 from ._estimation._result import FitResult as FitResult
 from ._estimation._serialise import load_model as load_model
 from ._estimation._serialise import save_model as save_model
+from ._estimation._sharding import batch_devices as batch_devices
+from ._estimation._sharding import shard_batch as shard_batch
 from ._estimation._strategies import Continuation as Continuation
 from ._estimation._strategies import MultiStart as MultiStart
 from ._estimation._strategies import ParameterScaling as ParameterScaling

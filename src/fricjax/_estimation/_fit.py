@@ -30,6 +30,7 @@ from .._smoothing import Smooth, exact, is_concrete, with_smoothing
 from ._linear import lstsq, parameter_std
 from ._losses import AbstractLoss, SimulationLoss
 from ._result import FitResult
+from ._sharding import shard_batch
 from ._strategies import Continuation, MultiStart, ParameterScaling, submodels, where_from_path
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -265,7 +266,8 @@ def fit(
     - `scaling`: a `ParameterScaling()`: the optimiser sees real parameters divided by their initial magnitude
       (for physical models whose real parameters span decades). Default: none, parameters as they are stored
       (positive ones as logs).
-    - `multistart`: a `MultiStart(count, spread)` or a count.
+    - `multistart`: a `MultiStart(count, spread)` or a count. With several local devices the starts are
+      sharded over them (`fj.shard_batch`), with the results of one device.
     - `continuation`: a `Continuation(eps_start, eps_end, stages)`.
     - `eval_every`: optax steps between checks (validation, divergence, progress); default steps / 50.
     - `patience`: evaluations without validation improvement before stopping (default: never).
@@ -332,7 +334,7 @@ def fit(
     if scales is not None:
         starts = jax.tree_util.tree_map(lambda p, c: p / c, starts, scales)
     extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + e.shape), extra0)
-    states = (starts, extras)
+    states = shard_batch((starts, extras))  # the starts spread over the local devices (identity on one)
 
     search = _Search(states, validation is not None, start_time, _progress_bar(progress, steps, kind))
     result_code, message = "max_steps", f"ran the full budget of {steps} steps"

@@ -22,6 +22,7 @@ import optax
 
 from .._constraints import trainable_filter
 from ._losses import AbstractLoss, SimulationLoss
+from ._sharding import shard_batch
 
 
 def stack_models(models: Sequence[Any]) -> Any:
@@ -100,6 +101,9 @@ def sweep(
     - `steps`: optimiser steps; `checks`: how often the training loss is recorded (and the bar advanced).
     - `validation`, `validation_burn_in`: a record scored by free run after the burn-in samples.
 
+    With several local devices the configurations are sharded over them (`fj.shard_batch`: as many devices as
+    divide the batch); the results are those of one device.
+
     **Returns:** a `SweepResult`.
 
     ```python
@@ -158,6 +162,8 @@ def sweep(
         return p, opt_state, values
 
     opt_state = jax.vmap(lambda p, lr: make(learning_rate=lr).init(p))(params, rates)
+    # the configurations spread over every local device (as many as divide the batch; identity on one device)
+    params, static, opt_state = shard_batch((params, static, opt_state))
     chunk = max(1, steps // max(1, checks))
     bar = None
     if progress:
