@@ -815,3 +815,26 @@ def test_gradient_fits_keep_damping_nonnegative(solver):
     data = fj.FrictionData(MOTION, 1.0 * np.tanh(v / EPS) - 5.0 * v + 0.2)  # a falling force-velocity slope
     result = fj.fit(START, data, solver=solver, steps=60, scaling=fj.ParameterScaling())
     assert float(fj.unwrap(result.model).Fv) >= 0.0
+
+
+@pytest.mark.parametrize("solver", ["adam", "lm"])
+def test_a_second_fit_of_the_same_shapes_does_not_recompile(solver):
+    """Issue 12: `fit`'s drivers are module-level jitted functions taking the problem as an argument, so a second
+    fit with a new start, new data and new validation data of the same shapes compiles nothing (the optax solver
+    object is the same; a new `optax.adam(...)` object is a new static argument)."""
+    compiles = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda event, duration, **kw: compiles.append(event) if "backend_compile" in event else None
+    )
+    adam = optax.adam(1e-2)
+    counts = []
+    for i in range(2):
+        motion = fj.Motion.from_position(1e-3 * (1 + 0.1 * i) * np.sin(np.linspace(0, 12, N)), dt=DT)
+        truth = fj.CoulombViscous(Fc=1.0 + 0.1 * i, Fv=20.0, smoothing=fj.Smooth(EPS))
+        data = fj.FrictionData(motion, fj.simulate(truth, motion))
+        start = fj.CoulombViscous(Fc=0.5 + 0.1 * i, Fv=10.0, smoothing=fj.Smooth(EPS))
+        options = {"solver": adam, "steps": 6} if solver == "adam" else {"steps": 3}
+        before = len(compiles)
+        fj.fit(start, data, validation=data, multistart=2, progress=False, **options)
+        counts.append(len(compiles) - before)
+    assert counts[0] > 0 and counts[1] == 0, counts

@@ -130,3 +130,21 @@ def test_stack_models_names_the_difference():
         fj.stack_models([a, c])
     with pytest.raises(ValueError, match="learning_rate"):
         fj.sweep([a, a], data, learning_rate=[1e-2, -1.0], steps=2)
+
+
+def test_a_second_sweep_of_the_same_shapes_does_not_recompile():
+    """Issue 12: the sweep's jitted pieces take the loss, the data and the optimiser as arguments, so a second
+    sweep with new weights, learning rates and data of the same shapes compiles nothing."""
+    compiles = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda event, duration, **kw: compiles.append(event) if "backend_compile" in event else None
+    )
+    counts = []
+    for seed in range(2):
+        record = neural_record(SAMPLES)
+        data = fj.FrictionData(record.motion, np.asarray(record.force) * (1.0 + 0.1 * seed))  # new values
+        models = [fj.MLPNARX.init(regressors(data), 4, key=jax.random.PRNGKey(seed + k)) for k in range(2)]
+        before = len(compiles)
+        fj.sweep(models, data, loss=fj.OneStepLoss(), learning_rate=[1e-2 * (seed + 1), 3e-3], steps=4, checks=2)
+        counts.append(len(compiles) - before)
+    assert counts[0] > 0 and counts[1] == 0, counts

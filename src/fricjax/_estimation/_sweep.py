@@ -132,36 +132,9 @@ def sweep(
         raise ValueError(f"sweep: `learning_rate` must be positive, one number or one per model ({count}).")
 
     one = jax.tree_util.tree_map(lambda leaf: leaf[0] if eqx.is_array(leaf) else leaf, batch)
-    spec = trainable_filter(one)
-    params, static = eqx.partition(batch, spec)
+    params, static = eqx.partition(batch, trainable_filter(one))
     extra0 = loss.init_extra(one, data)
-    make = optax.inject_hyperparams(optimiser)
-
-    # `static` holds the fixed arrays (masks, normalisations), batched like the parameters: both are vmapped
-    def value(p: Any, fixed: Any) -> Any:
-        return loss(eqx.combine(p, fixed), extra0, data)
-
-    def update(p: Any, fixed: Any, opt_state: Any) -> tuple[Any, Any, Any]:
-        current, grads = jax.value_and_grad(value)(p, fixed)
-        updates, new_state = make(learning_rate=1.0).update(grads, opt_state, p)
-        new = optax.apply_updates(p, updates)
-        ok = jnp.isfinite(current) & jnp.all(
-            jnp.asarray([jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)])
-        )
-        keep = lambda a, b: jnp.where(ok, a, b)  # noqa: E731 - a non-finite step keeps the last good parameters
-        return jax.tree_util.tree_map(keep, new, p), jax.tree_util.tree_map(keep, new_state, opt_state), current
-
-    @eqx.filter_jit
-    def run(p: Any, opt_state: Any, n: int) -> tuple[Any, Any, Any]:
-        def body(carry: Any, _: Any) -> tuple[Any, Any]:
-            q, s = carry
-            q, s, current = jax.vmap(update)(q, static, s)
-            return (q, s), current
-
-        (p, opt_state), values = jax.lax.scan(body, (p, opt_state), None, length=n)
-        return p, opt_state, values
-
-    opt_state = jax.vmap(lambda p, lr: make(learning_rate=lr).init(p))(params, rates)
+    opt_state = _init_states(params, rates, optimiser)
     # the configurations spread over every local device (as many as divide the batch; identity on one device)
     params, static, opt_state = shard_batch((params, static, opt_state))
     chunk = max(1, steps // max(1, checks))
@@ -174,7 +147,7 @@ def sweep(
     diverged = np.zeros(count, dtype=bool)
     while done < steps:
         n = min(chunk, steps - done)
-        params, opt_state, values = run(params, opt_state, n)
+        params, opt_state, values = _train_chunk(params, static, opt_state, loss, extra0, data, optimiser, n)
         done += n
         values = np.asarray(values)
         diverged |= ~np.isfinite(values).all(axis=0)
@@ -185,12 +158,10 @@ def sweep(
     if bar is not None:
         bar.close()
     trained = eqx.combine(params, static)
-    evaluate = eqx.filter_jit(eqx.filter_vmap(lambda m: loss(m, extra0, data)))
-    train_loss = np.asarray(evaluate(trained))
+    train_loss = np.asarray(_batch_loss(trained, loss, extra0, data))
     val_loss = np.full(count, np.nan)
     if validation is not None:
-        scorer = SimulationLoss(burn_in=validation_burn_in)
-        val_loss = np.asarray(eqx.filter_jit(eqx.filter_vmap(lambda m: scorer(m, None, validation)))(trained))
+        val_loss = np.asarray(_batch_loss(trained, SimulationLoss(burn_in=validation_burn_in), None, validation))
     return SweepResult(
         models=trained,
         train_loss=train_loss,
@@ -199,3 +170,48 @@ def sweep(
         diverged=diverged,
         wall_time=time.perf_counter() - start_time,
     )
+
+
+# Module-level jitted pieces (the loss, data and optimiser factory are arguments, not closures), so that a second
+# sweep of the same shapes reuses the compilation.
+
+
+@eqx.filter_jit
+def _init_states(params: Any, rates: Any, optimiser: Any) -> Any:
+    make = optax.inject_hyperparams(optimiser)
+    return jax.vmap(lambda p, lr: make(learning_rate=lr).init(p))(params, rates)
+
+
+@eqx.filter_jit
+def _train_chunk(
+    params: Any, static: Any, opt_state: Any, loss: AbstractLoss, extra0: Any, data: Any, optimiser: Any, n: int
+) -> tuple[Any, Any, Any]:
+    """`n` optimiser steps of every configuration (vmap over the batch; `static` holds the fixed arrays, masks
+    and normalisations, batched like the parameters)."""
+    make = optax.inject_hyperparams(optimiser)
+
+    def value(p: Any, fixed: Any) -> Any:
+        return loss(eqx.combine(p, fixed), extra0, data)
+
+    def update(p: Any, fixed: Any, state: Any) -> tuple[Any, Any, Any]:
+        current, grads = jax.value_and_grad(value)(p, fixed)
+        updates, new_state = make(learning_rate=1.0).update(grads, state, p)  # the state's own rate is used
+        new = optax.apply_updates(p, updates)
+        ok = jnp.isfinite(current) & jnp.all(
+            jnp.asarray([jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)])
+        )
+        keep = lambda a, b: jnp.where(ok, a, b)  # noqa: E731 - a non-finite step keeps the last good parameters
+        return jax.tree_util.tree_map(keep, new, p), jax.tree_util.tree_map(keep, new_state, state), current
+
+    def body(carry: Any, _: Any) -> tuple[Any, Any]:
+        q, s = carry
+        q, s, current = jax.vmap(update)(q, static, s)
+        return (q, s), current
+
+    (params, opt_state), values = jax.lax.scan(body, (params, opt_state), None, length=n)
+    return params, opt_state, values
+
+
+@eqx.filter_jit
+def _batch_loss(models: Any, loss: AbstractLoss, extra: Any, data: Any) -> Any:
+    return eqx.filter_vmap(lambda m: loss(m, extra, data))(models)
