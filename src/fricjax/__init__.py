@@ -104,6 +104,10 @@ from ._estimation._losses import OneStepLoss as OneStepLoss
 from ._estimation._losses import SimulationLoss as SimulationLoss
 from ._estimation._polynomial_narx import PolynomialNARXResult as PolynomialNARXResult
 from ._estimation._polynomial_narx import identify_polynomial_narx as identify_polynomial_narx
+from ._estimation._recursive import RecursiveLeastSquares as RecursiveLeastSquares
+from ._estimation._recursive import RegressionData as RegressionData
+from ._estimation._recursive import RLSState as RLSState
+from ._estimation._recursive import ud_update as ud_update
 from ._estimation._result import RESULT_CODES as RESULT_CODES
 from ._estimation._result import FitResult as FitResult
 from ._estimation._serialise import load_model as load_model

@@ -1,0 +1,131 @@
+"""Recursive least squares (`fj.RecursiveLeastSquares`, amthor §III-C): the U-D factorised update (Bierman) run by
+`fj.simulate` equals batch least squares with forgetting factor 1 after every sample, equals the plain covariance
+update where that one is well conditioned, tracks a parameter change with forgetting, and stays finite and
+accurate in float32 where the plain update loses positive-definiteness and diverges."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import fricjax as fj
+
+
+def regression(T=300, P=4, noise=0.1, seed=0):
+    rng = np.random.default_rng(seed)
+    Phi = rng.standard_normal((T, P))
+    theta = np.array([1.0, -2.0, 0.5, 3.0])[:P]
+    return Phi, Phi @ theta + noise * rng.standard_normal(T), theta
+
+
+def test_forgetting_one_is_batch_least_squares_after_every_sample():
+    """With lambda = 1, P0 = p0 I and theta0, theta_k is the regularised batch solution of samples 0..k:
+    (Phi^T Phi + I / p0)^-1 (Phi^T y + theta0 / p0), to 1e-9 relative; the covariance is (Phi^T Phi + I/p0)^-1."""
+    Phi, y, _ = regression()
+    theta0, p0 = np.array([0.1, 0.0, -0.2, 0.3]), 50.0
+    out = fj.simulate(fj.RecursiveLeastSquares(theta0, p0), fj.RegressionData(Phi, y))
+    assert out["theta"].shape == (300, 4) and out["prediction"].shape == (300,)
+    for k in (0, 3, 10, 100, 299):
+        A = Phi[: k + 1].T @ Phi[: k + 1] + np.eye(4) / p0
+        reference = np.linalg.solve(A, Phi[: k + 1].T @ y[: k + 1] + theta0 / p0)
+        np.testing.assert_allclose(out["theta"][k], reference, rtol=1e-9, atol=1e-12)
+    # the prediction is a priori: phi_k^T theta_{k-1}
+    np.testing.assert_allclose(out["prediction"][1:], np.sum(Phi[1:] * np.asarray(out["theta"][:-1]), axis=1))
+    rls = fj.RecursiveLeastSquares(theta0, p0)
+    final = _final_state(rls, fj.RegressionData(Phi, y))
+    covariance = fj.RecursiveLeastSquares.covariance(final)
+    np.testing.assert_allclose(covariance, np.linalg.inv(Phi.T @ Phi + np.eye(4) / p0), rtol=1e-9, atol=1e-15)
+    assert np.all(np.asarray(final.d) > 0) and np.allclose(np.tril(np.asarray(final.U), -1), 0)
+    np.testing.assert_allclose(np.diag(np.asarray(final.U)), 1.0)
+
+
+def _final_state(rls, data):
+    """The state after the record (`simulate` returns the outputs only): the step, jitted, in a Python loop."""
+    state = rls.init_state()
+    step = eqx.filter_jit(lambda s, x: rls.step(s, x))
+    samples = rls.samples(data)
+    for k in range(data.length):
+        state, _ = step(state, {name: value[k] for name, value in samples.items()})
+    return state
+
+
+@pytest.mark.parametrize("forgetting", [1.0, 0.97])
+def test_ud_equals_the_plain_update_when_well_conditioned(forgetting):
+    Phi, y, _ = regression(T=200)
+    ud = fj.simulate(fj.RecursiveLeastSquares(np.zeros(4), 1e3, forgetting), fj.RegressionData(Phi, y))
+    plain = fj.simulate(
+        fj.RecursiveLeastSquares(np.zeros(4), 1e3, forgetting, method="plain"), fj.RegressionData(Phi, y)
+    )
+    np.testing.assert_allclose(ud["theta"], plain["theta"], rtol=1e-9, atol=1e-9)
+    # one U-D update against the covariance form, written out
+    rng = np.random.default_rng(3)
+    M = rng.standard_normal((4, 4))
+    P = M @ M.T + np.eye(4)
+    U_full = np.linalg.cholesky(P[::-1, ::-1])[::-1, ::-1]  # P = U_full U_full^T, U_full upper triangular
+    d = np.diag(U_full) ** 2
+    U = U_full / np.diag(U_full)
+    phi = rng.standard_normal(4)
+    gain, U_new, d_new = fj.ud_update(jnp.asarray(U), jnp.asarray(d), jnp.asarray(phi), 0.9)
+    K = P @ phi / (0.9 + phi @ P @ phi)
+    np.testing.assert_allclose(gain, K, rtol=1e-12)
+    np.testing.assert_allclose(
+        (np.asarray(U_new) * np.asarray(d_new)) @ np.asarray(U_new).T, (P - np.outer(K, phi @ P)) / 0.9, rtol=1e-11
+    )
+
+
+def test_forgetting_tracks_a_parameter_change():
+    """A step in the true parameters at mid-record: with lambda = 0.95 the estimate reaches the new values within
+    a few hundred samples; without forgetting it stays between the old and the new."""
+    Phi, _, theta = regression(T=1000, noise=0.0)
+    changed = theta * np.array([1.2, 0.8, 1.0, 1.1])
+    y = np.where(np.arange(1000) < 500, Phi @ theta, Phi @ changed)
+    fast = fj.simulate(fj.RecursiveLeastSquares(np.zeros(4), 1e3, 0.95), fj.RegressionData(Phi, y))
+    slow = fj.simulate(fj.RecursiveLeastSquares(np.zeros(4), 1e3, 1.0), fj.RegressionData(Phi, y))
+    np.testing.assert_allclose(fast["theta"][-1], changed, rtol=1e-6)
+    assert np.max(np.abs(np.asarray(slow["theta"][-1]) - changed)) > 0.1
+
+
+def test_ud_stays_positive_definite_where_plain_rls_diverges():
+    """amthor's observation: float32, forgetting 0.99, two almost collinear regressors (P ill-conditioned):
+    the plain covariance update loses positive-definiteness and its estimate becomes non-finite; the U-D
+    factorised one keeps every d_j > 0 and predicts the record to float32 round-off."""
+    T = 8000
+    t = np.arange(T)
+    base = np.sin(0.01 * t)
+    Phi = np.column_stack([base, base + 1e-3 * np.sin(0.003 * t), np.ones(T), 0.01 * np.cos(0.01 * t)])
+    Phi = Phi.astype(np.float32)
+    y = (Phi @ np.array([1.0, 1.0, 0.3, 2.0])).astype(np.float32)
+    data = fj.RegressionData(Phi, y)
+    outputs = {}
+    for method in ("plain", "ud"):
+        rls = fj.RecursiveLeastSquares(np.zeros(4, np.float32), np.float32(1e2), np.float32(0.99), method=method)
+        outputs[method] = np.asarray(fj.simulate(rls, data)["prediction"])
+        assert outputs[method].dtype == np.float32
+    assert not np.all(np.isfinite(outputs["plain"]))
+    assert np.all(np.isfinite(outputs["ud"]))
+    assert np.max(np.abs(outputs["ud"][-1000:] - y[-1000:])) < 1e-5 * np.max(np.abs(y))
+
+
+def test_vmap_over_forgetting_factors_and_errors():
+    Phi, y, _ = regression(T=100)
+    data = fj.RegressionData(Phi, y)
+    batch = jax.vmap(lambda lam: fj.simulate(fj.RecursiveLeastSquares(jnp.zeros(4), 1e3, lam), data)["theta"][-1])
+    thetas = batch(jnp.asarray([1.0, 0.98]))
+    for i, lam in enumerate((1.0, 0.98)):
+        single = fj.simulate(fj.RecursiveLeastSquares(np.zeros(4), 1e3, lam), data)["theta"][-1]
+        np.testing.assert_allclose(thetas[i], single, rtol=1e-12)
+    with pytest.raises(ValueError, match="`forgetting`"):
+        fj.RecursiveLeastSquares(np.zeros(4), 1e3, 1.5)
+    with pytest.raises(ValueError, match="`p0`"):
+        fj.RecursiveLeastSquares(np.zeros(4), -1.0)
+    with pytest.raises(ValueError, match="`method`"):
+        fj.RecursiveLeastSquares(np.zeros(4), method="qr")
+    with pytest.raises(ValueError, match="columns"):
+        fj.simulate(fj.RecursiveLeastSquares(np.zeros(3)), data)
+    with pytest.raises(TypeError, match="RegressionData"):
+        fj.simulate(fj.RecursiveLeastSquares(np.zeros(4)), Phi)
+    with pytest.raises(ValueError, match="finite"):
+        fj.RegressionData(np.full((3, 2), np.nan), np.zeros(3))
