@@ -104,10 +104,6 @@ from ._estimation._losses import OneStepLoss as OneStepLoss
 from ._estimation._losses import SimulationLoss as SimulationLoss
 from ._estimation._polynomial_narx import PolynomialNARXResult as PolynomialNARXResult
 from ._estimation._polynomial_narx import identify_polynomial_narx as identify_polynomial_narx
-from ._estimation._recursive import RecursiveLeastSquares as RecursiveLeastSquares
-from ._estimation._recursive import RegressionData as RegressionData
-from ._estimation._recursive import RLSState as RLSState
-from ._estimation._recursive import ud_update as ud_update
 from ._estimation._result import RESULT_CODES as RESULT_CODES
 from ._estimation._result import FitResult as FitResult
 from ._estimation._serialise import load_model as load_model
@@ -142,3 +138,11 @@ from ._systems._emps import EMPSSimulation as EMPSSimulation
 from ._systems._emps import emps_open_loop_rmse_mm as emps_open_loop_rmse_mm
 from ._systems._emps import simulate_closed_loop as simulate_closed_loop
 from ._systems._emps import simulate_open_loop as simulate_open_loop
+from ._systems._recursive import RecursiveLeastSquares as RecursiveLeastSquares
+from ._systems._recursive import RegressionData as RegressionData
+from ._systems._recursive import RLSState as RLSState
+from ._systems._recursive import ud_update as ud_update
+from ._systems._stage import PositioningStage as PositioningStage
+from ._systems._stage import StageCompensator as StageCompensator
+from ._systems._stage import StageState as StageState
+from ._systems._stage import tracking_nrmse as tracking_nrmse

@@ -14,6 +14,10 @@ For a regression `y_k = phi_k^T theta + e_k` with forgetting factor `lambda` in 
 
 which with `lambda = 1` and `P_0 = p0 I`, `theta_0` gives the batch regularised least-squares solution
 `argmin sum_k (y_k - phi_k^T theta)^2 + |theta - theta_0|^2 / p0` after every sample.
+
+The estimator is a system (a regression record in, estimates out) rather than part of `_estimation`: the U-D
+update also runs inside other systems' steps (the adaptive compensator of `fj.PositioningStage`), and systems sit
+below estimation in the layering.
 """
 
 from __future__ import annotations
