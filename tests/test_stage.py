@@ -59,31 +59,29 @@ def test_pid_loop_matches_numpy():
 
 @pytest.mark.slow
 def test_adaptive_compensation_beats_pid_and_static_and_recovers_after_a_friction_change():
-    """amthor's scenario in a synthetic stage (10 um, 1 Hz sine at 10 kHz; GMS plant; friction +20 % at 3 s): the
-    adaptive inverse model reduces the tracking error by more than 10x against PID only (measured 20x over the
-    last 2 s of 10 s in benchmarks/adaptive.py), more than the static compensator, and the error after the
-    change returns to its level before it."""
-    t, reference, record = scenario(6.0, change_at=3.0)
-    thresholds = np.linspace(0.2e-6, 3e-6, 12)
+    """Issue 14's acceptance, amthor's scenario in a synthetic stage (10 um, 1 Hz sine at 10 kHz; GMS plant;
+    compensation on at 2 s, friction +20 % at 5 s): the adaptive inverse model (12 Maxwell-slip elements and 5
+    Stribeck terms, U-D RLS) reduces the tracking error at least 25x against PID only (benchmarks/adaptive.py:
+    140x over 20 s), below the static compensator, and the error after the change recovers to within 3x of its
+    level before it."""
+    t, reference, record = scenario(8.0, change_at=5.0)
+    model = {"thresholds": np.linspace(0.2e-6, 3e-6, 12), "stribeck_velocities": np.geomspace(5e-6, 8e-5, 5)}
     kinds = {
         "none": fj.StageCompensator(),
-        "static": fj.StageCompensator("static", mass=MASS, Fc=1.0, Fv=50.0),
-        "adaptive": fj.StageCompensator("adaptive", mass=MASS, thresholds=thresholds, forgetting=0.9995, p0=1.0),
+        "static": fj.StageCompensator("static", mass=MASS, Fc=1.0, Fv=50.0, feedforward_from=2.0),
+        "adaptive": fj.StageCompensator(
+            "adaptive", mass=MASS, forgetting=0.9995, p0=1.0, feedforward_from=2.0, **model
+        ),
     }
     rms = {}
+    before, after = (t > 3.0) & (t < 5.0), t > 6.5
     for name, compensator in kinds.items():
-        error = np.asarray(
-            fj.simulate(fj.PositioningStage(MASS, plant(), **GAINS, compensator=compensator), record)["error"]
-        )
-        before = (t > 2.0) & (t < 3.0)
-        after = t > 5.0
-        rms[name] = (
-            fj.tracking_nrmse(error[before], reference[before]),
-            fj.tracking_nrmse(error[after], reference[after]),
-        )
-    print(rms)
-    assert rms["adaptive"][1] * 10 < rms["none"][1] and rms["adaptive"][1] < rms["static"][1]
-    assert rms["adaptive"][1] < 1.5 * rms["adaptive"][0]  # recovered after the +20 % change
+        stage = fj.PositioningStage(MASS, plant(), **GAINS, compensator=compensator, resolution=1e-10)
+        error = np.asarray(fj.simulate(stage, record)["error"])
+        rms[name] = (np.sqrt(np.mean(error[before] ** 2)), np.sqrt(np.mean(error[after] ** 2)))
+    print({name: (1e9 * a, 1e9 * b) for name, (a, b) in rms.items()})
+    assert rms["adaptive"][1] * 25 < rms["none"][1] and rms["adaptive"][1] < rms["static"][1]
+    assert rms["adaptive"][1] < 3 * rms["adaptive"][0]  # recovered after the +20 % change
 
 
 def test_compensator_errors():
@@ -93,5 +91,7 @@ def test_compensator_errors():
         fj.StageCompensator("adaptive", mass=1.0)
     with pytest.raises(ValueError, match="`theta`"):
         fj.StageCompensator("model", thresholds=[1e-6], theta=[1.0])
+    with pytest.raises(ValueError, match="stribeck_velocities"):
+        fj.StageCompensator("model", thresholds=[1e-6], stribeck_velocities=[-1e-5])
     with pytest.raises(ValueError, match="`mass`"):
         fj.PositioningStage(0.0, plant(), 1.0, 0.0, 0.0)

@@ -12,8 +12,10 @@ Here the "true" axis is a mass with any fricjax friction model (GMS by default),
 - `"none"`: PID only;
 - `"static"`: Coulomb + viscous friction and the inertia of the reference: `m a_r + Fc sign(v_r) + Fv v_r`;
 - `"model"`: an inverse model linear in its parameters (the extended DNLRX of amthor eq. 8 with n = 0: Maxwell-slip
-  elements with thresholds `Delta_i` on the position, the velocity, an offset; plus the nominal inertia), its
-  parameters `theta` fixed (identified offline);
+  elements with thresholds `Delta_i` on the position, the velocity, an offset; plus the nominal inertia; and, an
+  addition of ours, Stribeck terms `direction exp(-(v / v_j)^2)` for a bank of widths `v_j`, which give the drop
+  from static to sliding friction that rate-independent elements cannot), its parameters `theta` fixed
+  (identified offline);
 - `"adaptive"`: the same model with `theta` adapted online: after each sample the applied force less the
   inertia is regressed on the model's regressors of the measured motion (U-D RLS with forgetting), and the
   feed-forward evaluates the model on the reference.
@@ -50,9 +52,15 @@ class StageCompensator(eqx.Module):
     - `mass`: the nominal moving mass [kg] for the inertia feed-forward `m a_r`.
     - `Fc`, `Fv`: Coulomb force [N] and viscous coefficient [N s/m] (`"static"`).
     - `thresholds`: Maxwell-slip thresholds `Delta_i` [m] of the inverse model (`"model"`, `"adaptive"`).
-    - `theta`: its parameters, `(M + 2,)`: element forces [N] at full deflection, viscous [N s/m], offset [N].
+    - `stribeck_velocities`: velocities `v_j` [m/s] of Stribeck regressors `mean_i(dbar_i) exp(-(v / v_j)^2)` (the
+      drop from static to sliding friction, which rate-independent elements cannot give; a bank of widths keeps
+      the model linear in its parameters). Default none.
+    - `theta`: its parameters, `(M + J + 2,)`: element forces [N] at full deflection, Stribeck forces [N], viscous
+      [N s/m], offset [N].
     - `forgetting`, `p0`: the recursive least squares' forgetting factor and initial covariance (`"adaptive"`).
-    - `adapt_from`: the time [s] after which adaptation runs (before it the model is used as given).
+    - `adapt_from`: the time [s] from which the adaptation runs (before it the model is used as given).
+    - `feedforward_from`: the time [s] from which the feed-forward is applied (before it: PID only; amthor's
+      Fig. 6 switches the compensator on during the run). Default 0.
     """
 
     kind: str = eqx.field(static=True)
@@ -60,10 +68,12 @@ class StageCompensator(eqx.Module):
     Fc: Any
     Fv: Any
     thresholds: Any
+    stribeck_velocities: Any
     theta: Any
     forgetting: Any
     p0: Any
     adapt_from: Any
+    feedforward_from: Any
 
     def __init__(
         self,
@@ -73,41 +83,57 @@ class StageCompensator(eqx.Module):
         Fc: ParamLike = 0.0,
         Fv: ParamLike = 0.0,
         thresholds: Any = None,
+        stribeck_velocities: Any = None,
         theta: Any = None,
         forgetting: ParamLike = 0.9995,
         p0: ParamLike = 1.0,
         adapt_from: ParamLike = 0.0,
+        feedforward_from: ParamLike = 0.0,
     ):
         if kind not in ("none", "static", "model", "adaptive"):
             raise ValueError(f"StageCompensator: `kind` must be 'none', 'static', 'model' or 'adaptive', got {kind!r}.")
         thresholds = np.zeros(0) if thresholds is None else thresholds
-        size = int(np.size(thresholds)) + 2
+        velocities = np.zeros(0) if stribeck_velocities is None else stribeck_velocities
+        size = int(np.size(thresholds)) + int(np.size(velocities)) + 2
         theta = np.zeros(size) if theta is None else theta
         if kind in ("model", "adaptive") and np.size(thresholds) == 0:
             raise ValueError(f"StageCompensator: kind {kind!r} needs the inverse model's `thresholds` [m].")
         if np.shape(theta) != (size,):
             raise ValueError(
-                f"StageCompensator: `theta` must have shape ({size},) (one force per threshold, the viscous "
-                f"coefficient, the offset), got {np.shape(theta)}."
+                f"StageCompensator: `theta` must have shape ({size},) (one force per threshold and per Stribeck "
+                f"velocity, the viscous coefficient, the offset), got {np.shape(theta)}."
             )
         if is_concrete(thresholds) and not np.all(np.asarray(thresholds) > 0):
             raise ValueError("StageCompensator: `thresholds` must be positive displacements [m].")
+        if is_concrete(velocities) and not np.all(np.asarray(velocities) > 0):
+            raise ValueError("StageCompensator: `stribeck_velocities` must be positive velocities [m/s].")
         if is_concrete(forgetting) and not 0 < float(np.asarray(forgetting)) <= 1:
             raise ValueError(f"StageCompensator: `forgetting` must be in (0, 1], got {forgetting!r}.")
         self.kind = kind
         self.mass, self.Fc, self.Fv = as_float_array(mass), as_float_array(Fc), as_float_array(Fv)
         self.thresholds = Fixed(as_float_array(thresholds))
+        self.stribeck_velocities = Fixed(as_float_array(velocities))
         self.theta = as_float_array(theta)
         self.forgetting, self.p0 = Fixed(as_float_array(forgetting)), Fixed(as_float_array(p0))
         self.adapt_from = Fixed(as_float_array(adapt_from))
+        self.feedforward_from = Fixed(as_float_array(feedforward_from))
 
     @property
     def size(self) -> int:
-        return int(np.shape(unwrap(self.thresholds))[0]) + 2
+        """The number of the inverse model's parameters."""
+        return self.elements + int(np.shape(unwrap(self.stribeck_velocities))[0]) + 2
+
+    @property
+    def elements(self) -> int:
+        """The number of Maxwell-slip elements of the inverse model."""
+        return int(np.shape(unwrap(self.thresholds))[0])
 
     def regressors(self, deflection: Array, velocity: Array) -> Array:
-        """The inverse model's regressors: the normalised element deflections, the velocity, 1."""
-        return jnp.concatenate([deflection, velocity[None], jnp.ones((1,), deflection.dtype)])
+        """The inverse model's regressors: the normalised element deflections, the Stribeck terms, the velocity,
+        1 (parameters unwrapped)."""
+        direction = jnp.mean(deflection) if deflection.shape[0] else jnp.sign(velocity)
+        stribeck = direction * jnp.exp(-((velocity / self.stribeck_velocities) ** 2))
+        return jnp.concatenate([deflection, stribeck, velocity[None], jnp.ones((1,), deflection.dtype)])
 
 
 class StageState(eqx.Module):
@@ -185,7 +211,7 @@ class PositioningStage(AbstractSystem):
         p = unwrap(self)
         zero = jnp.zeros((), p.mass.dtype)
         c = p.compensator
-        m = c.size - 2
+        m = c.elements
         return StageState(
             x=zero,
             v=zero,
@@ -224,6 +250,7 @@ class PositioningStage(AbstractSystem):
             u_ff = c.mass * a_r + c.Fc * jnp.sign(v_r) + c.Fv * v_r
         else:
             u_ff = c.mass * a_r + jnp.dot(c.regressors(ff_deflection, v_r), state.theta)
+        u_ff = jnp.where(state.t >= c.feedforward_from, u_ff, 0.0)
         # the controller reads the quantised position
         measured = _quantise(state.x, p.resolution)
         error = r - measured
