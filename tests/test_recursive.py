@@ -129,3 +129,52 @@ def test_vmap_over_forgetting_factors_and_errors():
         fj.simulate(fj.RecursiveLeastSquares(np.zeros(4)), Phi)
     with pytest.raises(ValueError, match="finite"):
         fj.RegressionData(np.full((3, 2), np.nan), np.zeros(3))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# recursive_fit: the linear parameters of any friction model, online
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _dnlrx(theta, c=(0.0, 0.0)):
+    return fj.MaxwellSlip.dnlrx(thresholds=[2e-5, 1e-4, 4e-4], theta=theta, c=list(c), offset=0.05)
+
+
+def _motion(T=1500):
+    t = np.arange(T) * 1e-3
+    x = 1e-3 * np.sin(2 * np.pi * 1.3 * t) * np.sin(2 * np.pi * 0.21 * t) + 2e-4 * np.sin(2 * np.pi * 7.0 * t)
+    return fj.Motion.from_position(x, dt=1e-3)
+
+
+def test_recursive_fit_equals_batch_least_squares_and_tracks_a_change():
+    """DNLRX(3, 1, 1): with forgetting 1 and a weak prior the recursive estimate of the force map (FIR band,
+    displacement FIR) equals `fj.solve_linear`'s batch solution; with forgetting 0.99 it follows the force map of
+    a second model after mid-record."""
+    motion = _motion()
+    theta_a = np.array([[0.3, 0.5, 0.2], [0.1, -0.05, 0.02]])
+    truth = _dnlrx(theta_a, c=(20.0, -15.0))
+    rng = np.random.default_rng(0)
+    force = np.asarray(fj.simulate(truth, motion)) + 0.002 * rng.standard_normal(motion.length)
+    data = fj.FrictionData(motion, force)
+    start = _dnlrx(np.zeros((2, 3)))
+    paths = ("force_map.theta", "force_map.c")
+    result = fj.recursive_fit(start, data, paths, p0=1e14)
+    batch = fj.solve_linear(
+        start,
+        eqx.tree_at(
+            lambda m: (m.force_map.theta, m.force_map.c), jax.tree_util.tree_map(lambda _: False, start), (True, True)
+        ),
+        data,
+    )
+    np.testing.assert_allclose(result.model.force_map.theta, batch.force_map.theta, rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(result.model.force_map.c, batch.force_map.c, rtol=1e-5)  # nearly collinear lags
+    assert result.theta.shape == (motion.length, 8) and result.prediction.shape == (motion.length,)
+    # a change of the force map at mid-record: forgetting follows it
+    theta_b = 1.3 * theta_a
+    second = np.asarray(fj.simulate(_dnlrx(theta_b, c=(20.0, -15.0)), motion))
+    half = motion.length // 2
+    changed = fj.FrictionData(motion, np.concatenate([force[:half], second[half:]]))
+    tracking = fj.recursive_fit(start, changed, paths, forgetting=0.99, p0=1e10)
+    np.testing.assert_allclose(tracking.model.force_map.theta, theta_b, rtol=0.02, atol=2e-3)
+    with pytest.raises(ValueError, match="linearly"):
+        fj.recursive_fit(start, data, "thresholds")

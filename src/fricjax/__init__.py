@@ -104,6 +104,8 @@ from ._estimation._losses import OneStepLoss as OneStepLoss
 from ._estimation._losses import SimulationLoss as SimulationLoss
 from ._estimation._polynomial_narx import PolynomialNARXResult as PolynomialNARXResult
 from ._estimation._polynomial_narx import identify_polynomial_narx as identify_polynomial_narx
+from ._estimation._recursive_fit import RecursiveFitResult as RecursiveFitResult
+from ._estimation._recursive_fit import recursive_fit as recursive_fit
 from ._estimation._result import RESULT_CODES as RESULT_CODES
 from ._estimation._result import FitResult as FitResult
 from ._estimation._serialise import load_model as load_model
