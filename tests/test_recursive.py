@@ -175,6 +175,10 @@ def test_recursive_fit_equals_batch_least_squares_and_tracks_a_change():
     half = motion.length // 2
     changed = fj.FrictionData(motion, np.concatenate([force[:half], second[half:]]))
     tracking = fj.recursive_fit(start, changed, paths, forgetting=0.99, p0=1e10)
-    np.testing.assert_allclose(tracking.model.force_map.theta, theta_b, rtol=0.02, atol=2e-3)
+    np.testing.assert_allclose(tracking.model.force_map.theta, theta_b, rtol=0.02, atol=0.01)
+    late = slice(3 * motion.length // 4, None)
+    fixed = fj.recursive_fit(start, changed, paths, forgetting=1.0, p0=1e10)
+    rms = lambda r: np.sqrt(np.mean((r.prediction[late] - second[late]) ** 2))  # noqa: E731
+    assert rms(tracking) < 0.01 < rms(fixed), (rms(tracking), rms(fixed))
     with pytest.raises(ValueError, match="linearly"):
-        fj.recursive_fit(start, data, "thresholds")
+        fj.recursive_fit(truth, data, "thresholds")
