@@ -182,3 +182,25 @@ def test_recursive_fit_equals_batch_least_squares_and_tracks_a_change():
     assert rms(tracking) < 0.01 < rms(fixed), (rms(tracking), rms(fixed))
     with pytest.raises(ValueError, match="linearly"):
         fj.recursive_fit(truth, data, "thresholds")
+
+
+def test_recursive_fit_of_a_polynomial_narx_under_teacher_forcing():
+    """A polynomial NARX with past forces is linear in its coefficients under teacher forcing: `one_step=True`
+    with forgetting 1 ends at the batch least-squares coefficients of the teacher-forced regression over the
+    whole record (`regressor_matrix`), for the terms FROLS selected."""
+    motion = _motion(800)
+    truth = _dnlrx(np.array([[0.3, 0.5, 0.2], [0.1, -0.05, 0.02]]), c=(20.0, -15.0))
+    data = fj.FrictionData(motion, fj.simulate(truth, motion))
+    identified = fj.identify_polynomial_narx(data, signals=("dx", "v"), input_lags=1, output_lags=2, degree=2)
+    model = identified.model
+    start = eqx.tree_at(lambda m: (m.theta, m.theta0), model, (jnp.zeros_like(model.theta), jnp.zeros(())))
+    online = fj.recursive_fit(start, data, ("theta", "theta0"), p0=1e12, one_step=True)
+    rows = np.asarray(model.regressor_matrix(motion, data.force))
+    scales = fj.unwrap(model.regressors)
+    target = (np.asarray(data.force) - float(scales.output_mean)) / float(scales.output_scale)
+    reference, *_ = np.linalg.lstsq(np.column_stack([rows, np.ones(len(rows))]), target, rcond=None)
+    np.testing.assert_allclose(online.model.theta, reference[:-1], rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(online.model.theta0, reference[-1], rtol=1e-6, atol=1e-9)
+    assert any("F[k-" in term for term in model.describe())  # past forces among the terms
+    with pytest.raises(ValueError, match="linearly"):
+        fj.recursive_fit(model, data, "theta")  # so the free run is not linear in the coefficients

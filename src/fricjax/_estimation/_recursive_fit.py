@@ -44,13 +44,16 @@ def recursive_fit(
     forgetting: float = 1.0,
     p0: float = 1e4,
     method: str = "ud",
+    one_step: bool = False,
 ) -> RecursiveFitResult:
     """Estimate the parameters of `model` selected by `linear` (dotted paths, e.g. `"force_map.theta"`, or
     `where` callables; they must enter the force linearly) online along `data`, by recursive least squares.
 
     **Arguments:** `model` any friction model; `data` an `fj.FrictionData`; `linear` the fields; `forgetting` in
     (0, 1]; `p0` the initial covariance (scalar, in squared parameter units: large means a weak prior at the
-    model's current values); `method` `"ud"` (U-D factorised, default) or `"plain"`.
+    model's current values); `method` `"ud"` (U-D factorised, default) or `"plain"`; `one_step`: regress the
+    one-step-ahead prediction (teacher forcing: the measured force fed back) instead of the free run, as for the
+    coefficients of a polynomial NARX with past forces, which are linear only under teacher forcing.
 
     ```python
     >>> import numpy as np, fricjax as fj
@@ -75,16 +78,20 @@ def recursive_fit(
     flat, unravel = jax.flatten_util.ravel_pytree(parameters)
 
     def force(theta: jax.Array) -> jax.Array:
-        return simulate(eqx.combine(unravel(theta), rest), data.motion)
+        measured = data.force if one_step else None
+        return simulate(eqx.combine(unravel(theta), rest), data.motion, measured=measured)
 
     zero = jnp.zeros_like(flat)
     f0 = force(zero)
     J = jax.jacfwd(force)(zero)
-    curvature = force(2 * flat + 1.0) - 2 * force(flat + 0.5) + f0
-    if float(jnp.max(jnp.abs(curvature))) > 1e-6 * (float(jnp.max(jnp.abs(f0))) + float(jnp.max(jnp.abs(J))) + 1e-300):
+    probe = jnp.asarray(np.random.default_rng(1).normal(size=flat.shape), flat.dtype) * (jnp.abs(flat) + 1.0)
+    curvature = float(jnp.max(jnp.abs(force(2 * probe) - 2 * force(probe) + f0)))
+    scale = float(jnp.max(jnp.abs(force(2 * probe)))) + float(jnp.max(jnp.abs(f0))) + 1e-300
+    if not (np.isfinite(curvature) and curvature <= 1e-6 * scale):  # a diverging free run is not linear
         raise ValueError(
             f"recursive_fit: the fields {[label for label, _ in selected]} do not enter the force linearly for "
-            f"{type(model).__name__}; name only force-map weights, offsets, FIR or output coefficients."
+            f"{type(model).__name__}; name only force-map weights, offsets, FIR or output coefficients (for a NARX "
+            "with past forces, pass one_step=True)."
         )
     regression = RegressionData(J, jnp.asarray(data.force) - f0)
     estimator = RecursiveLeastSquares(flat, p0, forgetting, method=method)  # type: ignore[arg-type]
