@@ -23,10 +23,10 @@ def plant():
     return fj.GMS(stribeck, k=[3e5, 1.5e5, 1e5, 5e4], alpha=[0.4, 0.3, 0.2, 0.1], C=200.0, sigma2=50.0)
 
 
-def scenario(seconds, change_at=None):
+def scenario(seconds, change_at=None, factor=1.2):
     t = np.arange(int(round(seconds / DT))) * DT
     reference = 1e-5 * np.sin(2 * np.pi * t)
-    scale = np.ones_like(t) if change_at is None else np.where(t < change_at, 1.0, 1.2)
+    scale = np.ones_like(t) if change_at is None else np.where(t < change_at, 1.0, factor)
     return t, reference, fj.InputRecord(dt=DT, reference=reference, friction_scale=scale)
 
 
@@ -61,13 +61,14 @@ def test_pid_loop_matches_numpy():
 
 
 @pytest.mark.slow
-def test_adaptive_compensation_beats_pid_and_static_and_recovers_after_a_friction_change():
+@pytest.mark.parametrize("factor", [1.2, 0.8])
+def test_adaptive_compensation_beats_pid_and_static_and_recovers_after_a_friction_change(factor):
     """Issue 14's acceptance, amthor's scenario in a synthetic stage (10 um, 1 Hz sine at 10 kHz; GMS plant;
-    compensation on at 2 s, friction +20 % at 5 s): the adaptive inverse model (12 Maxwell-slip elements and 5
+    compensation on at 2 s, friction +-20 % at 5 s): the adaptive inverse model (12 Maxwell-slip elements and 5
     Stribeck terms, U-D RLS) reduces the tracking error at least 25x against PID only (benchmarks/adaptive.py:
     140x over 20 s), below the static compensator, and the error after the change recovers to within 3x of its
     level before it."""
-    t, reference, record = scenario(8.0, change_at=5.0)
+    t, reference, record = scenario(8.0, change_at=5.0, factor=factor)
     model = {"thresholds": np.linspace(0.2e-6, 3e-6, 12), "stribeck_velocities": np.geomspace(5e-6, 8e-5, 5)}
     kinds = {
         "none": fj.StageCompensator(),
@@ -84,7 +85,7 @@ def test_adaptive_compensation_beats_pid_and_static_and_recovers_after_a_frictio
         rms[name] = (np.sqrt(np.mean(error[before] ** 2)), np.sqrt(np.mean(error[after] ** 2)))
     print({name: (1e9 * a, 1e9 * b) for name, (a, b) in rms.items()})
     assert rms["adaptive"][1] * 25 < rms["none"][1] and rms["adaptive"][1] < rms["static"][1]
-    assert rms["adaptive"][1] < 3 * rms["adaptive"][0]  # recovered after the +20 % change
+    assert rms["adaptive"][1] < 3 * rms["adaptive"][0]  # recovered after the change
 
 
 def test_compensator_errors():
