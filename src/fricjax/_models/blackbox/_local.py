@@ -11,10 +11,17 @@ and predicts
   truncated principal component regression (TPCR): singular values of the neighbourhood below a relative
   threshold `rcond`, or beyond a fixed `rank`, are set to zero in the pseudoinverse.
 
-The neighbour search is exact and brute force (distances to every training vector, then `lax.top_k`): O(N) per
-step for N training vectors, no Python loop, so the model runs under `jit`, `vmap` and inside `fj.simulate`'s
-scan. (parlitz2004 used the ATRIA search tree; a tree gives the same neighbours faster on a CPU, but does not
-vectorise.)
+The neighbour search is exact and brute force (distances to every training vector, then a two-stage `top_k`,
+see `nearest`): O(N) per step for N training vectors, no Python loop, so the model runs under `jit`, `vmap` and
+inside `fj.simulate`'s scan. On 2 CPU cores with N = 4800 a free-run step costs about 0.3-0.6 ms with a few
+dozen neighbours and 1.5-2 ms for a locally linear fit over 300 (benchmarks/local.py). parlitz2004 used the
+ATRIA search tree, which finds the same neighbours faster on a CPU but does not vectorise.
+
+parlitz2004's structure is the delay vector of the displacement (their nonuniform embedding also took past
+forces: `output_embedding`). On the built-in tribometer records it stays 20-200x above the noise floor, as the
+delay vectors cannot hold the non-local memory of pre-sliding hysteresis; play-operator states as coordinates
+(`plays=`, an extension) and a fitted sensor drift (`fj.identify_local_model(..., drift=True)`) bring it to
+3-17x (benchmarks/README.md).
 """
 
 from __future__ import annotations
