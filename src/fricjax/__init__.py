@@ -24,6 +24,7 @@ from ._metrics import rmse as rmse
 from ._models._base import AbstractFrictionModel as AbstractFrictionModel
 from ._models._base import AbstractModel as AbstractModel
 from ._models._base import AbstractSystem as AbstractSystem
+from ._models.blackbox._local import LocalModel as LocalModel
 from ._models.blackbox._narx import GSNN as GSNN
 from ._models.blackbox._narx import MLPNARX as MLPNARX
 from ._models.blackbox._narx import AbstractNARX as AbstractNARX
@@ -98,6 +99,8 @@ from ._estimation._linear import covariance as covariance
 from ._estimation._linear import lstsq as lstsq
 from ._estimation._linear import parameter_std as parameter_std
 from ._estimation._linear import select_terms as select_terms
+from ._estimation._local_models import LocalModelResult as LocalModelResult
+from ._estimation._local_models import identify_local_model as identify_local_model
 from ._estimation._losses import AbstractLoss as AbstractLoss
 from ._estimation._losses import MultipleShootingLoss as MultipleShootingLoss
 from ._estimation._losses import OneStepLoss as OneStepLoss
