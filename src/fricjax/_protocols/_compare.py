@@ -250,10 +250,11 @@ class Split:
 @dataclasses.dataclass(frozen=True)
 class ModelSpec:
     """How to start and fit one model family in `compare`: `build(scales)` and
-    `fit(start, split, seed, progress)`."""
+    `fit(start, split, seed, progress)`. `build` is None for models identified from the split as a whole (their
+    `fit` gets `start=None`: structure and parameters chosen on the training and validation parts together)."""
 
     label: str
-    build: Callable[[DataScales], Any]
+    build: Callable[[DataScales], Any] | None
     fit: Callable[[Any, Split, int, bool], FitResult]
 
 
@@ -390,7 +391,7 @@ def default_models(settings: FitSettings | None = None) -> dict[str, ModelSpec]:
 
 PHYSICS_MODELS = ("stribeck", "lugre", "gms", "nlr", "dnlrx")
 NEURAL_MODELS = ("mlp", "gsnn", "rnn", "avd")
-LINEAR_MODELS = ("narx",)
+LINEAR_MODELS = ("narx", "knn")
 MODEL_NAMES = PHYSICS_MODELS + NEURAL_MODELS + LINEAR_MODELS
 """Every model `compare` can fit; the command line fits `PHYSICS_MODELS` unless told otherwise."""
 
@@ -494,8 +495,56 @@ def linear_in_parameters_models(settings: FitSettings) -> dict[str, ModelSpec]:
     return {
         "narx": ModelSpec(
             "polynomial NARX (FROLS/PRESS)", papers, _structure_by_validation(structures, _lm((), 1, settings))
-        )
+        ),
+        "knn": ModelSpec("local models (kNN, 20 plays)", None, _local_models(settings)),
     }
+
+
+def _local_models(settings: FitSettings) -> Callable[..., FitResult]:
+    """`knn`: parlitz2004 §III-F local models, k nearest neighbours of the current coordinates among the training
+    record's, locally constant and locally linear (TPCR), the embedding, delay and k chosen on the validation part
+    (`identify_local_model`). Coordinates: the displacement and velocity at lags 0..(m-1) tau and, as for the
+    neural models, 20 play operators of the displacement (thresholds 0.01-1 x the record's half range; the papers'
+    displacement delays alone stay at 15-35 % on the mixed regime); a linear sensor drift (`--drift none`: none)."""
+    from .._estimation._local_models import identify_local_model
+
+    def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
+        began = time.perf_counter()
+        train = split.train
+        x = np.asarray(train.motion.samples(frozenset({"x"})).x)
+        thresholds = float(np.max(np.abs(x - np.median(x)))) * np.geomspace(0.01, 1.0, 20)
+        common: dict[str, Any] = {
+            "validation": split.until_validation_end,
+            "validation_burn_in": split.train_end,
+            "signals": ("x", "v"),
+            "plays": thresholds,
+            "embedding": (1, 2, 4),
+            "delay": (1, 10),
+            "drift": settings.drift != "none",
+        }
+        results = {
+            "linear": identify_local_model(train, kind="linear", neighbours=(30, 100, 300), rcond=1e-2, **common),
+            "constant": identify_local_model(train, kind="constant", neighbours=(3, 10, 30), **common),
+        }
+        scores = {kind: float(np.min(result.scores)) for kind, result in results.items()}
+        kind = min(scores, key=lambda k: scores[k])
+        chosen = results[kind]
+        m, tau, k = chosen.best
+        message = (
+            f"locally {kind}, m = {m}, tau = {tau}, k = {k} (validation NMSE: linear {scores['linear']:.3g} %, "
+            f"constant {scores['constant']:.3g} %); identified, no iterations"
+        )
+        return identified_result(chosen.model, message, time.perf_counter() - began, scores[kind])
+
+    return run
+
+
+def identified_result(model: Any, message: str, wall_time: float, validation_nmse: float) -> FitResult:
+    """A `FitResult` for a model identified in closed form or by a grid (no optimiser steps)."""
+    empty = np.zeros(0)
+    history = {"step": empty, "train_loss": empty, "val_loss": empty, "eps": empty, "time": empty}
+    nan = float("nan")
+    return FitResult(model, "successful", message, history, nan, validation_nmse, validation_nmse, 0, wall_time, 1, 0)
 
 
 def _structure_by_validation(
@@ -552,8 +601,12 @@ def _least_squares_then_noe(linear: tuple[str, ...], settings: FitSettings) -> C
 def _with_drift(spec: ModelSpec, kind: str) -> ModelSpec:
     """The spec with its model wrapped in `SensorDrift` (rate 0; leaky: tau = the training record's duration)."""
 
+    inner = spec.build
+    if inner is None:  # identified with its drift from the split itself
+        return spec
+
     def build(scales: DataScales) -> Any:
-        model = spec.build(scales)
+        model = inner(scales)
         if isinstance(model, SensorDrift):  # identified with its drift (the linear-in-parameters models)
             return model
         return SensorDrift(model, 0.0, None if kind == "linear" else scales.duration)
@@ -662,7 +715,7 @@ def fit_and_score(
         spec = specs[name]
         start_time = time.perf_counter()
         log(f"fitting {spec.label} ...")
-        result = spec.fit(spec.build(scales), split, seed, progress)
+        result = spec.fit(None if spec.build is None else spec.build(scales), split, seed, progress)
         elapsed = time.perf_counter() - start_time
         model = result.model
         full_prediction = free_run(model, split.full)
