@@ -817,7 +817,7 @@ def test_gradient_fits_keep_damping_nonnegative(solver):
     assert float(fj.unwrap(result.model).Fv) >= 0.0
 
 
-@pytest.mark.parametrize("solver", ["adam", "lm"])
+@pytest.mark.parametrize("solver", [pytest.param("adam", marks=pytest.mark.slow), "lm"])
 def test_a_second_fit_of_the_same_shapes_does_not_recompile(solver):
     """Issue 12: `fit`'s drivers are module-level jitted functions taking the problem as an argument, so a second
     fit with a new start, new data and new validation data of the same shapes compiles nothing (the optax solver

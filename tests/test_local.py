@@ -134,7 +134,9 @@ def build(train, case):
     )
 
 
-@pytest.mark.parametrize("name", sorted(CASES))
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n == "linear_feedback" else n for n in sorted(CASES)]
+)
 def test_free_run_and_one_step_match_numpy(record, name):
     """Free run against the brute-force loop; with fed-back forces also the one-step prediction (teacher forcing
     through `feedback`), which differs from the free run."""
@@ -301,6 +303,7 @@ def grid_scores_match(record, feedback, checked):
     assert free_run_nmse(result.model, record, TRAIN) == pytest.approx(np.min(result.scores), rel=1e-9)
 
 
+@pytest.mark.slow  # about 6 s
 def test_grid_scores_are_the_free_runs_of_the_models(record):
     """A score of the grid (one maximal shape, coordinates and neighbours switched off by masks) is the
     validation free-run NMSE of the model built on its own with that configuration (here the best, which is

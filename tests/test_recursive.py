@@ -146,6 +146,7 @@ def _motion(T=1500):
     return fj.Motion.from_position(x, dt=1e-3)
 
 
+@pytest.mark.slow  # about 8 s
 def test_recursive_fit_equals_batch_least_squares_and_tracks_a_change():
     """DNLRX(3, 1, 1): with forgetting 1 and a weak prior the recursive estimate of the force map (FIR band,
     displacement FIR) equals `fj.solve_linear`'s batch solution; with forgetting 0.99 it follows the force map of
@@ -184,6 +185,7 @@ def test_recursive_fit_equals_batch_least_squares_and_tracks_a_change():
         fj.recursive_fit(truth, data, "thresholds")
 
 
+@pytest.mark.slow  # about 6 s
 def test_recursive_fit_of_a_polynomial_narx_under_teacher_forcing():
     """A polynomial NARX with past forces is linear in its coefficients under teacher forcing: `one_step=True`
     with forgetting 1 ends at the batch least-squares coefficients of the teacher-forced regression over the
