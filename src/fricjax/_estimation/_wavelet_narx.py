@@ -55,7 +55,8 @@ def identify_wavelet_narx(
     levels: int = 4,
     candidates: int = 100,
     components: int | None = None,
-    whiten: bool = True,
+    nonlinear: Sequence[int] | None = None,
+    whiten: bool = False,
     criterion: Literal["err", "press"] = "err",
     plays: Any = None,
     smoothing: AbstractSmoothing | None = None,
@@ -68,11 +69,13 @@ def identify_wavelet_narx(
        measured force (teacher forcing: `regressors.teacher_forced`), each normalised by the record's mean and
        standard deviation (`NARXRegressors.from_data`), or the given `regressors`; the first `burn_in` rows are
        dropped.
-    2. Projection (PCA): `r` = the rows' mean; `Q` = their principal directions (those with a singular value
-       above `1e-8` of the largest, at most `components` of them), each divided by its standard deviation with
-       `whiten=True` (every projected coordinate of unit variance), or all by one common scale with `whiten=False`
-       (the principal axes keep their relative spreads; mean squared radius `q`). `P` = the identity: the linear
-       part `L` acts on every regressor.
+    2. Projection (PCA): `r` = the rows' mean; `Q` = the principal directions of the `nonlinear` regressors
+       (those with a singular value above `1e-8` of the largest, at most `components` of them), all divided by
+       one common scale so that the mean squared radius of the projected rows is `q` (the principal axes keep
+       their relative spreads), or each by its own standard deviation with `whiten=True` (every projected
+       coordinate of unit variance; this blows the small principal components, differences of lagged signals and
+       their noise, up to the size of the large ones, and gave worse free runs on the tribometer records).
+       `P` = the identity: the linear part `L` acts on every regressor.
     3. Candidate units: `candidates` centres chosen among the projected rows by farthest-point sampling (the row
        nearest the mean first, then each time the row farthest from those chosen: a uniform cover of the region
        the data occupy, the data-driven counterpart of Zhang's dyadic grid restricted to cells holding data),
@@ -104,7 +107,11 @@ def identify_wavelet_narx(
     - `levels`: the number of dyadic dilation levels, >= 1.
     - `candidates`: the number of candidate centres, >= 1 (at most the number of rows).
     - `components`: the most principal components the units see (default: every non-degenerate one).
-    - `whiten`: scale each principal component to unit variance (default) or all by one scale.
+    - `nonlinear`: indices into the regressor vector `x_k` of the regressors the units see (MATLAB's choice of
+      nonlinear regressors; default all). The order of `x_k`: the inputs lag by lag (signals in order within a
+      lag), the play operators, the past forces; e.g. `(0,)` for the velocity alone in
+      `NARXRegressors(("v",), 0, 0, plays=...)`. The others enter the linear part only (their rows of `Q` are 0).
+    - `whiten`: scale each principal component to unit variance, or all by one scale (default).
     - `criterion`: `"err"` (default: exactly `units`) or `"press"` (at most `units`).
     - `plays`, `smoothing`: play-operator thresholds [m] and their smoothing, passed to
       `NARXRegressors.from_data` (not with `regressors`).
@@ -140,6 +147,8 @@ def identify_wavelet_narx(
     candidates = _count(candidates, "candidates", where, 1, "the number of candidate centres")
     if components is not None:
         components = _count(components, "components", where, 1, "the most principal components the units see")
+    m = regressors.size
+    chosen_inputs = _nonlinear_indices(nonlinear, m, where)
     if not isinstance(whiten, bool):
         raise TypeError(f"{where}: `whiten` must be True or False, got {whiten!r}.")
     if criterion not in ("err", "press"):
@@ -148,7 +157,6 @@ def identify_wavelet_narx(
     burn_in = lag if burn_in is None else burn_in
     if isinstance(burn_in, bool) or not isinstance(burn_in, (int, np.integer)) or burn_in < 0:
         raise ValueError(f"{where}: `burn_in` must be an integer >= 0 (samples), got {burn_in!r}.")
-    m = regressors.size
     rows_count = data.length - burn_in
     needed = m + units + 2
     if rows_count < max(needed, candidates):
@@ -166,7 +174,10 @@ def identify_wavelet_narx(
     force = np.asarray(data.force, np.float64)[burn_in:]
     target = (force - float(scales.output_mean)) / float(scales.output_scale)
 
-    center, Q = _projection(rows, components, whiten)
+    center = rows.mean(axis=0)
+    Q_part = _projection(rows[:, chosen_inputs] - center[chosen_inputs], components, whiten)
+    Q = np.zeros((m, Q_part.shape[1]))
+    Q[chosen_inputs] = Q_part
     q = Q.shape[1]
     projected = (rows - center) @ Q
     centres = projected[_farthest_points(projected, candidates)]
@@ -176,6 +187,8 @@ def identify_wavelet_narx(
     linear = np.column_stack([np.ones(len(rows)), rows - center])
     basis = _orthonormal_basis(linear)
     orthogonal = library - basis @ (basis.T @ library)
+    spanned = np.linalg.norm(orthogonal, axis=0) <= 1e-8 * np.linalg.norm(library, axis=0)
+    orthogonal[:, spanned] = 0.0  # a unit the linear part already spans (e.g. flat over the data) is no candidate
     residual = target - basis @ (basis.T @ target)
     if units:
         selection = select_terms(orthogonal, residual, criterion=criterion, max_terms=units, intercept=False)
@@ -225,20 +238,35 @@ def _template(regressors: NARXRegressors, q: int) -> WaveletNARX:
     )  # fmt: skip
 
 
-def _projection(rows: np.ndarray, components: int | None, whiten: bool) -> tuple[np.ndarray, np.ndarray]:
-    """The rows' mean `r` and the PCA projection `Q` `(m, q)` (whitened, or scaled to mean squared radius q)."""
-    center = rows.mean(axis=0)
-    _, singular, vt = np.linalg.svd(rows - center, full_matrices=False)
+def _projection(centred: np.ndarray, components: int | None, whiten: bool) -> np.ndarray:
+    """The PCA projection `(k, q)` of centred rows `(N, k)`: whitened, or scaled to a mean squared radius q."""
+    _, singular, vt = np.linalg.svd(centred, full_matrices=False)
     keep = singular > 1e-8 * singular[0] if singular.size and singular[0] > 0 else np.zeros(singular.shape, bool)
     q = int(np.sum(keep)) if components is None else min(int(np.sum(keep)), components)
     if q == 0:
         raise ValueError(
-            "identify_wavelet_narx: the regressors do not vary over the record (every principal component is 0); "
-            "pass a record with motion."
+            "identify_wavelet_narx: the regressors the units see do not vary over the record (every principal "
+            "component is 0); pass a record with motion, or other `nonlinear` regressors."
         )
-    std = singular[:q] / np.sqrt(len(rows))
+    std = singular[:q] / np.sqrt(len(centred))
     scale = std if whiten else np.full(q, np.sqrt(np.mean(std**2)))
-    return center, vt[:q].T / scale
+    return vt[:q].T / scale
+
+
+def _nonlinear_indices(nonlinear: Any, size: int, where: str) -> np.ndarray:
+    if nonlinear is None:
+        return np.arange(size)
+    try:
+        indices = [int(i) for i in nonlinear if not isinstance(i, bool) and int(i) == i]
+        ok = len(indices) == len(nonlinear)
+    except (TypeError, ValueError):
+        ok = False
+    if not ok or not indices or len(set(indices)) != len(indices) or not all(0 <= i < size for i in indices):
+        raise ValueError(
+            f"{where}: `nonlinear` must be distinct indices into the regressor vector (0..{size - 1}: "
+            f"regressors.size = {size}), at least one, got {nonlinear!r}."
+        )
+    return np.asarray(sorted(indices))
 
 
 def _farthest_points(points: np.ndarray, count: int) -> np.ndarray:

@@ -15,7 +15,7 @@ past forces), `r` its mean over the training record, `P` `(m, p)` and `Q` `(m, q
 a principal-component analysis of the regressors), `L` the linear weights, `a_k`, `b_k > 0`, `c_k` the wavelets'
 coefficients, dilations and centres (translations), `s_k`, `beta_k > 0`, `gamma_k` the scaling functions' and `d`
 the offset. The paper's eq. 14 writes a product of one-dimensional wavelets per unit (Oussar's form); MATLAB's,
-implemented here, is radial: one dilation per unit, the same in every (projected, whitened) direction.
+implemented here, is radial: one dilation per unit, the same in every (projected) direction.
 
 The network is linear in `(L, a, s, d)` once the units' centres and dilations are placed: `fj.identify_wavelet_narx`
 places them from the data and solves those by least squares under teacher forcing; `fj.fit(model, data,
@@ -72,7 +72,7 @@ class WaveletNARX(AbstractNARX):
     - `regressors`: an `fj.NARXRegressors` (signals, lags, normalisation, optional play operators); `m =
       regressors.size`.
     - `center`: `r`, shape `(m,)` (fixed: the regressors' mean over the training record).
-    - `Q`: `(m, q)`, the projection of the units' inputs (fixed; PCA, whitened, from `identify_wavelet_narx`).
+    - `Q`: `(m, q)`, the projection of the units' inputs (fixed; PCA, from `identify_wavelet_narx`).
     - `L`: `(p,)` linear weights (trainable).
     - `a`, `b`, `c`: the wavelets' coefficients `(Kw,)`, dilations `(Kw,)` (> 0, stored as logs) and centres
       `(Kw, q)` (trainable; `Kw` may be 0).
