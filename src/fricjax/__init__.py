@@ -35,6 +35,7 @@ from ._models.blackbox._regressors import NARXRegressors as NARXRegressors
 from ._models.blackbox._regressors import NARXState as NARXState
 from ._models.blackbox._rnn import RecurrentNetwork as RecurrentNetwork
 from ._models.blackbox._rnn import RecurrentNetworkState as RecurrentNetworkState
+from ._models.blackbox._wavelet import WaveletNARX as WaveletNARX
 from ._models.physics._dahl import Dahl as Dahl
 from ._models.physics._dahl import DahlState as DahlState
 from ._models.physics._gms import GMS as GMS
@@ -121,6 +122,8 @@ from ._estimation._strategies import ParameterScaling as ParameterScaling
 from ._estimation._sweep import SweepResult as SweepResult
 from ._estimation._sweep import stack_models as stack_models
 from ._estimation._sweep import sweep as sweep
+from ._estimation._wavelet_narx import WaveletNARXResult as WaveletNARXResult
+from ._estimation._wavelet_narx import identify_wavelet_narx as identify_wavelet_narx
 from ._models.combine._ensemble import AbstractEnsemble as AbstractEnsemble
 from ._models.combine._ensemble import AverageEnsemble as AverageEnsemble
 from ._models.combine._ensemble import WeightedEnsemble as WeightedEnsemble
