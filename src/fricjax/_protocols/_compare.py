@@ -391,7 +391,7 @@ def default_models(settings: FitSettings | None = None) -> dict[str, ModelSpec]:
 
 PHYSICS_MODELS = ("stribeck", "lugre", "gms", "nlr", "dnlrx")
 NEURAL_MODELS = ("mlp", "gsnn", "rnn", "avd")
-LINEAR_MODELS = ("narx", "knn")
+LINEAR_MODELS = ("narx", "knn", "wavelet")
 MODEL_NAMES = PHYSICS_MODELS + NEURAL_MODELS + LINEAR_MODELS
 """Every model `compare` can fit; the command line fits `PHYSICS_MODELS` unless told otherwise."""
 
@@ -497,7 +497,43 @@ def linear_in_parameters_models(settings: FitSettings) -> dict[str, ModelSpec]:
             "polynomial NARX (FROLS/PRESS)", papers, _structure_by_validation(structures, _lm((), 1, settings))
         ),
         "knn": ModelSpec("local models (kNN, 20 plays)", None, _local_models(settings)),
+        "wavelet": _wavelet_network(settings),
     }
+
+
+def _wavelet_network(settings: FitSettings) -> ModelSpec:
+    """`wavelet`: the wavelet-network NARX (MATLAB's `wavenet`, the emps-ensemble paper's nonlinear ARX): 10
+    wavelet / scaling units chosen by orthogonal least squares among data-placed candidates and a linear part
+    (`identify_wavelet_narx`), on the papers' regressors (lags 0-2 of x and v, 2 past forces) or on the velocity
+    and 20 play operators (as the neural models), the validation part choosing; then the output weights by least
+    squares (with play regressors; they enter the free run linearly) and every weight by output error (NOE, as the
+    neural models)."""
+    from .._estimation._wavelet_narx import identify_wavelet_narx
+
+    def papers(scales: DataScales) -> Any:
+        assert scales.train is not None
+        return identify_wavelet_narx(scales.train, signals=("x", "v"), input_lags=2, output_lags=2, units=10).model
+
+    def on_plays(scales: DataScales) -> Any:
+        assert scales.train is not None
+        plays = scales.breakaway * np.geomspace(0.03, 3.0, 20)
+        return identify_wavelet_narx(
+            scales.train, signals=("v",), input_lags=0, output_lags=0, units=10, plays=plays, smoothing=Smooth(1e-3)
+        ).model
+
+    def refine(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
+        model = start
+        if settings.drift != "none":
+            tau = None if settings.drift == "linear" else DataScales.from_data(split.train).duration
+            model = SensorDrift(start, 0.0, tau)
+        linear = ("L", "a", "s", "d") if start.regressors.output_lags == 0 else ()
+        return _least_squares_then_noe(linear, settings)(model, split, seed, progress)
+
+    structures: dict[str, Callable[[DataScales], Any]] = {
+        "lags of x, v and F, 10 units": papers,
+        "v and 20 plays, 10 units": on_plays,
+    }
+    return ModelSpec("wavelet network NARX", None, _structure_by_validation(structures, refine))
 
 
 def _local_models(settings: FitSettings) -> Callable[..., FitResult]:
@@ -579,7 +615,10 @@ def _least_squares_then_noe(linear: tuple[str, ...], settings: FitSettings) -> C
     def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
         validation: dict[str, Any] = {"validation": split.until_validation_end, "validation_burn_in": split.train_end}
         paths = _separable(start, linear)
-        first = fit(start, split.train, train=paths, separable=paths, steps=1, **validation)
+        if not paths:  # nothing enters the free run linearly (a NARX with fed-back forces and no drift)
+            first = identified_result(start, "", 0.0, float("nan"))
+        else:
+            first = fit(start, split.train, train=paths, separable=paths, steps=1, **validation)
         rate = 3e-3
         warmup = min(30, settings.neural_steps // 5)  # 30 steps, less for short budgets (decay needs > warm-up)
         schedule = optax.warmup_cosine_decay_schedule(rate / 10, rate, warmup, settings.neural_steps, rate / 30)
