@@ -693,6 +693,8 @@ def score(model: Any, test: TestRecord | Split) -> tuple[float, float, np.ndarra
 
 
 def count_parameters(model: Any) -> int:
+    """The number of trainable scalars of `model` (`fj.trainable_filter`: `Fixed` leaves and smoothing widths
+    excluded), the parameter count of the comparison table."""
     import equinox as eqx
     import jax
 

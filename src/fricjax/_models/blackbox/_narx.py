@@ -3,7 +3,7 @@
 
 Each is smooth (tanh, sigmoid, exp): its exact and smooth modes coincide, and `fj.exact(model)` is the model.
 Train one-step-ahead (`fj.OneStepLoss()`, teacher forcing) first, then by output error (`fj.SimulationLoss()`,
-the gradient through the whole free run: the papers' NOE with an untruncated Jacobian); see `fj.fit_narx`.
+the gradient through the whole free run: the papers' NOE with an untruncated Jacobian), both by `fj.fit`.
 """
 
 from __future__ import annotations
