@@ -195,7 +195,9 @@ def test_write_your_own_model_example_fits():
 
 @pytest.fixture(scope="module")
 def site() -> pathlib.Path:
-    folder = pathlib.Path(os.environ.get("FRICJAX_DOCS_SITE", ROOT / "build" / "site"))
+    folder = pathlib.Path(
+        os.environ.get("FRICJAX_DOCS_SITE", ROOT / "build" / "site")
+    ).resolve()  # a relative path from .ci/run
     if not (folder / "index.html").is_file():
         _unavailable(f"no built documentation site at {folder}: run `mkdocs build --strict` first")
     return folder
