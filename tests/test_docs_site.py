@@ -123,6 +123,7 @@ def _motion(n: int = 300) -> fj.Motion:
     return fj.Motion.from_position(2e-5 * np.sin(2 * np.pi * 2 * t) * (1 + 8 * t), dt=1e-3)
 
 
+@pytest.mark.slow  # about 15 s: several compilations of the example model
 def test_write_your_own_model_example_meets_the_model_contract(tmp_path):
     """docs/examples/spring_slider.py through the battery's checks: step loop == simulate == no jit, vmap ==
     loop, finite-difference gradients of the smooth model, model files, exact physics of a spring-slider."""

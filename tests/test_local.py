@@ -239,6 +239,7 @@ def periodic():
     return fj.FrictionData(fj.Motion.from_position(x, dt=DT), np.tanh(x / 3e-6) + 2.0 * t)
 
 
+@pytest.mark.slow  # about 4 s
 def test_step_loop_and_vmap(record, feedback_model):
     """`simulate` (one scan) equals a Python loop over `step` (each step jit-compiled on its own; an eager step
     compiles every primitive separately, seconds for the SVD and the search); vmap over models == loop."""

@@ -324,6 +324,7 @@ def test_vmap_over_parameters_equals_loop(record):
         np.testing.assert_allclose(force, fj.simulate(model, motion), rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow  # about 3 s
 def test_noe_gradient_matches_finite_differences(record):
     """The output-error loss's gradient with respect to each kind of parameter (linear weights, wavelet and
     scaling coefficients, dilations through their log storage, centres, offset) against central differences."""
