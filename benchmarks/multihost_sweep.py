@@ -112,8 +112,16 @@ def main() -> int:
         env = dict(os.environ, JAX_PLATFORMS="cpu", XLA_FLAGS="--xla_force_host_platform_device_count=2")
         base = [sys.executable, __file__, "--coordinator", args.coordinator, "--num-processes", str(args.local)]
         extra = ["--configurations", str(args.configurations), "--steps", str(args.steps)]
-        children = [subprocess.Popen([*base, "--process-id", str(i), *extra], env=env) for i in range(args.local)]
-        return max(child.wait() for child in children)
+        children = [
+            subprocess.Popen([*base, "--process-id", str(i), *extra], env=env, stdout=subprocess.PIPE, text=True)
+            for i in range(args.local)
+        ]
+        # each child writes into its own pipe; relay them whole, one after another (a shared pipe interleaves)
+        for child in children:
+            output, _ = child.communicate()
+            sys.stdout.write(output)
+        sys.stdout.flush()
+        return max(child.returncode for child in children)
     if args.coordinator is None:
         parser.error("--coordinator HOST:PORT is needed (the address of process 0), or --local N")
     run_process(args.coordinator, args.num_processes, args.process_id, args.configurations, args.steps)
