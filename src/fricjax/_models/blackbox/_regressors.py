@@ -230,7 +230,8 @@ class NARXRegressors(eqx.Module):
         window = jnp.stack([inputs[n_u - i : n_u - i + length] for i in range(n_u + 1)], axis=1)  # (T, n_u+1, S)
         window = (window * p.input_mask[:, None]).reshape(length, -1)
         outputs = jnp.concatenate([jnp.zeros((n_y,), y.dtype), y])  # outputs[n_y + k] = y_k
-        past = jnp.stack([outputs[n_y - j : n_y - j + length] for j in range(1, n_y + 1)], axis=1)
+        lagged = [outputs[n_y - j : n_y - j + length] for j in range(1, n_y + 1)]
+        past = jnp.stack(lagged, axis=1) if n_y else jnp.zeros((length, 0), y.dtype)  # n_y = 0: a Volterra series
         past = ((past - p.output_mean) / p.output_scale * p.output_mask).reshape(length, n_y)
         plays = self.play_states(samples, u.dtype)
         return jnp.concatenate([window, plays, past], axis=1)
