@@ -157,12 +157,12 @@ def test_regressor_matrix_gives_the_one_step_prediction(motion):
 @pytest.fixture(scope="module")
 def noisy_record(motion):
     """The free run of a random exponential-kernel NARX plus noise: a record no kernel model fits exactly."""
-    truth = random_model("exponential", m=12, seed=5)
+    truth = random_model("exponential", seed=5)
     clean = np.asarray(fj.simulate(truth, motion))
     return fj.FrictionData(motion, clean + 0.03 * np.std(clean) * np.random.default_rng(1).standard_normal(T))
 
 
-@pytest.mark.parametrize("kind", ["polynomial", "exponential"])
+@pytest.mark.parametrize("kind", [pytest.param("polynomial", marks=pytest.mark.slow), "exponential"])
 def test_direct_cg_and_nystrom_with_every_landmark_agree(noisy_record, kind):
     """The three solvers on the same rows (two ridges at once), against NumPy's solve of `(K + rho I) alpha =
     y - mean(y)`: coefficients and one-step predictions agree to round-off / the CG tolerance. The CG runs once
@@ -260,14 +260,15 @@ def test_identification_recovers_a_known_polynomial_narx(motion):
     np.testing.assert_allclose(h2, expected2, atol=1e-7)
 
 
-def test_grid_scores_and_the_chosen_candidate(noisy_record):
-    """Two lags x two widths x three ridges: every candidate scored on the validation part; the chosen one has the
+@pytest.mark.parametrize("input_lags", [1, pytest.param([0, 1], marks=pytest.mark.slow)])
+def test_grid_scores_and_the_chosen_candidate(noisy_record, input_lags):
+    """Lags x two widths x three ridges: every candidate scored on the validation part; the chosen one has the
     lowest free-run NMSE, and that score is its own free run's (one vmapped simulation scores them all)."""
     train, burn = noisy_record.slice(0, 160), 160
     result = fj.identify_kernel_narx(
         train,
         signals=SIGNALS,
-        input_lags=[0, 1],
+        input_lags=input_lags,
         output_lags=2,
         kernel="exponential",
         width=[3.0, 8.0],
@@ -275,8 +276,9 @@ def test_grid_scores_and_the_chosen_candidate(noisy_record):
         validation=noisy_record,
         validation_burn_in=burn,
     )
-    assert len(result.candidates) == 12
-    assert [(c.input_lags, c.width) for c in result.candidates[:6:3]] == [(0, 3.0), (0, 8.0)]
+    lags = np.atleast_1d(input_lags)
+    assert len(result.candidates) == 6 * len(lags)
+    assert [(c.input_lags, c.width) for c in result.candidates[:6:3]] == [(lags[0], 3.0), (lags[0], 8.0)]
     best = min(result.candidates, key=lambda c: c.free_run_nmse)
     assert result.validation_nmse == best.free_run_nmse and result.ridge == best.ridge
     assert result.model.regressors.input_lags == best.input_lags
@@ -351,13 +353,19 @@ def test_polynomial_kernels_vanish_beyond_the_degree():
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def test_jit_equals_no_jit_and_vmap_equals_loop(motion):
-    short = fj.Motion(x=motion.x[:40], v=motion.v[:40], dt=1e-3)
+@pytest.mark.slow  # about 3 s
+def test_jit_equals_no_jit(motion):
+    short = fj.Motion(x=motion.x[:15], v=motion.v[:15], dt=1e-3)
     model = random_model("exponential")
     jitted = jax.jit(lambda m: fj.simulate(m, short))(model)
     with jax.disable_jit():
         plain = fj.simulate(model, short)
     np.testing.assert_allclose(jitted, plain, rtol=1e-13, atol=1e-13)
+
+
+def test_vmap_over_coefficients_equals_loop(motion):
+    short = fj.Motion(x=motion.x[:40], v=motion.v[:40], dt=1e-3)
+    model = random_model("exponential")
     alphas = np.asarray(model.alpha) * (1 + 0.3 * np.arange(3))[:, None]
     models = [eqx.tree_at(lambda m: m.alpha, model, jnp.asarray(a)) for a in alphas]
     batched = eqx.filter_vmap(lambda a: fj.simulate(eqx.tree_at(lambda m: m.alpha, model, a), short))(alphas)
