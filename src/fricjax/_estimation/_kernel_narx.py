@@ -17,9 +17,11 @@ teacher-forced training rows solve `(K + rho I) alpha = y`, `K_ij = k(u_i, u_j)`
 
 Hyperparameters (memory and autoregressive orders, the degree or the width, the ridge) are chosen on a validation
 record: every ridge value of one kernel is solved in one vectorised program (one Cholesky factor each for the
-direct solver, one eigendecomposition of the m x m Nyström system for all of them, one batched CG whose kernel
-blocks are shared), widths are vmapped (in chunks that bound the memory), and all candidates of a structure are
-simulated side by side in one vmapped free run.
+direct solver, one factorisation of the m x m Nyström system for all of them, one vmapped CG whose kernel
+blocks are shared), the widths in one compiled loop, and all candidates of a structure are simulated side by side
+in one vmapped free run. (Widths are looped, not vmapped: batched LAPACK calls on XLA's CPU thread pool deadlock
+when two run at once, as a QR's orthogonal factor and the eigendecomposition that needs only its R can; jaxlib
+0.10.2 on 2 cores. One width at a time also bounds the memory to one kernel matrix.)
 """
 
 from __future__ import annotations
@@ -45,9 +47,8 @@ KERNELS = ("polynomial", "exponential")
 SOLVERS = ("direct", "cg", "nystrom")
 SELECTIONS = ("free_run", "one_step")
 
-# memory budgets [bytes] that set the chunk sizes: a block of kernel rows, and a chunk of vmapped widths
+# the memory [bytes] of one block of kernel rows in the matrix-free products
 _BLOCK_BYTES = 2**25
-_BATCH_BYTES = 2**31
 # eigenvalues of the landmark kernel matrix below this many machine epsilons x the largest are dropped (float64:
 # 2e-12; the polynomial kernel's matrices are rank-deficient): the Nyström features `K_nm V L^(-1/2)` then carry
 # relative errors of about eps / sqrt(that fraction)
@@ -402,11 +403,6 @@ def _block(rows: int, columns: int, block_size: int | None) -> int:
     return int(max(1, min(rows, _BLOCK_BYTES // (8 * max(columns, 1)))))
 
 
-def _chunk(per_width: float) -> int:
-    """Widths vmapped at once: as many as fit the memory budget."""
-    return int(max(1, _BATCH_BYTES // max(per_width, 1.0)))
-
-
 # ----------------------------------------------------------------------------------------------------------------
 # solvers
 # ----------------------------------------------------------------------------------------------------------------
@@ -434,21 +430,18 @@ def _solve(
     n = rows.shape[0]
     widths_j, ridges_j = jnp.asarray(widths, rows.dtype), jnp.asarray(ridges, rows.dtype)
     if solver == "direct":
-        chunk = _chunk(3 * 8 * n * n)
-        alphas = _direct(kind, degree, widths_j, rows, target, ridges_j, chunk)
+        alphas = _direct(kind, degree, widths_j, rows, target, ridges_j)
         return _Solved(np.asarray(alphas), fit.rows, None)
     assert landmarks is not None or solver == "cg"
     m = 0 if landmarks is None else len(landmarks)
     if solver == "nystrom":
         assert landmarks is not None
         block = _block(n, m, block_size)
-        chunk = _chunk(8 * (2 * n * m + 3 * m * m))
-        alphas = _nystrom(kind, degree, widths_j, rows, target, ridges_j, jnp.asarray(landmarks), block, chunk)
+        alphas = _nystrom(kind, degree, widths_j, rows, target, ridges_j, jnp.asarray(landmarks), block)
         return _Solved(np.asarray(alphas), fit.rows[landmarks], None)
     block = _block(n, n, block_size)
-    chunk = _chunk(8 * (3 * n * m + block * n + 6 * n * len(ridges)))
     index = jnp.asarray(np.arange(0) if landmarks is None else landmarks)
-    alphas, steps = _cg(kind, degree, widths_j, rows, target, ridges_j, index, tolerance, max_steps, block, chunk)
+    alphas, steps = _cg(kind, degree, widths_j, rows, target, ridges_j, index, tolerance, max_steps, block)
     return _Solved(np.asarray(alphas), fit.rows, np.asarray(steps))
 
 
@@ -467,9 +460,9 @@ def _gram_times(kernel: AbstractKernel, rows: Any, centres: Any, matrix: Any, bl
     return out.reshape((blocks * block, *out.shape[2:]))[:n]
 
 
-@functools.partial(jax.jit, static_argnames=("kind", "degree", "chunk"))
-def _direct(kind: str, degree: Any, widths: Any, rows: Any, target: Any, ridges: Any, chunk: int) -> Any:
-    """`(K + rho I)^-1 y` for every width (chunks vmapped) and ridge (one Cholesky factor each, in turn)."""
+@functools.partial(jax.jit, static_argnames=("kind", "degree"))
+def _direct(kind: str, degree: Any, widths: Any, rows: Any, target: Any, ridges: Any) -> Any:
+    """`(K + rho I)^-1 y` for every width and ridge (one kernel matrix, then one Cholesky factor each, in turn)."""
     eye = jnp.eye(rows.shape[0], dtype=rows.dtype)
 
     def per_width(width: Any) -> Any:
@@ -483,7 +476,7 @@ def _direct(kind: str, degree: Any, widths: Any, rows: Any, target: Any, ridges:
         # Cholesky factors on CPU (measured, n = 4800), more than a grid of ridges usually holds
         return jax.lax.map(per_ridge, ridges)
 
-    return jax.lax.map(per_width, widths, batch_size=chunk)
+    return jax.lax.map(per_width, widths)
 
 
 class _Nystrom(NamedTuple):
@@ -505,15 +498,16 @@ def _nystrom_factors(kernel: AbstractKernel, rows: Any, landmarks: Any, block: i
     keep = values > _RCOND_EPS * jnp.finfo(values.dtype).eps * values[-1]
     transform = vectors * jnp.where(keep, 1 / jnp.sqrt(jnp.where(keep, values, 1.0)), 0.0)
     orthonormal, upper = jnp.linalg.qr(_gram_times(kernel, rows, landmarks, transform, block))
+    # the eigendecomposition below needs only R: without this barrier XLA may run it beside the LAPACK call that
+    # forms Q, and two LAPACK calls at once can deadlock XLA's CPU thread pool (see the module docstring)
+    orthonormal, upper = jax.lax.optimization_barrier((orthonormal, upper))
     # eigh of R R^T rather than the SVD of R: the same left vectors and values at a third of the cost on CPU
     values, rotation = jnp.linalg.eigh(upper @ upper.T)
     return _Nystrom(orthonormal @ rotation, jnp.maximum(values, 0.0), upper, rotation, transform)
 
 
-@functools.partial(jax.jit, static_argnames=("kind", "degree", "block", "chunk"))
-def _nystrom(
-    kind: str, degree: Any, widths: Any, rows: Any, target: Any, ridges: Any, index: Any, block: int, chunk: int
-) -> Any:
+@functools.partial(jax.jit, static_argnames=("kind", "degree", "block"))
+def _nystrom(kind: str, degree: Any, widths: Any, rows: Any, target: Any, ridges: Any, index: Any, block: int) -> Any:
     """Nyström kernel ridge regression on the landmark rows `index`: `min ||Phi beta - y||^2 + rho ||beta||^2`,
     `alpha = T beta`. One factorisation serves every ridge: `beta = (R^T R + rho)^-1 R^T Q^T y =
     R^T U (S + rho)^-1 U^T Q^T y`."""
@@ -525,10 +519,10 @@ def _nystrom(
         betas = (projected / (f.values + ridges[:, None])) @ (f.upper.T @ f.rotation).T  # (R, m)
         return betas @ f.transform.T
 
-    return jax.lax.map(per_width, widths, batch_size=chunk)
+    return jax.lax.map(per_width, widths)
 
 
-@functools.partial(jax.jit, static_argnames=("kind", "degree", "max_steps", "block", "chunk"))
+@functools.partial(jax.jit, static_argnames=("kind", "degree", "max_steps", "block"))
 def _cg(
     kind: str,
     degree: Any,
@@ -540,7 +534,6 @@ def _cg(
     tolerance: float,
     max_steps: int,
     block: int,
-    chunk: int,
 ) -> tuple[Any, Any]:
     """`(K + rho I) alpha = y` by conjugate gradients (lineax) with the blocked, matrix-free matvec, every ridge
     in one vmapped solve (the kernel blocks do not depend on the ridge, so they are made once per iteration),
@@ -579,7 +572,7 @@ def _cg(
 
         return jax.vmap(per_ridge)(ridges)
 
-    return jax.lax.map(per_width, widths, batch_size=chunk)
+    return jax.lax.map(per_width, widths)
 
 
 # ----------------------------------------------------------------------------------------------------------------
