@@ -141,6 +141,7 @@ def test_kernels_are_the_papers_eqs_7_and_8():
     np.testing.assert_allclose(fj.PolynomialKernel(2).gram(rows, centres), (1 + rows @ centres.T) ** 2)
 
 
+@pytest.mark.slow  # about 1.5 s
 def test_regressor_matrix_gives_the_one_step_prediction(motion):
     model = random_model("exponential")
     measured = np.asarray(fj.simulate(model, motion)) + 0.01 * np.sin(np.arange(T))
@@ -260,6 +261,22 @@ def test_identification_recovers_a_known_polynomial_narx(motion):
     np.testing.assert_allclose(h2, expected2, atol=1e-7)
 
 
+@pytest.mark.slow  # about 10 s
+def test_output_error_refinement_with_fit(motion):
+    """The identified model's `alpha` and `b` are trainable: Levenberg-Marquardt on the free-run (NOE) loss
+    takes perturbed coefficients back to an exact free run, the centres untouched."""
+    data = fj.FrictionData(motion, np.asarray(fj.simulate(polynomial_truth(), motion)))
+    result = fj.identify_kernel_narx(
+        data, regressors=regressors(), kernel="polynomial", degree=2, ridge=1e-12, solver="nystrom", landmarks=60
+    )
+    start = eqx.tree_at(lambda m: m.alpha, result.model, result.model.alpha * (1 + 0.01 * np.cos(np.arange(60))))
+    before = float(fj.nmse(data.force, fj.simulate(start, motion)))
+    fitted = fj.fit(start, data, loss=fj.SimulationLoss(), solver=fj.levenberg_marquardt(), steps=20)
+    after = float(fj.nmse(data.force, fj.simulate(fitted.model, motion)))
+    assert after < 1e-6 * before, (before, after)
+    np.testing.assert_array_equal(fj.unwrap(fitted.model.centres), fj.unwrap(result.model.centres))
+
+
 @pytest.mark.parametrize("input_lags", [1, pytest.param([0, 1], marks=pytest.mark.slow)])
 def test_grid_scores_and_the_chosen_candidate(noisy_record, input_lags):
     """Lags x two widths x three ridges: every candidate scored on the validation part; the chosen one has the
@@ -373,7 +390,7 @@ def test_vmap_over_coefficients_equals_loop(motion):
         np.testing.assert_allclose(forces, fj.simulate(one, short), rtol=1e-13, atol=1e-13)
 
 
-@pytest.mark.parametrize("kind", ["polynomial", "exponential"])
+@pytest.mark.parametrize("kind", ["polynomial", pytest.param("exponential", marks=pytest.mark.slow)])
 def test_noe_gradient_matches_finite_differences(motion, kind):
     model = random_model(kind)
     data = fj.FrictionData(motion, np.asarray(fj.simulate(model, motion)) * 1.1 + 0.05).slice(0, 80)

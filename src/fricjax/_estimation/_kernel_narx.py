@@ -608,6 +608,8 @@ def _scores(
     one_step = np.where(np.isfinite(one_step), one_step, np.inf)
     if not free_runs:
         return one_step, np.full(shape, np.nan)
+    if template.regressors.output_lags == 0:  # nothing fed back: the free run is the one-step prediction
+        return one_step, one_step.copy()
     widths_all = np.repeat(widths, shape[1])
     runs = np.asarray(
         _free_runs(
