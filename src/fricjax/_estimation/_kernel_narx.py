@@ -49,6 +49,9 @@ SELECTIONS = ("free_run", "one_step")
 
 # the memory [bytes] of one block of kernel rows in the matrix-free products
 _BLOCK_BYTES = 2**25
+# the largest N x N Cholesky factor the direct solver attempts on CPU: jaxlib 0.10.2's LAPACK (32-bit integers,
+# through SciPy's OpenBLAS) segfaults between N = 15 500 (works) and 15 900 (measured on this project's machine)
+_DIRECT_CPU_MAX = 15_500
 # eigenvalues of the landmark kernel matrix below this many machine epsilons x the largest are dropped (float64:
 # 2e-12; the polynomial kernel's matrices are rank-deficient): the Nyström features `K_nm V L^(-1/2)` then carry
 # relative errors of about eps / sqrt(that fraction)
@@ -430,6 +433,12 @@ def _solve(
     n = rows.shape[0]
     widths_j, ridges_j = jnp.asarray(widths, rows.dtype), jnp.asarray(ridges, rows.dtype)
     if solver == "direct":
+        if n > _DIRECT_CPU_MAX and jax.default_backend() == "cpu":
+            raise ValueError(
+                f"identify_kernel_narx: solver='direct' on {n} rows: the {n} x {n} Cholesky factor crashes jaxlib's "
+                f"CPU LAPACK above {_DIRECT_CPU_MAX} rows (32-bit integers); use solver='cg' (matrix-free, the same "
+                "solution) or solver='nystrom' (m landmarks)."
+            )
         alphas = _direct(kind, degree, widths_j, rows, target, ridges_j)
         return _Solved(np.asarray(alphas), fit.rows, None)
     assert landmarks is not None or solver == "cg"
