@@ -24,6 +24,11 @@ from ._metrics import rmse as rmse
 from ._models._base import AbstractFrictionModel as AbstractFrictionModel
 from ._models._base import AbstractModel as AbstractModel
 from ._models._base import AbstractSystem as AbstractSystem
+from ._models.blackbox._kernel import AbstractKernel as AbstractKernel
+from ._models.blackbox._kernel import ExponentialKernel as ExponentialKernel
+from ._models.blackbox._kernel import KernelNARX as KernelNARX
+from ._models.blackbox._kernel import PolynomialKernel as PolynomialKernel
+from ._models.blackbox._kernel import volterra_kernels as volterra_kernels
 from ._models.blackbox._local import LocalModel as LocalModel
 from ._models.blackbox._narx import GSNN as GSNN
 from ._models.blackbox._narx import MLPNARX as MLPNARX
@@ -94,6 +99,9 @@ from ._estimation._ensemble_fit import select_forward as select_forward
 from ._estimation._fit import fit as fit
 from ._estimation._fit import levenberg_marquardt as levenberg_marquardt
 from ._estimation._fit import solve_linear as solve_linear
+from ._estimation._kernel_narx import KernelNARXCandidate as KernelNARXCandidate
+from ._estimation._kernel_narx import KernelNARXResult as KernelNARXResult
+from ._estimation._kernel_narx import identify_kernel_narx as identify_kernel_narx
 from ._estimation._linear import LstsqResult as LstsqResult
 from ._estimation._linear import TermSelection as TermSelection
 from ._estimation._linear import covariance as covariance

@@ -231,7 +231,7 @@ class NARXRegressors(eqx.Module):
         window = (window * p.input_mask[:, None]).reshape(length, -1)
         outputs = jnp.concatenate([jnp.zeros((n_y,), y.dtype), y])  # outputs[n_y + k] = y_k
         lagged = [outputs[n_y - j : n_y - j + length] for j in range(1, n_y + 1)]
-        past = jnp.stack(lagged, axis=1) if n_y else jnp.zeros((length, 0), y.dtype)
+        past = jnp.stack(lagged, axis=1) if n_y else jnp.zeros((length, 0), y.dtype)  # n_y = 0: a Volterra series
         past = ((past - p.output_mean) / p.output_scale * p.output_mask).reshape(length, n_y)
         plays = self.play_states(samples, u.dtype)
         return jnp.concatenate([window, plays, past], axis=1)

@@ -1,0 +1,649 @@
+"""Identification of kernel Volterra series and kernel NARX models by kernel ridge regression.
+
+The kernel-method paper (§2 and footnote 3): the coefficients of `y = sum_i alpha_i k(u_i, .)` on the N
+teacher-forced training rows solve `(K + rho I) alpha = y`, `K_ij = k(u_i, u_j)`. Three solvers:
+
+- `"direct"`: the N x N kernel matrix and its Cholesky factor, one per ridge value (the paper's inversion).
+- `"cg"`: conjugate gradients (`lineax.CG`) with a matrix-free kernel matvec computed in blocks of rows, so the
+  N x N matrix is never formed (memory O(N x block)); preconditioned by a Nyström approximation of K from m
+  landmark rows (Frangella, Tropp and Udell 2023, "Randomized Nyström preconditioning": `P = U (L + rho) U^T /
+  (l_m + rho) + I - U U^T` for the approximation's eigenpairs `U, L`), which the paper's closing remark (4) asks
+  for ("this can be resolved using an iterative algorithm").
+- `"nystrom"`: m landmark rows `Z` as the centres, and the reduced ridge problem
+  `min ||K_nm alpha - y||^2 + rho alpha^T K_mm alpha` (subset of regressors / Nyström kernel ridge regression),
+  solved through the features `Phi = K_nm V L^(-1/2)` of `K_mm = V L V^T`: `(Phi^T Phi + rho I) beta = Phi^T y`,
+  `alpha = V L^(-1/2) beta` (by a QR factor of `Phi`, never forming `Phi^T Phi`). With every row a landmark it is
+  the direct solution, less the directions of K below round-off (2e-12 x its largest eigenvalue in float64).
+
+Hyperparameters (memory and autoregressive orders, the degree or the width, the ridge) are chosen on a validation
+record: every ridge value of one kernel is solved in one vectorised program (one Cholesky factor each for the
+direct solver, one factorisation of the m x m Nyström system for all of them, one vmapped CG whose kernel
+blocks are shared), the widths in one compiled loop, and all candidates of a structure are simulated side by side
+in one vmapped free run. (Widths are looped, not vmapped: batched LAPACK calls on XLA's CPU thread pool deadlock
+when two run at once, as a QR's orthogonal factor and the eigendecomposition that needs only its R can; jaxlib
+0.10.2 on 2 cores. One width at a time also bounds the memory to one kernel matrix.)
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+from typing import Any, Literal, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+
+from .._constraints import unwrap
+from .._data._record import FrictionData
+from .._models.blackbox._kernel import AbstractKernel, ExponentialKernel, KernelNARX, PolynomialKernel
+from .._models.blackbox._regressors import NARXRegressors
+from .._simulate import simulate
+from .._smoothing import AbstractSmoothing
+
+KERNELS = ("polynomial", "exponential")
+SOLVERS = ("direct", "cg", "nystrom")
+SELECTIONS = ("free_run", "one_step")
+
+# the memory [bytes] of one block of kernel rows in the matrix-free products
+_BLOCK_BYTES = 2**25
+# the largest N x N Cholesky factor the direct solver attempts on CPU: jaxlib 0.10.2's LAPACK (32-bit integers,
+# through SciPy's OpenBLAS) segfaults between N = 15 500 (works) and 15 900 (measured on this project's machine)
+_DIRECT_CPU_MAX = 15_500
+# eigenvalues of the landmark kernel matrix below this many machine epsilons x the largest are dropped (float64:
+# 2e-12; the polynomial kernel's matrices are rank-deficient): the Nyström features `K_nm V L^(-1/2)` then carry
+# relative errors of about eps / sqrt(that fraction)
+_RCOND_EPS = 1e4
+
+
+class KernelNARXCandidate(NamedTuple):
+    """One point of the hyperparameter grid of `identify_kernel_narx` and its validation scores.
+
+    `input_lags`, `output_lags` (the paper's M - 1 and N_AR), `degree` (polynomial kernel; None for the
+    exponential), `width` (exponential kernel; None for the polynomial), `ridge`; `one_step_nmse`: NMSE [%] of the
+    one-step (teacher-forced) prediction on the validation part; `free_run_nmse`: NMSE [%] of the free run
+    (simulation from the validation record's start, scored after `validation_burn_in`; inf when it diverges).
+    Both are NaN without a validation record.
+    """
+
+    input_lags: int
+    output_lags: int
+    degree: int | None
+    width: float | None
+    ridge: float
+    one_step_nmse: float
+    free_run_nmse: float
+
+
+class KernelNARXResult(NamedTuple):
+    """What `identify_kernel_narx` returns.
+
+    - `model`: the identified `fj.KernelNARX` (the chosen candidate).
+    - `ridge`: its ridge (regularisation) parameter rho.
+    - `train_nmse`: NMSE [%] of its one-step prediction on the training rows.
+    - `validation_nmse`: NMSE [%] of its free run on the validation part (NaN without validation).
+    - `candidates`: every grid point with its validation scores (`KernelNARXCandidate`), in evaluation order.
+    - `solver_steps`: conjugate-gradient iterations of the chosen solve (None for `"direct"`, `"nystrom"`).
+    """
+
+    model: KernelNARX
+    ridge: float
+    train_nmse: float
+    validation_nmse: float
+    candidates: tuple[KernelNARXCandidate, ...]
+    solver_steps: int | None
+
+
+def identify_kernel_narx(
+    data: FrictionData,
+    *,
+    signals: Sequence[str] = ("x",),
+    input_lags: int | Sequence[int] = 10,
+    output_lags: int | Sequence[int] = 2,
+    kernel: Literal["polynomial", "exponential"] = "polynomial",
+    degree: int | Sequence[int] = 3,
+    width: float | Sequence[float] = 1.5,
+    ridge: float | Sequence[float] = 1e-6,
+    solver: Literal["direct", "cg", "nystrom"] = "direct",
+    landmarks: int | Sequence[int] | None = None,
+    validation: FrictionData | None = None,
+    validation_burn_in: int = 0,
+    select: Literal["free_run", "one_step"] = "free_run",
+    plays: Any = None,
+    smoothing: AbstractSmoothing | None = None,
+    regressors: NARXRegressors | None = None,
+    burn_in: int | None = None,
+    tolerance: float = 1e-6,
+    max_steps: int = 1000,
+    block_size: int | None = None,
+    seed: int = 0,
+) -> KernelNARXResult:
+    """Identify a kernel Volterra series or kernel NARX model (`fj.KernelNARX`) by kernel ridge regression.
+
+    The kernel-method paper §2-3: the regressor rows `phi_k` of the record under teacher forcing (normalised lags
+    `0..input_lags` of the input `signals`, the paper's memory M = `input_lags + 1`, and `output_lags` past
+    forces, the paper's N_AR; `output_lags=0` is a Volterra series), the first `burn_in` dropped; the kernel
+    `(1 + <u, v>)^degree` (`"polynomial"`, eq. 7, finite degree) or `exp(<u, v> / width)` (`"exponential"`,
+    eq. 8, infinite degree); the constant `b` = the mean normalised force of the rows and `alpha` the solution of
+    `(K + ridge I) alpha = y - b` (footnote 3), by `solver` (see the module: `"direct"` Cholesky, `"cg"`
+    matrix-free Nyström-preconditioned conjugate gradients, `"nystrom"` m landmarks as the centres).
+
+    **Hyperparameters by validation.** `input_lags`, `output_lags`, `degree`, `width` and `ridge` each take one
+    value or a sequence; the grid is their product, and with more than one point a `validation` record is
+    required. Each candidate is scored on the validation part (samples `validation_burn_in` onwards of
+    `validation`, simulated from its start: pass the record up to the end of the validation part and the
+    training length, as for `fj.fit`) by its free-run NMSE (`select="free_run"`, default: what a user judges a
+    NARX by; its one-step error is small whatever the feedback does, and says nothing of a free run that
+    drifts or diverges) or its one-step NMSE (`"one_step"`: cheaper; for a Volterra series the two agree after
+    the first samples). All ridge values of a kernel are solved in one program and all candidates of a structure
+    are simulated in one vmapped free run.
+
+    The model minimises the one-step error; its free run can be refined by output error:
+    `fj.fit(result.model, data, loss=fj.SimulationLoss())` trains `alpha` and `b` (the centres are fixed).
+
+    **Arguments:**
+
+    - `data`: the training record, `fj.FrictionData`.
+    - `signals`: input signals (`"x"`, `"dx"`, `"v"`, `"a"`); default the displacement, as in the paper.
+    - `input_lags`: `n_u >= 0` (lags 0..n_u, M = n_u + 1), or a sequence (grid).
+    - `output_lags`: `n_y >= 0` past forces (N_AR), or a sequence (grid).
+    - `kernel`: `"polynomial"` or `"exponential"`.
+    - `degree`: D >= 1 of the polynomial kernel, or a sequence. `width`: p > 0 of the exponential, or a sequence.
+    - `ridge`: rho > 0 (in the normalised units of `K`), or a sequence.
+    - `solver`: `"direct"`, `"cg"` or `"nystrom"`.
+    - `landmarks`: for `"nystrom"` the centres, for `"cg"` the preconditioner's rank: a count m (rows drawn at
+      random by `seed`; default min(N, 1000) for `"nystrom"`, min(N, 500) for `"cg"`, 0 = no preconditioner) or
+      the row indices (into the rows after `burn_in`).
+    - `validation`, `validation_burn_in`: the validation record and the samples of it not scored.
+    - `select`: `"free_run"` (default) or `"one_step"`, the validation score that chooses the candidate.
+    - `plays`, `smoothing`: play-operator thresholds [m] added to the regressors (`fj.NARXRegressors(plays=)`:
+      an extension of the paper's lag-only regressors, for hysteresis with non-local memory), and their
+      smoothing (default exact).
+    - `regressors`: an `fj.NARXRegressors` to use as it is (its normalisation included) instead of `signals`,
+      the lags, `plays` and the record's normalisation (no lag grid then).
+    - `burn_in`: first samples not used as rows; default `max(input_lags, output_lags)`.
+    - `tolerance`, `max_steps`: conjugate gradients' relative tolerance and iteration limit (`"cg"`).
+    - `block_size`: rows per block of the kernel matvec (default: blocks of about 32 MB).
+    - `seed`: for the random landmarks.
+
+    **Returns:** a `KernelNARXResult(model, ridge, train_nmse, validation_nmse, candidates, solver_steps)`.
+
+    ```python
+    >>> import numpy as np, fricjax as fj
+    >>> x = np.random.default_rng(0).standard_normal(300)
+    >>> x1 = np.concatenate([[0.0], x[:-1]])                                 # x_{k-1}
+    >>> F = 0.5 * x + 0.2 * x**2 - 0.1 * x * x1                              # a Volterra series of degree 2
+    >>> data = fj.FrictionData(fj.Motion.from_position(x, dt=1e-3), F)
+    >>> regressors = fj.NARXRegressors(("x",), input_lags=1, output_lags=0)
+    >>> result = fj.identify_kernel_narx(
+    ...     data, regressors=regressors, degree=2, ridge=1e-6, solver="nystrom", landmarks=50
+    ... )
+    >>> h0, h1, h2 = fj.volterra_kernels(result.model, 2, physical=True)
+    >>> rounded = lambda h: (np.round(np.asarray(h, float), 3) + 0.0).tolist()
+    >>> rounded(h1), rounded(h2 + h2.T)                                     # h2 is symmetric
+    ([0.5, 0.0], [[0.4, -0.1], [-0.1, 0.0]])
+    ```
+    """
+    where = "identify_kernel_narx"
+    if not isinstance(data, FrictionData):
+        raise TypeError(f"{where}: `data` must be an fj.FrictionData (motion and force), got {type(data).__name__}.")
+    if kernel not in KERNELS:
+        raise ValueError(f"{where}: `kernel` must be one of {list(KERNELS)}, got {kernel!r}.")
+    if solver not in SOLVERS:
+        raise ValueError(f"{where}: `solver` must be one of {list(SOLVERS)}, got {solver!r}.")
+    if select not in SELECTIONS:
+        raise ValueError(f"{where}: `select` must be one of {list(SELECTIONS)}, got {select!r}.")
+    degrees = _grid(degree, "degree", where, integer=True, minimum=1)
+    widths = _grid(width, "width", where)
+    ridges = _grid(ridge, "ridge", where)
+    if regressors is not None:
+        if not isinstance(regressors, NARXRegressors):
+            raise TypeError(
+                f"{where}: `regressors` must be an fj.NARXRegressors or None, got {type(regressors).__name__}."
+            )
+        structures = [(regressors.input_lags, regressors.output_lags)]
+    else:
+        structures = [
+            (n_u, n_y)
+            for n_u in _grid(input_lags, "input_lags", where, integer=True, minimum=0)
+            for n_y in _grid(output_lags, "output_lags", where, integer=True, minimum=0)
+        ]
+    if not (isinstance(tolerance, (int, float)) and np.isfinite(tolerance) and tolerance > 0):
+        raise ValueError(f"{where}: `tolerance` (conjugate gradients, relative) must be > 0, got {tolerance!r}.")
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(
+            f"{where}: `max_steps` (conjugate-gradient iterations) must be an integer >= 1, got {max_steps!r}."
+        )
+    if block_size is not None and (
+        isinstance(block_size, bool) or not isinstance(block_size, (int, np.integer)) or block_size < 1
+    ):
+        raise ValueError(
+            f"{where}: `block_size` (rows per block) must be a positive integer or None, got {block_size!r}."
+        )
+    kernel_params = list(degrees) if kernel == "polynomial" else [None]
+    count = len(structures) * len(kernel_params) * (1 if kernel == "polynomial" else len(widths)) * len(ridges)
+    if validation is None and count > 1:
+        raise ValueError(
+            f"{where}: a grid of {count} candidates needs a `validation` record to choose among them; pass "
+            "validation=split.until_validation_end, validation_burn_in=split.train_end (or give one value each)."
+        )
+    if validation is not None:
+        if not isinstance(validation, FrictionData):
+            raise TypeError(f"{where}: `validation` must be an fj.FrictionData, got {type(validation).__name__}.")
+        if (
+            isinstance(validation_burn_in, bool)
+            or not isinstance(validation_burn_in, (int, np.integer))
+            or not 0 <= validation_burn_in < validation.length
+        ):
+            raise ValueError(
+                f"{where}: `validation_burn_in` must be an integer in [0, {validation.length}) (samples of the "
+                f"validation record simulated but not scored), got {validation_burn_in!r}."
+            )
+
+    best: tuple[float, Any] | None = None
+    candidates: list[KernelNARXCandidate] = []
+    for n_u, n_y in structures:
+        regs = regressors
+        if regs is None:
+            regs = NARXRegressors.from_data(data, signals, n_u, n_y, plays=plays, smoothing=smoothing)
+        fit = _Rows.build(data, regs, burn_in, where)
+        landmark_rows = _landmarks(landmarks, solver, fit.rows.shape[0], seed, where)
+        val = (
+            None if validation is None else _Rows.build(validation, regs, validation_burn_in, where, burn_default=False)
+        )
+        for param in kernel_params:
+            batch = np.asarray(widths if kernel == "exponential" else [1.0])
+            solved = _solve(
+                kernel, param, batch, fit, np.asarray(ridges), solver, landmark_rows, tolerance, max_steps, block_size
+            )
+            template = KernelNARX(
+                regs, _kernel(kernel, param, batch[0]), solved.centres, np.zeros(solved.centres.shape[0]), fit.offset
+            )
+            free_runs = select == "free_run"
+            one_step, free_run = _scores(
+                template, kernel, param, batch, solved, val, validation, validation_burn_in, free_runs
+            )
+            for w, width_value in enumerate(batch):
+                for r, ridge_value in enumerate(ridges):
+                    candidate = KernelNARXCandidate(
+                        n_u,
+                        n_y,
+                        param if kernel == "polynomial" else None,
+                        float(width_value) if kernel == "exponential" else None,
+                        float(ridge_value),
+                        float(one_step[w, r]),
+                        float(free_run[w, r]),
+                    )
+                    candidates.append(candidate)
+                    score = candidate.free_run_nmse if select == "free_run" else candidate.one_step_nmse
+                    score = np.inf if np.isnan(score) else score
+                    if best is None or score < best[0]:
+                        alpha = solved.alphas[w, r]
+                        steps = None if solved.steps is None else int(solved.steps[w, r])
+                        best = (score, (template, kernel, param, width_value, alpha, len(candidates) - 1, fit, steps))
+    assert best is not None
+    template, kind, param, width_value, alpha, chosen, fit, steps = best[1]
+    candidate = candidates[chosen]
+    if not np.all(np.isfinite(alpha)):
+        raise ValueError(
+            f"{where}: the kernel ridge solution is not finite (ridge {candidate.ridge:g}: the system is too "
+            "ill-conditioned for float64); raise `ridge`, or use solver='nystrom'."
+        )
+    model = eqx.tree_at(
+        lambda m: (m.alpha, m.kernel), template, (jnp.asarray(alpha), _kernel(kind, param, width_value))
+    )
+    block = _block(fit.rows.shape[0], model.num_centres, block_size)
+    width_array = jnp.asarray(width_value, fit.rows.dtype)
+    centres = jnp.asarray(unwrap(model.centres))
+    fitted = np.asarray(
+        _gram_times_jit(kind, param, width_array, jnp.asarray(fit.rows), centres, jnp.asarray(alpha), block)
+    )
+    train_nmse = float(100 * np.mean((fit.target - fit.offset - fitted) ** 2) / np.var(fit.target))
+    if validation is not None and select == "one_step":  # the chosen candidate's free run, for the record
+        prediction = np.asarray(simulate(model, validation.motion))[validation_burn_in:]
+        measured = np.asarray(validation.force, np.float64)[validation_burn_in:]
+        with np.errstate(invalid="ignore", over="ignore"):
+            score = float(100 * np.mean((prediction - measured) ** 2) / np.var(measured))
+        candidate = candidates[chosen] = candidate._replace(free_run_nmse=score if np.isfinite(score) else np.inf)
+    return KernelNARXResult(model, candidate.ridge, train_nmse, candidate.free_run_nmse, tuple(candidates), steps)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# rows, landmarks, grids
+# ----------------------------------------------------------------------------------------------------------------
+
+
+class _Rows(NamedTuple):
+    rows: np.ndarray  # (N, P) normalised regressor rows
+    target: np.ndarray  # (N,) normalised force
+    offset: float  # the constant b: the target's mean
+
+    @classmethod
+    def build(
+        cls, data: FrictionData, regs: NARXRegressors, burn_in: int | None, where: str, burn_default: bool = True
+    ) -> _Rows:
+        lag = max(regs.input_lags, regs.output_lags)
+        start = (lag if burn_default else 0) if burn_in is None else burn_in
+        if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:
+            raise ValueError(f"{where}: `burn_in` must be an integer >= 0 (samples), got {burn_in!r}.")
+        if data.length - start < 2:
+            raise ValueError(
+                f"{where}: too few samples: {data.length} in the record, {data.length - start} after the burn-in of "
+                f"{start}; pass a longer record or lower the lags / `burn_in`."
+            )
+        template = KernelNARX(regs, PolynomialKernel(1), np.zeros((1, regs.size)), np.zeros(1))
+        template.check_inputs(data.motion)
+        rows = np.asarray(regs.teacher_forced(data.motion.samples(regs.requires), data.force), np.float64)[start:]
+        scales = unwrap(regs)
+        force = np.asarray(data.force, np.float64)[start:]
+        target = (force - float(scales.output_mean)) / float(scales.output_scale)
+        return cls(rows, target, float(np.mean(target)))
+
+
+def _grid(value: Any, name: str, where: str, *, integer: bool = False, minimum: float = 0.0) -> tuple[Any, ...]:
+    values = tuple(value) if isinstance(value, (list, tuple, np.ndarray)) else (value,)
+    if not values:
+        raise ValueError(f"{where}: `{name}` is an empty sequence; give one value or a grid of them.")
+    for v in values:
+        if integer:
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < minimum:
+                raise ValueError(
+                    f"{where}: `{name}` must be an integer >= {int(minimum)} (or a sequence of them), got {v!r}."
+                )
+        elif (
+            isinstance(v, bool)
+            or not isinstance(v, (int, float, np.floating, np.integer))
+            or not np.isfinite(v)
+            or v <= 0
+        ):
+            raise ValueError(f"{where}: `{name}` must be a number > 0 (or a sequence of them), got {v!r}.")
+    return tuple(int(v) for v in values) if integer else tuple(float(v) for v in values)
+
+
+def _landmarks(landmarks: Any, solver: str, rows: int, seed: int, where: str) -> np.ndarray | None:
+    """Row indices of the Nyström landmarks (sorted), or None (direct solver; CG without a preconditioner)."""
+    if solver == "direct":
+        return None
+    if landmarks is None:
+        landmarks = min(rows, 1000 if solver == "nystrom" else 500)
+    if isinstance(landmarks, (int, np.integer)) and not isinstance(landmarks, bool):
+        count = int(landmarks)
+        if count == 0 and solver == "cg":
+            return None
+        if not 1 <= count <= rows:
+            raise ValueError(
+                f"{where}: `landmarks` must be a count in [1, {rows}] (the training rows after the burn-in), "
+                f"got {count}."
+            )
+        if count == rows:
+            return np.arange(rows)
+        return np.sort(np.random.default_rng(seed).choice(rows, count, replace=False))
+    indices = np.asarray(landmarks)
+    if (
+        indices.ndim != 1
+        or indices.size == 0
+        or not np.issubdtype(indices.dtype, np.integer)
+        or np.any(indices < 0)
+        or np.any(indices >= rows)
+        or np.unique(indices).size != indices.size
+    ):
+        raise ValueError(
+            f"{where}: `landmarks` must be a count, or distinct row indices in [0, {rows}) (the training rows after "
+            "the burn-in)."
+        )
+    return np.asarray(indices, dtype=np.int64)
+
+
+def _kernel(kind: str, degree: Any, width: Any) -> AbstractKernel:
+    return PolynomialKernel(degree) if kind == "polynomial" else ExponentialKernel(width)
+
+
+def _block(rows: int, columns: int, block_size: int | None) -> int:
+    if block_size is not None:
+        return int(min(block_size, rows))
+    return int(max(1, min(rows, _BLOCK_BYTES // (8 * max(columns, 1)))))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# solvers
+# ----------------------------------------------------------------------------------------------------------------
+
+
+class _Solved(NamedTuple):
+    alphas: np.ndarray  # (W, R, m)
+    centres: np.ndarray  # (m, P)
+    steps: np.ndarray | None  # (W, R) CG iterations
+
+
+def _solve(
+    kind: str,
+    degree: Any,
+    widths: np.ndarray,
+    fit: _Rows,
+    ridges: np.ndarray,
+    solver: str,
+    landmarks: np.ndarray | None,
+    tolerance: float,
+    max_steps: int,
+    block_size: int | None,
+) -> _Solved:
+    rows, target = jnp.asarray(fit.rows), jnp.asarray(fit.target - fit.offset)
+    n = rows.shape[0]
+    widths_j, ridges_j = jnp.asarray(widths, rows.dtype), jnp.asarray(ridges, rows.dtype)
+    if solver == "direct":
+        if n > _DIRECT_CPU_MAX and jax.default_backend() == "cpu":
+            raise ValueError(
+                f"identify_kernel_narx: solver='direct' on {n} rows: the {n} x {n} Cholesky factor crashes jaxlib's "
+                f"CPU LAPACK above {_DIRECT_CPU_MAX} rows (32-bit integers); use solver='cg' (matrix-free, the same "
+                "solution) or solver='nystrom' (m landmarks)."
+            )
+        alphas = _direct(kind, degree, widths_j, rows, target, ridges_j)
+        return _Solved(np.asarray(alphas), fit.rows, None)
+    assert landmarks is not None or solver == "cg"
+    m = 0 if landmarks is None else len(landmarks)
+    if solver == "nystrom":
+        assert landmarks is not None
+        block = _block(n, m, block_size)
+        alphas = _nystrom(kind, degree, widths_j, rows, target, ridges_j, jnp.asarray(landmarks), block)
+        return _Solved(np.asarray(alphas), fit.rows[landmarks], None)
+    block = _block(n, n, block_size)
+    index = jnp.asarray(np.arange(0) if landmarks is None else landmarks)
+    alphas, steps = _cg(kind, degree, widths_j, rows, target, ridges_j, index, tolerance, max_steps, block)
+    return _Solved(np.asarray(alphas), fit.rows, np.asarray(steps))
+
+
+@functools.partial(jax.jit, static_argnames=("kind", "degree", "block"))
+def _gram_times_jit(kind: str, degree: Any, width: Any, rows: Any, centres: Any, matrix: Any, block: int) -> Any:
+    return _gram_times(_kernel(kind, degree, width), rows, centres, matrix, block)
+
+
+def _gram_times(kernel: AbstractKernel, rows: Any, centres: Any, matrix: Any, block: int) -> Any:
+    """`gram(rows, centres) @ matrix`, the kernel matrix made and used one block of `block` rows at a time, so
+    that it is never held whole (memory `block x len(centres)`)."""
+    n = rows.shape[0]
+    blocks = -(-n // block)
+    padded = jnp.concatenate([rows, jnp.zeros((blocks * block - n, rows.shape[1]), rows.dtype)])
+    out = jax.lax.map(lambda r: kernel.gram(r, centres) @ matrix, padded.reshape(blocks, block, rows.shape[1]))
+    return out.reshape((blocks * block, *out.shape[2:]))[:n]
+
+
+@functools.partial(jax.jit, static_argnames=("kind", "degree"))
+def _direct(kind: str, degree: Any, widths: Any, rows: Any, target: Any, ridges: Any) -> Any:
+    """`(K + rho I)^-1 y` for every width and ridge (one kernel matrix, then one Cholesky factor each, in turn)."""
+    eye = jnp.eye(rows.shape[0], dtype=rows.dtype)
+
+    def per_width(width: Any) -> Any:
+        gram = _kernel(kind, degree, width).gram(rows, rows)
+
+        def per_ridge(ridge: Any) -> Any:
+            factor = jax.scipy.linalg.cho_factor(gram + ridge * eye, lower=True)
+            return jax.scipy.linalg.cho_solve(factor, target)
+
+        # one factor at a time: the eigendecomposition that would serve every ridge at once costs about ten
+        # Cholesky factors on CPU (measured, n = 4800), more than a grid of ridges usually holds
+        return jax.lax.map(per_ridge, ridges)
+
+    return jax.lax.map(per_width, widths)
+
+
+class _Nystrom(NamedTuple):
+    """The Nyström approximation `K ~ K_nm K_mm^+ K_mn = Phi Phi^T` of the kernel matrix from m landmark rows, in
+    factors that never form `Phi^T Phi` (its round-off would square the condition number): `Phi = K_nm T = Q R`
+    (QR; `T = V L^(-1/2)` from `K_mm = V L V^T`, eigenvalues below `_RCOND_EPS` machine epsilons x the largest
+    dropped as zero columns) and `R R^T = U S U^T`, so that `Phi Phi^T = basis diag(values) basis^T` with
+    `basis = Q U` orthonormal to round-off."""
+
+    basis: Any  # (n, m) Q U
+    values: Any  # (m,) S, the eigenvalues of the approximation
+    upper: Any  # (m, m) R
+    rotation: Any  # (m, m) U
+    transform: Any  # (m, m) T
+
+
+def _nystrom_factors(kernel: AbstractKernel, rows: Any, landmarks: Any, block: int) -> _Nystrom:
+    values, vectors = jnp.linalg.eigh(kernel.gram(landmarks, landmarks))
+    keep = values > _RCOND_EPS * jnp.finfo(values.dtype).eps * values[-1]
+    transform = vectors * jnp.where(keep, 1 / jnp.sqrt(jnp.where(keep, values, 1.0)), 0.0)
+    orthonormal, upper = jnp.linalg.qr(_gram_times(kernel, rows, landmarks, transform, block))
+    # the eigendecomposition below needs only R: without this barrier XLA may run it beside the LAPACK call that
+    # forms Q, and two LAPACK calls at once can deadlock XLA's CPU thread pool (see the module docstring)
+    orthonormal, upper = jax.lax.optimization_barrier((orthonormal, upper))
+    # eigh of R R^T rather than the SVD of R: the same left vectors and values at a third of the cost on CPU
+    values, rotation = jnp.linalg.eigh(upper @ upper.T)
+    return _Nystrom(orthonormal @ rotation, jnp.maximum(values, 0.0), upper, rotation, transform)
+
+
+@functools.partial(jax.jit, static_argnames=("kind", "degree", "block"))
+def _nystrom(kind: str, degree: Any, widths: Any, rows: Any, target: Any, ridges: Any, index: Any, block: int) -> Any:
+    """Nyström kernel ridge regression on the landmark rows `index`: `min ||Phi beta - y||^2 + rho ||beta||^2`,
+    `alpha = T beta`. One factorisation serves every ridge: `beta = (R^T R + rho)^-1 R^T Q^T y =
+    R^T U (S + rho)^-1 U^T Q^T y`."""
+    landmarks = rows[index]
+
+    def per_width(width: Any) -> Any:
+        f = _nystrom_factors(_kernel(kind, degree, width), rows, landmarks, block)
+        projected = f.basis.T @ target  # U^T Q^T y
+        betas = (projected / (f.values + ridges[:, None])) @ (f.upper.T @ f.rotation).T  # (R, m)
+        return betas @ f.transform.T
+
+    return jax.lax.map(per_width, widths)
+
+
+@functools.partial(jax.jit, static_argnames=("kind", "degree", "max_steps", "block"))
+def _cg(
+    kind: str,
+    degree: Any,
+    widths: Any,
+    rows: Any,
+    target: Any,
+    ridges: Any,
+    index: Any,
+    tolerance: float,
+    max_steps: int,
+    block: int,
+) -> tuple[Any, Any]:
+    """`(K + rho I) alpha = y` by conjugate gradients (lineax) with the blocked, matrix-free matvec, every ridge
+    in one vmapped solve (the kernel blocks do not depend on the ridge, so they are made once per iteration),
+    preconditioned by the Nyström approximation from the landmark rows `index` (none when empty)."""
+    n = rows.shape[0]
+    structure = jax.ShapeDtypeStruct((n,), rows.dtype)
+    psd = lx.positive_semidefinite_tag
+    # no residual replacement (`stabilise_every=None`): the true residual `b - (K + rho) alpha` of large
+    # coefficients carries round-off of order eps ||K|| ||alpha||, which, fed back every few steps, stalls the
+    # iteration at an error of that size / rho; the recursive residual keeps converging (measured: rho = 1e-5,
+    # 46 steps to 5e-9 without, no convergence in 500 steps with)
+    atol = tolerance * jnp.max(jnp.abs(target))
+    solver = lx.CG(rtol=tolerance, atol=atol, max_steps=max_steps, stabilise_every=None)
+
+    def per_width(width: Any) -> tuple[Any, Any]:
+        kernel = _kernel(kind, degree, width)
+        if index.shape[0]:  # the approximation's eigenpairs: K ~ basis diag(values) basis^T
+            factors = _nystrom_factors(kernel, rows, rows[index], block)
+            basis, values = factors.basis, factors.values
+
+        def per_ridge(ridge: Any) -> tuple[Any, Any]:
+            operator = lx.FunctionLinearOperator(
+                lambda v: _gram_times(kernel, rows, rows, v, block) + ridge * v, structure, tags=psd
+            )
+            options = {}
+            if index.shape[0]:
+                # only directions with eigenvalues above rho: the others are conditioned by the ridge already
+                keep = values > ridge
+                smallest = jnp.min(jnp.where(keep, values, jnp.inf))
+                scale = jnp.where(keep, (smallest + ridge) / (values + ridge) - 1.0, 0.0)
+                options["preconditioner"] = lx.FunctionLinearOperator(
+                    lambda v: v + basis @ (scale * (basis.T @ v)), structure, tags=psd
+                )
+            solution = lx.linear_solve(operator, target, solver, options=options, throw=False)
+            return solution.value, solution.stats["num_steps"]
+
+        return jax.vmap(per_ridge)(ridges)
+
+    return jax.lax.map(per_width, widths)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# validation scores
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _scores(
+    template: KernelNARX,
+    kind: str,
+    degree: Any,
+    widths: np.ndarray,
+    solved: _Solved,
+    val: _Rows | None,
+    validation: FrictionData | None,
+    burn_in: int,
+    free_runs: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """`(one-step NMSE, free-run NMSE)` [%] on the validation part, shape `(W, R)`; NaN without validation (and
+    the free runs NaN unless `free_runs`), inf where a free run is not finite."""
+    shape = solved.alphas.shape[:2]
+    if val is None or validation is None:
+        return np.full(shape, np.nan), np.full(shape, np.nan)
+    rows, target = jnp.asarray(val.rows), val.target
+    centres = jnp.asarray(solved.centres)
+    block = _block(rows.shape[0], centres.shape[0], None)
+    one_step = np.empty(shape)
+    for w, width in enumerate(widths):
+        alphas = jnp.asarray(solved.alphas[w]).T  # (m, R)
+        predicted = np.asarray(_gram_times_jit(kind, degree, jnp.asarray(width), rows, centres, alphas, block))
+        errors = target[:, None] - (template.b + predicted)
+        one_step[w] = 100 * np.mean(errors**2, axis=0) / np.var(target)
+    one_step = np.where(np.isfinite(one_step), one_step, np.inf)
+    if not free_runs:
+        return one_step, np.full(shape, np.nan)
+    if template.regressors.output_lags == 0:  # nothing fed back: the free run is the one-step prediction
+        return one_step, one_step.copy()
+    widths_all = np.repeat(widths, shape[1])
+    runs = np.asarray(
+        _free_runs(
+            template,
+            jnp.asarray(solved.alphas.reshape(-1, centres.shape[0])),
+            jnp.asarray(widths_all),
+            validation.motion,
+        )
+    )
+    measured = np.asarray(validation.force, np.float64)[burn_in:]
+    with np.errstate(invalid="ignore", over="ignore"):
+        free_run = 100 * np.mean((runs[:, burn_in:] - measured) ** 2, axis=1) / np.var(measured)
+    free_run = np.where(np.isfinite(free_run), free_run, np.inf)
+    return one_step, free_run.reshape(shape)
+
+
+@eqx.filter_jit
+def _free_runs(template: KernelNARX, alphas: Any, widths: Any, motion: Any) -> Any:
+    """Free runs of the template with each row of `alphas` (and, for the exponential kernel, each width), side
+    by side in one vmapped simulation."""
+    exponential = isinstance(template.kernel, ExponentialKernel)
+
+    def run(alpha: Any, width: Any) -> Any:
+        kernel = ExponentialKernel(width) if exponential else template.kernel
+        model = eqx.tree_at(lambda m: (m.alpha, m.kernel), template, (alpha, kernel))
+        return simulate(model, motion)
+
+    return jax.vmap(run)(alphas, widths)
