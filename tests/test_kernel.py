@@ -15,6 +15,11 @@
 
 from __future__ import annotations
 
+import json
+import pathlib
+import subprocess
+import sys
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -475,3 +480,18 @@ def test_errors(noisy_record):
         fj.volterra_kernels(random_model("polynomial"), 12)
     with pytest.raises(TypeError, match="fj.KernelNARX"):
         fj.volterra_kernels(fj.Coulomb(Fc=1.0), 2)
+
+
+@pytest.mark.slow
+def test_kernel_benchmark_smoke_size_prints_every_part():
+    """`benchmarks/kernel.py --smoke` (the scaling, Table 1 and recipe parts at a tiny size) prints a JSON line per
+    run with finite scores; CG and the direct solver agree where both run (the same linear system)."""
+    script = pathlib.Path(__file__).parents[1] / "benchmarks" / "kernel.py"
+    done = subprocess.run([sys.executable, str(script), "--smoke"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = [json.loads(line) for line in done.stdout.splitlines() if line.startswith("{")]
+    assert {line["kind"] for line in lines} == {"scaling", "table1", "recipe"}
+    assert all("error" not in line and np.isfinite(line["test_nmse_percent"]) for line in lines), lines
+    scaling = {line["solver"]: line for line in lines if line["kind"] == "scaling"}
+    assert scaling.keys() == {"direct", "cg", "nystrom"}
+    np.testing.assert_allclose(scaling["cg"]["test_nmse_percent"], scaling["direct"]["test_nmse_percent"], rtol=1e-3)
