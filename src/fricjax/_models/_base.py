@@ -56,6 +56,15 @@ class AbstractModel(eqx.Module):
         """Teacher forcing: the state with the fed-back output replaced by `y_measured` (identity by default)."""
         return state
 
+    def tangent_gradients(self) -> bool:
+        """Whether `fj.simulate` differentiates this model's free run through the tangent-linear recurrence
+        (a custom JVP of the scan: per-step state Jacobians computed in parallel over time, then one small linear
+        scan; reverse mode transposes it) instead of the scan's own derivative. The gradients are the same to
+        round-off; the choice is speed only, measured per model (benchmarks/README.md): a win for small states
+        whose exact step has derivative rules XLA:CPU runs slowly in a loop (LuGre: 22x -> 1.6x the forward).
+        False by default."""
+        return False
+
     @abc.abstractmethod
     def samples(self, inputs: Any) -> Any:
         """The per-step signals of `inputs` (leaves of shape `(T, ...)`, or scalars constant over the record)."""

@@ -82,6 +82,10 @@ class SensorDrift(AbstractFrictionModel):
         drift = self.drift(state.t)
         return SensorDriftState(inner, state.t + sample.dt, drift), force + drift
 
+    def tangent_gradients(self) -> bool:
+        """As the wrapped model (the drift adds one smooth state)."""
+        return self.model.tangent_gradients()
+
     def feedback(self, state: SensorDriftState, y_measured: Array) -> SensorDriftState:
         """Teacher forcing of the wrapped model with the measurement less the drift of that sample."""
         inner = unwrap(self.model).feedback(state.inner, y_measured - state.last)
