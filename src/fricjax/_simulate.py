@@ -182,8 +182,9 @@ def _tangent_run(model: AbstractModel, samples: Any, state: Any, unroll: int) ->
 
         def tangent(ds: jax.Array, xs: tuple[Any, ...]) -> tuple[jax.Array, Any]:
             a_k, c_k, b_k, e_k = xs
-            dy = jax.tree_util.tree_map(lambda c_, e_: jnp.tensordot(c_, ds, axes=1) + e_, c_k, e_k)
-            return a_k @ ds + b_k, dy
+            # elementwise products and sums, not dot products: XLA:CPU fuses them into the loop body
+            dy = jax.tree_util.tree_map(lambda c_, e_: jnp.sum(c_ * ds, axis=-1) + e_, c_k, e_k)
+            return jnp.sum(a_k * ds, axis=1) + b_k, dy
 
         ds_final, dys = jax.lax.scan(tangent, ds0, (a, c, b, e), unroll=unroll)
         return (s_final, ys), (ds_final, dys)
