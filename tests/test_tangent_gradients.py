@@ -1,6 +1,7 @@
-"""`AbstractModel.tangent_gradients`: `fj.simulate` differentiates the free run of LuGre, Dahl, GMS and the static
-laws and static-map Maxwell-slip models through the tangent-linear recurrence (a custom JVP of the scan). The derivatives must be those of the scan
-itself: reverse mode, forward mode, with respect to parameters and to the input record, under vmap."""
+"""`AbstractModel.tangent_gradients`: `fj.simulate` differentiates the free run of LuGre, Dahl, GMS, the static laws
+and the static-map Maxwell-slip models through the tangent-linear recurrence (a custom JVP of the scan). The
+derivatives must be those of the scan itself: reverse mode, forward mode, with respect to parameters and to the
+input record, under vmap."""
 
 from __future__ import annotations
 
