@@ -1,5 +1,5 @@
-"""`AbstractModel.tangent_gradients`: `fj.simulate` differentiates the free run of LuGre, Dahl, GMS, the static laws
-and the static-map Maxwell-slip models through the tangent-linear recurrence (a custom JVP of the scan). The
+"""`AbstractModel.tangent_gradients`: `fj.simulate` differentiates the free run of LuGre, Dahl, GMS and the static
+laws through the tangent-linear recurrence (a custom JVP of the scan). The
 derivatives must be those of the scan itself: reverse mode, forward mode, with respect to parameters and to the
 input record, under vmap."""
 
@@ -18,7 +18,7 @@ import fricjax as fj
 from helpers import model_table, presliding_to_sliding, smooth
 
 MODELS = model_table()
-TANGENT = ["lugre", "lugre_rational", "gms", "dahl", "bo_pavelescu_asym", "tustin", "maxwell_nlr", "maxwell_lr"]
+TANGENT = ["lugre", "lugre_rational", "gms", "dahl", "bo_pavelescu_asym", "tustin"]
 
 
 class ScanDerivative(fj.AbstractFrictionModel):

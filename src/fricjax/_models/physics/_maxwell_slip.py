@@ -206,12 +206,6 @@ class MaxwellSlip(AbstractFrictionModel):
             x_history=jnp.zeros((self.force_map.x_lags,), thresholds.dtype),
         )
 
-    def tangent_gradients(self) -> bool:
-        """True for the static force maps (LR, NLR: the state is the M deflections; NLR7 value_and_grad 19x ->
-        5x the forward); False with FIR histories (DLR, DNLRX: the tangent recurrence over the shifted histories
-        is no faster than the scan's own derivative). See `AbstractModel.tangent_gradients`."""
-        return self.force_map.dbar_lags == 0 and self.force_map.x_lags == 0
-
     def step(self, state: MaxwellSlipState, sample: MotionSample) -> tuple[MaxwellSlipState, Array]:
         p = unwrap(self)
         thresholds = p.thresholds
