@@ -7,7 +7,8 @@ benchmarks/README.md for what each figure means. Prints one JSON object per line
 - `single`: one trajectory, `eqx.filter_jit(fj.simulate)` with `unroll` in {1, 2, 4, 8} (and the default), and
   the numba `@njit` loop of the same equations (checked to agree to 1e-9 relative, else the script fails);
 - `vmap`: `eqx.filter_vmap` of `fj.simulate` over a batch of perturbed models (trajectory-steps per second);
-- `value_and_grad`: `eqx.filter_value_and_grad` of a mean-squared-error loss vs the forward loss;
+- `value_and_grad`: `eqx.filter_value_and_grad` of a mean-squared-error loss vs the forward loss, for the model
+  and for `fj.TangentGradients(model)` (`"impl": "fricjax-tangent"`, the tangent-linear derivative);
 - `summary`: the three targets, pass / fail per model, and the unroll that minimises the time per step.
 
 All models are in exact mode (`fj.Exact()`, the default smoothing) and float64. Wall-time figures are
@@ -420,9 +421,14 @@ def bench_vmap(name: str, run_numba: Callable[[], Any], steps_numba: int, cfg: a
     return record
 
 
-def bench_grad(name: str, model: Any, motion: fj.Motion, cfg: argparse.Namespace) -> dict[str, Any]:
-    """`filter_value_and_grad` of a mean-squared-error loss w.r.t. the model vs the forward loss alone."""
+def bench_grad(
+    name: str, model: Any, motion: fj.Motion, cfg: argparse.Namespace, *, tangent: bool = False
+) -> dict[str, Any]:
+    """`filter_value_and_grad` of a mean-squared-error loss w.r.t. the model vs the forward loss alone; with
+    `tangent`, of `fj.TangentGradients(model)` (the tangent-linear derivative of the scan)."""
     make, nominal = NOMINAL[name]
+    if tangent:
+        model = fj.TangentGradients(model)
     target_params = nominal * 1.05
     if name == "maxwell_nlr7":
         target_params[2] = 0.02
@@ -448,7 +454,7 @@ def bench_grad(name: str, model: Any, motion: fj.Motion, cfg: argparse.Namespace
     record = {
         "benchmark": "value_and_grad",
         "model": name,
-        "impl": "fricjax",
+        "impl": "fricjax-tangent" if tangent else "fricjax",
         "steps": steps,
         "forward_ns_per_step": round(fwd_s / steps * 1e9, 2),
         "ns_per_step": round(vg_s / steps * 1e9, 2),
@@ -500,6 +506,7 @@ def main(argv: list[str] | None = None) -> int:
         unroll_ns[name] = single["unroll_ns"]
         vmap = bench_vmap(name, single["run_numba"], cfg.steps, cfg)
         grad = bench_grad(name, model, motion, cfg)
+        tangent = bench_grad(name, model, motion, cfg, tangent=True)
         single_ratio = single["default_ns"] / single["numba_ns"]
         best_unroll = min(single["unroll_ns"], key=single["unroll_ns"].__getitem__)
         summary_models[name] = {
@@ -511,6 +518,8 @@ def main(argv: list[str] | None = None) -> int:
             "vmap_pass": vmap["ratio_vs_numba"] >= TARGET_VMAP_RATIO,
             "grad_ratio_vs_forward": grad["ratio_vs_forward"],
             "grad_pass": grad["ratio_vs_forward"] <= TARGET_GRAD_RATIO,
+            "grad_tangent_ratio_vs_forward": tangent["ratio_vs_forward"],
+            "grad_tangent_pass": tangent["ratio_vs_forward"] <= TARGET_GRAD_RATIO,
         }
 
     recommended, geo = recommend_unroll(unroll_ns)

@@ -1,7 +1,6 @@
-"""`AbstractModel.tangent_gradients`: `fj.simulate` differentiates the free run of LuGre, Dahl, GMS and the static
-laws through the tangent-linear recurrence (a custom JVP of the scan). The
-derivatives must be those of the scan itself: reverse mode, forward mode, with respect to parameters and to the
-input record, under vmap."""
+"""`fj.TangentGradients`: `fj.simulate` differentiates the wrapped model's free run through the tangent-linear
+recurrence (a custom JVP of the scan). The derivatives must be those of the scan itself: reverse mode, forward
+mode, with respect to parameters and to the input record, under vmap, through SensorDrift."""
 
 from __future__ import annotations
 
@@ -18,23 +17,7 @@ import fricjax as fj
 from helpers import model_table, presliding_to_sliding, smooth
 
 MODELS = model_table()
-TANGENT = ["lugre", "lugre_rational", "gms", "dahl", "bo_pavelescu_asym", "tustin"]
-
-
-class ScanDerivative(fj.AbstractFrictionModel):
-    """The wrapped model, differentiated through the scan's own derivative (the reference)."""
-
-    model: fj.AbstractFrictionModel
-
-    @property
-    def requires(self) -> frozenset[str]:  # type: ignore[override]
-        return self.model.requires
-
-    def init_state(self) -> Any:
-        return self.model.init_state()
-
-    def step(self, state: Any, sample: Any) -> tuple[Any, Any]:
-        return self.model.step(state, sample)
+TANGENT = ["lugre", "lugre_rational", "gms", "dahl", "bo_pavelescu_asym", "tustin", "maxwell_nlr", "maxwell_dnlrx"]
 
 
 def _flat(tree: Any) -> np.ndarray:
@@ -67,11 +50,11 @@ CASES = [
 @pytest.mark.parametrize(("name", "mode"), CASES)
 def test_tangent_derivatives_equal_the_scans(name, mode):
     model = MODELS[name] if mode == "exact" else smooth(name, MODELS[name])
-    assert model.tangent_gradients() and not ScanDerivative(model).tangent_gradients()
+    assert fj.TangentGradients(model).tangent_gradients() and not model.tangent_gradients()
     motion = presliding_to_sliding(200)
     target = 1.05 * fj.simulate(model, motion) + 0.01
-    ours = _derivatives(model, motion, target)
-    reference = _derivatives(ScanDerivative(model), motion, target)
+    ours = _derivatives(fj.TangentGradients(model), motion, target)
+    reference = _derivatives(model, motion, target)
     for label, a, b in zip(("value", "grad params", "grad x", "jacfwd params"), ours, reference, strict=True):
         scale = max(float(np.max(np.abs(b))), 1e-300)
         np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10 * scale, err_msg=f"{name} {mode}: {label}")
@@ -81,7 +64,7 @@ def test_tangent_derivatives_equal_the_scans(name, mode):
 @pytest.mark.slow
 def test_tangent_derivatives_through_a_wrapper_and_under_vmap():
     """SensorDrift(LuGre) takes the tangent path too; per-model gradients under vmap equal the loop's."""
-    base = fj.SensorDrift(MODELS["lugre"], 0.3, 2.0)
+    base = fj.SensorDrift(fj.TangentGradients(MODELS["lugre"]), 0.3, 2.0)
     assert base.tangent_gradients()
     motion = presliding_to_sliding(150)
     target = fj.simulate(base, motion) * 0.97
@@ -101,6 +84,12 @@ def test_tangent_derivatives_through_a_wrapper_and_under_vmap():
 
 def _scan_loss(p: Any, static: Any, motion: fj.Motion, target: jax.Array) -> jax.Array:
     model = eqx.combine(p, static)
-    reference = eqx.tree_at(lambda m: m.model, model, ScanDerivative(model.model))
+    reference = eqx.tree_at(lambda m: m.model, model, model.model.model)  # unwrapped: the scan's own derivative
     assert not reference.tangent_gradients()
     return jnp.mean((fj.simulate(reference, motion) - target) ** 2)
+
+
+def test_tangent_gradients_refuses_a_model_that_feeds_back():
+    narx = fj.MLPNARX.init(fj.NARXRegressors(("v",), 1, 2), 3, key=jax.random.PRNGKey(0))
+    with pytest.raises(ValueError, match="feeds back"):
+        fj.TangentGradients(narx)

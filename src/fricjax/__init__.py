@@ -137,6 +137,7 @@ from ._models.combine._ensemble import AverageEnsemble as AverageEnsemble
 from ._models.combine._ensemble import WeightedEnsemble as WeightedEnsemble
 from ._models.combine._sensor import SensorDrift as SensorDrift
 from ._models.combine._sensor import SensorDriftState as SensorDriftState
+from ._models.combine._tangent import TangentGradients as TangentGradients
 from ._protocols._emps_idm import EMPSIDMData as EMPSIDMData
 from ._protocols._emps_idm import EMPSIDMResult as EMPSIDMResult
 from ._protocols._emps_idm import emps_idm_data as emps_idm_data

@@ -59,10 +59,8 @@ class AbstractModel(eqx.Module):
     def tangent_gradients(self) -> bool:
         """Whether `fj.simulate` differentiates this model's free run through the tangent-linear recurrence
         (a custom JVP of the scan: per-step state Jacobians computed in parallel over time, then one small linear
-        scan; reverse mode transposes it) instead of the scan's own derivative. The gradients are the same to
-        round-off; the choice is speed only, measured per model (benchmarks/README.md): a win for small states
-        whose exact step has derivative rules XLA:CPU runs slowly in a loop (LuGre: 22x -> 1.6x the forward).
-        False by default."""
+        scan; reverse mode transposes it) instead of the scan's own derivative. The derivatives are the same to
+        round-off; the choice is speed only. False by default; `fj.TangentGradients(model)` switches it on."""
         return False
 
     @abc.abstractmethod

@@ -73,11 +73,6 @@ class Dahl(AbstractFrictionModel):
 
     requires: ClassVar[frozenset[str]] = frozenset({"x"})
 
-    def tangent_gradients(self) -> bool:
-        """True: the reverse pass of the scan was 31x the forward (the power and sign rules); through the
-        tangent-linear recurrence 1.3x (`AbstractModel.tangent_gradients`)."""
-        return True
-
     def __init__(
         self,
         sigma0: ParamLike,

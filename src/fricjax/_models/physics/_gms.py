@@ -75,10 +75,6 @@ class GMS(AbstractFrictionModel):
     requires: ClassVar[frozenset[str]] = frozenset({"x", "v", "dt"})
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"sigma2"})
 
-    def tangent_gradients(self) -> bool:
-        """True: value_and_grad 6.0x -> 3.0x the forward (`AbstractModel.tangent_gradients`)."""
-        return True
-
     def __init__(
         self,
         stribeck: AbstractStribeck,

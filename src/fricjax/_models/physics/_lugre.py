@@ -115,11 +115,6 @@ class LuGre(AbstractFrictionModel):
     def init_state(self) -> LuGreState:
         return LuGreState(z=jnp.asarray(unwrap(self.z0)))
 
-    def tangent_gradients(self) -> bool:
-        """True: the exact step's exponential update and `|v|` rules made the scan's reverse pass 22x the forward
-        on XLA:CPU; through the tangent-linear recurrence it is 1.6x (`AbstractModel.tangent_gradients`)."""
-        return True
-
     def step(self, state: LuGreState, sample: MotionSample) -> tuple[LuGreState, Array]:
         p = unwrap(self)
         v_step = sample.dx / sample.dt  # the velocity held over (t_{k-1}, t_k]: consistent with x

@@ -51,11 +51,6 @@ class AbstractStaticFriction(AbstractFrictionModel):
     requires: ClassVar[frozenset[str]] = frozenset({"v"})
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"Fv"})
 
-    def tangent_gradients(self) -> bool:
-        """True: a static law has no state, so its derivative is one `vmap` over time with no recurrence
-        (Bo-Pavelescu: value_and_grad 10x -> 2.2x the forward; `AbstractModel.tangent_gradients`)."""
-        return True
-
     def parameter_ranges(self) -> dict[str, float]:
         Fc = getattr(self, "Fc", None)
         return {} if Fc is None else {"offset": float(np.max(np.abs(np.asarray(unwrap(Fc)))))}  # N
