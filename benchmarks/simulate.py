@@ -426,13 +426,16 @@ def bench_grad(
 ) -> dict[str, Any]:
     """`filter_value_and_grad` of a mean-squared-error loss w.r.t. the model vs the forward loss alone; with
     `tangent`, of `fj.TangentGradients(model)` (the tangent-linear derivative of the scan)."""
-    make, nominal = NOMINAL[name]
+    if name in NOMINAL:
+        make, nominal = NOMINAL[name]
+        target_params = nominal * 1.05
+        if name == "maxwell_nlr7":
+            target_params[2] = 0.02
+        target = jnp.asarray(fj.simulate(make(target_params), motion))
+    else:  # a black-box model: its own output, perturbed
+        target = 1.05 * jnp.asarray(fj.simulate(model, motion)) + 0.01
     if tangent:
         model = fj.TangentGradients(model)
-    target_params = nominal * 1.05
-    if name == "maxwell_nlr7":
-        target_params[2] = 0.02
-    target = jnp.asarray(fj.simulate(make(target_params), motion))
 
     def loss(m: Any, motion: fj.Motion, target: jax.Array) -> jax.Array:
         return jnp.mean((fj.simulate(m, motion) - target) ** 2)
@@ -470,6 +473,24 @@ def bench_grad(
     return record
 
 
+def blackbox_models(steps: int) -> dict[str, Any]:
+    """A neural and a kernel model of `fricjax compare`'s kind, built on the first 4 000 samples of a tribometer
+    record (mixed regime, 2 kHz) long enough for `steps`: an MLP NARX (10 tanh units, linear part) and a kernel
+    Volterra model (exponential kernel, 500 Nystrom centres), both on the velocity and 20 play operators, with
+    no fed-back force (so the free run needs no feedback)."""
+    data = fj.make_tribometer("mixed", seed=0, duration=max(steps, 4000) / 2000.0)
+    train = data.full.slice(0, 4000)
+    scales = fj.compare.DataScales.from_data(train)
+    plays = scales.breakaway * np.geomspace(0.03, 3.0, 20)
+    regressors = fj.NARXRegressors.from_data(train, ("v",), 0, 0, plays=plays)
+    mlp = fj.MLPNARX.init(regressors, 10, key=jax.random.PRNGKey(0), linear=True)
+    kernel = fj.identify_kernel_narx(
+        train, signals=("v",), plays=plays, input_lags=0, output_lags=0, kernel="exponential", width=30.0,
+        ridge=1e-3, solver="nystrom", landmarks=500,
+    ).model  # fmt: skip
+    return {"mlp_narx_plays": (mlp, data.full.motion), "kernel_plays": (kernel, data.full.motion)}
+
+
 def recommend_unroll(unroll_ns: dict[str, dict[int, float]]) -> tuple[int, dict[int, float]]:
     """The unroll minimising the geometric mean (over models) of the time per step, and those means."""
     geo = {u: math.exp(statistics.fmean(math.log(per_model[u]) for per_model in unroll_ns.values())) for u in UNROLLS}
@@ -484,6 +505,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=41, help="max timed rounds (the median is reported)")
     parser.add_argument("--budget", type=float, default=4.0, help="seconds of timed rounds per benchmark (>= 3 rounds)")
     parser.add_argument("--models", nargs="*", default=list(NOMINAL), choices=list(NOMINAL))
+    parser.add_argument(
+        "--no-blackbox", action="store_true", help="skip the value_and_grad of the MLP NARX and kernel models"
+    )
     parser.add_argument("--quick", action="store_true", help="short records and a small batch (smoke run, < 1 min)")
     cfg = parser.parse_args(argv)
     if cfg.quick:
@@ -522,8 +546,20 @@ def main(argv: list[str] | None = None) -> int:
             "grad_tangent_pass": tangent["ratio_vs_forward"] <= TARGET_GRAD_RATIO,
         }
 
+    blackbox: dict[str, Any] = {}
+    if not cfg.no_blackbox:
+        for name, (model, record) in blackbox_models(cfg.steps).items():
+            grad = bench_grad(name, model, record, cfg)  # NARX classes feed back: no tangent path for them
+            blackbox[name] = {
+                "grad_ratio_vs_forward": grad["ratio_vs_forward"],
+                "grad_pass": grad["ratio_vs_forward"] <= TARGET_GRAD_RATIO,
+                "forward_compile_s": grad["forward_compile_s"],
+                "compile_s": grad["compile_s"],
+            }
+
     recommended, geo = recommend_unroll(unroll_ns)
     all_pass = all(m[k] for m in summary_models.values() for k in ("single_pass", "vmap_pass", "grad_pass"))
+    all_pass = all_pass and all(m["grad_pass"] for m in blackbox.values())
     emit(
         {
             "benchmark": "summary",
@@ -533,6 +569,7 @@ def main(argv: list[str] | None = None) -> int:
                 "grad_ratio_vs_forward_max": TARGET_GRAD_RATIO,
             },
             "models": summary_models,
+            "blackbox_models": blackbox,
             "all_pass": all_pass,
             "default_unroll": DEFAULT_UNROLL,
             "recommended_unroll": recommended,
