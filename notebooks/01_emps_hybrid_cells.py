@@ -16,8 +16,10 @@
 HYBRID_STEPS = 20 if SMOKE else 200
 start = fitted.plant  # the open-loop Coulomb + viscous plant of the cell above
 hybrids = {
-    name: fj.fit_emps_hybrid(train, start, inputs=("v", "q"), freeze_physics=frozen, steps=HYBRID_STEPS)
-    for name, frozen in (("physics free", False), ("physics frozen", True))
+    name: fj.fit_emps_hybrid(
+        train, start, inputs=("v", "q"), freeze_physics=frozen, steps=HYBRID_STEPS, learning_rate=rate
+    )
+    for name, frozen, rate in (("physics free", False, 3e-3), ("physics frozen", True, 1e-2))
 }
 print(f"{'model':<30}{'held-out tail [mm]':>20}{'train [mm]':>12}{'test [mm]':>11}")
 tail = fj.split_emps_record(train, int(round(0.7 * train.length)))
@@ -53,14 +55,14 @@ plt.show()
 # ## Ensembles of simulated positions
 #
 # As the emps-ensemble paper's EGBB (eq. 16), the ensembles combine the members' simulated **positions**:
-# the average, least-squares weights with an intercept, and PRESS forward selection, the weights fitted on the
-# training file only.
+# the average, least-squares weights with an intercept (free or non-negative), and PRESS forward selection, the
+# weights fitted on the training file only.
 
 # %%
 members = {"Coulomb + viscous": start, **{f"hybrid, {name}": h.plant for name, h in hybrids.items()}}
 plants = list(members.values())
 print(f"{'ensemble':<12}{'train [mm]':>12}{'test [mm]':>11}  weights")
-for method in ("average", "lstsq", "press"):
+for method in ("average", "lstsq", "nonnegative", "press"):
     ens = fj.fit_emps_ensemble(plants, train, method)
     names = [list(members)[i] for i in ens.indices]
     weights = ", ".join(f"{n}: {w:.2f}" for n, w in zip(names, np.asarray(ens.ensemble.weights), strict=True))
