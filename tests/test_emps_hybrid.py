@@ -112,6 +112,7 @@ def test_construction_errors():
         HybridFriction(law, np.zeros((2, 1)), np.zeros(2), np.zeros(2), scale=[0.0])
 
 
+@pytest.mark.slow  # about 2 s (compilations)
 def test_asymmetric_law_and_model_file(record, tmp_path):
     law = Tustin(Fc=(20.0, 22.0), Fs=(25.0, 27.0), vs=0.01, Fv=(180.0, 220.0), smoothing=Smooth(1e-3))
     hybrid = HybridFriction.init(law, ("v", "q"), 4, key=jax.random.PRNGKey(0), scale=[0.1, 0.1])
