@@ -8,12 +8,19 @@ position RMSE in mm on DATA_EMPS_PULSES.mat, the first 20 samples only initialis
 plant, of its IDM start and of the published reference parameters run through the same simulator; and the
 fit wall times (compilation included). Every line carries the machine and the versions.
 
+`--hybrid` runs the grey + black-box part instead (`fj.fit_emps_hybrid`: each law's open-loop plant plus a
+tanh-network residual on the force path, physics free or frozen, trained by simulation error on the first
+70 % of DATA_EMPS.mat, the model and the variant chosen by the free-run error on the last 30 %; then ensembles
+of the laws and hybrids combining their simulated positions, weights from the training file; then the
+closed-loop relative errors). One line per model: `{"kind": "hybrid" | "ensemble" | "member" | "closed_loop",
+"name", "test_rmse_mm", "train_rmse_mm", "fit_s", ...}`; `--smoke` is the CI size (< 90 s).
+
 `--study` runs the sensitivity study behind the settings of `fit_emps_open_loop` instead (initial state, input
 timing, sub-steps, offset drift, and the fit settings compared by two-fold cross-validation over the halves of
 the training file); its test scores are printed for the record only (`"used_for_choice": false`).
 
-Run: `python benchmarks/emps.py [--quick] [--laws CoulombViscous Tustin] [--study]`; the data folder is
-`$FRICJAX_DATA` (default: `../shared/data` beside the repository).
+Run: `python benchmarks/emps.py [--quick] [--laws CoulombViscous Tustin] [--study | --hybrid [--smoke]]`; the data
+folder is `$FRICJAX_DATA` (default: `../shared/data` beside the repository).
 """
 
 from __future__ import annotations
@@ -320,18 +327,166 @@ def run_study(train: fj.EMPSRecord, test: fj.EMPSRecord) -> None:
         )
 
 
+# --------------------------------------------------------------------------------------------------------------
+# Grey + black-box hybrids, ensembles, closed loop (training file only for every fit and choice)
+
+HYBRID_VARIANTS = {
+    "mlp(v,q)/free": {"inputs": ("v", "q"), "freeze_physics": False, "learning_rate": 3e-3},
+    "mlp(v,q)/frozen": {"inputs": ("v", "q"), "freeze_physics": True, "learning_rate": 1e-2},
+    "mlp(v)/free": {"inputs": ("v",), "freeze_physics": False, "learning_rate": 3e-3},
+    "mlp(v,q,u)/free": {"inputs": ("v", "q", "u"), "freeze_physics": False, "learning_rate": 3e-3},
+}
+"""Residual inputs, physics free or frozen, Adam learning rate (1e-2 made the free fits jump at the start on the
+70 % head of the training file; the frozen ones train only the network)."""
+
+
+def law_name(name: str, asymmetric: bool) -> str:
+    return f"{name}{'-asym' if asymmetric else ''}"
+
+
+def run_hybrid(
+    train: fj.EMPSRecord,
+    test: fj.EMPSRecord,
+    laws: list[str],
+    steps: int,
+    hybrid_steps: int,
+    variants: list[str],
+    width: int,
+) -> None:
+    score = fj.score_emps_open_loop
+    members: dict[str, fj.EMPSPlant] = {}
+    hybrids: dict[str, fj.EMPSPlant] = {}
+    for name in laws:
+        for asymmetric in (False, True):
+            label = law_name(name, asymmetric)
+            t0 = time.perf_counter()
+            fitted = fj.fit_emps_open_loop(train, LAWS[name], asymmetric=asymmetric, steps=steps, compute_std=False)
+            fit_s = time.perf_counter() - t0
+            members[label] = fitted.plant
+            emit(
+                {
+                    "kind": "member",
+                    "name": label,
+                    "test_rmse_mm": round(score(fitted.plant, test), 4),
+                    "train_rmse_mm": round(score(fitted.plant, train), 4),
+                    "fit_s": round(fit_s, 2),
+                }
+            )
+            best: tuple[float, str] | None = None
+            for variant in variants:
+                t0 = time.perf_counter()
+                hybrid = fj.fit_emps_hybrid(
+                    train, fitted.plant, steps=hybrid_steps, width=width, **HYBRID_VARIANTS[variant]
+                )
+                fit_s = time.perf_counter() - t0
+                val = hybrid.val_rmse_mm
+                cut = int(round(0.7 * train.length))
+                start_val = score(fitted.plant, fj.split_emps_record(train, cut))
+                key = f"{label}+{variant}"
+                hybrids[key] = hybrid.plant
+                emit(
+                    {
+                        "kind": "hybrid",
+                        "name": key,
+                        "test_rmse_mm": round(score(hybrid.plant, test), 4),
+                        "train_rmse_mm": round(score(hybrid.plant, train), 4),
+                        "fit_s": round(fit_s, 2),
+                        "val_tail30_rmse_mm": round(val, 4),
+                        "val_tail30_physics_mm": round(start_val, 4),
+                        "head70_rmse_mm": round(float(np.sqrt(hybrid.result.train_loss)), 4),
+                        "adam_steps": hybrid_steps,
+                        "width": width,
+                        "result": hybrid.result.result,
+                        "used_for_choice": ["val_tail30_rmse_mm"],
+                    }
+                )
+                if best is None or val < best[0]:
+                    best = (val, key)
+            if best is not None:
+                emit(
+                    {
+                        "kind": "hybrid_choice",
+                        "law": label,
+                        "chosen": best[1],
+                        "by": "val_tail30_rmse_mm",
+                        "test_rmse_mm": round(score(hybrids[best[1]], test), 4),
+                        "train_rmse_mm": round(score(hybrids[best[1]], train), 4),
+                    }
+                )
+
+    # ensembles of the simulated positions, weights fitted on the training file
+    everything = {**members, **hybrids}
+    positions_train = {k: np.asarray(fj.predict_emps_open_loop(p, train).q) for k, p in everything.items()}
+    positions_test = {k: np.asarray(fj.predict_emps_open_loop(p, test).q) for k, p in everything.items()}
+    pools = {"laws": list(members), "laws+hybrids": list(everything)}
+    if hybrids:
+        pools["hybrids"] = list(hybrids)
+    for pool, keys in pools.items():
+        plants = [everything[k] for k in keys]
+        q_train = np.stack([positions_train[k] for k in keys])
+        q_test = np.stack([positions_test[k] for k in keys])
+        for method in ("average", "lstsq", "nonnegative", "press"):
+            t0 = time.perf_counter()
+            try:
+                ens = fj.fit_emps_ensemble(plants, train, method, positions=q_train)
+            except ValueError as error:
+                emit({"kind": "ensemble", "name": f"{pool}:{method}", "error": str(error)})
+                continue
+            fit_s = time.perf_counter() - t0
+            chosen = list(ens.indices)
+            emit(
+                {
+                    "kind": "ensemble",
+                    "name": f"{pool}:{method}",
+                    "combines": "simulated positions (emps-ensemble eq. 16)",
+                    "test_rmse_mm": round(ens.ensemble.score(test, q_test[chosen]), 4),
+                    "train_rmse_mm": round(ens.ensemble.score(train, q_train[chosen]), 4),
+                    "fit_s": round(fit_s, 3),
+                    "members": [keys[i] for i in chosen],
+                    "weights": rounded(ens.ensemble.weights, 4),
+                    "intercept_mm": round(1000 * float(ens.ensemble.intercept), 4),
+                }
+            )
+
+    # closed loop (PD controller), relative errors [%] as the published model is scored
+    for label, plant in {"reference (Janot et al. 2019)": REFERENCE, **everything}.items():
+        on_train = fj.emps_closed_loop_errors(plant, train)
+        on_test = fj.emps_closed_loop_errors(plant, test)
+        emit(
+            {
+                "kind": "closed_loop",
+                "name": label,
+                **{f"train_{k}": round(v, 5) for k, v in on_train.items()},
+                **{f"test_{k}": round(v, 5) for k, v in on_test.items()},
+                "published_reference_position_pct": [0.013752, 0.0080248],
+            }
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--laws", nargs="+", default=list(LAWS), choices=list(LAWS))
     parser.add_argument("--steps", type=int, default=150, help="Levenberg-Marquardt steps (over 3 stages)")
     parser.add_argument("--quick", action="store_true", help="60 steps per fit")
     parser.add_argument("--study", action="store_true", help="run the sensitivity study instead (~15 min)")
+    parser.add_argument("--hybrid", action="store_true", help="grey + black-box hybrids, ensembles, closed loop")
+    parser.add_argument("--hybrid-steps", type=int, default=200, help="Adam steps of each hybrid fit")
+    parser.add_argument(
+        "--variants", nargs="+", default=["mlp(v,q)/free", "mlp(v,q)/frozen"], choices=list(HYBRID_VARIANTS)
+    )
+    parser.add_argument("--width", type=int, default=16, help="hidden units of the residual network")
+    parser.add_argument("--smoke", action="store_true", help="CI size of --hybrid: one law, short fits (< 90 s)")
     args = parser.parse_args()
     folder = data_dir() / "emps"
     train, test = fj.load_emps(folder / "DATA_EMPS.mat"), fj.load_emps(folder / "DATA_EMPS_PULSES.mat")
     t0 = time.perf_counter()
     if args.study:
         run_study(train, test)
+    elif args.hybrid:
+        if args.smoke:
+            run_hybrid(train, test, ["CoulombViscous"], 20, 20, ["mlp(v,q)/free", "mlp(v,q)/frozen"], 8)
+        else:
+            run_hybrid(train, test, args.laws, args.steps, args.hybrid_steps, args.variants, args.width)
     else:
         run_laws(train, test, args.laws, 60 if args.quick else args.steps)
     emit({"kind": "total", "wall_s": round(time.perf_counter() - t0, 1)})

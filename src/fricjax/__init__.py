@@ -135,9 +135,17 @@ from ._estimation._wavelet_narx import identify_wavelet_narx as identify_wavelet
 from ._models.combine._ensemble import AbstractEnsemble as AbstractEnsemble
 from ._models.combine._ensemble import AverageEnsemble as AverageEnsemble
 from ._models.combine._ensemble import WeightedEnsemble as WeightedEnsemble
+from ._models.combine._hybrid import HybridFriction as HybridFriction
 from ._models.combine._sensor import SensorDrift as SensorDrift
 from ._models.combine._sensor import SensorDriftState as SensorDriftState
 from ._models.combine._tangent import TangentGradients as TangentGradients
+from ._protocols._emps_hybrid import EMPSEnsemble as EMPSEnsemble
+from ._protocols._emps_hybrid import EMPSEnsembleFit as EMPSEnsembleFit
+from ._protocols._emps_hybrid import EMPSHybridFit as EMPSHybridFit
+from ._protocols._emps_hybrid import emps_closed_loop_errors as emps_closed_loop_errors
+from ._protocols._emps_hybrid import emps_hybrid_start as emps_hybrid_start
+from ._protocols._emps_hybrid import fit_emps_ensemble as fit_emps_ensemble
+from ._protocols._emps_hybrid import fit_emps_hybrid as fit_emps_hybrid
 from ._protocols._emps_idm import EMPSIDMData as EMPSIDMData
 from ._protocols._emps_idm import EMPSIDMResult as EMPSIDMResult
 from ._protocols._emps_idm import emps_idm_data as emps_idm_data

@@ -45,6 +45,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._constraints import ParamLike, as_float_array, model_dtype, positive, real, unwrap
 from .._inputs import InputRecord
 from .._models._base import AbstractSystem
+from .._models.combine._hybrid import HybridFriction
 from .._models.physics._static import AbstractStaticFriction
 from .._simulate import simulate
 from .._smoothing import is_concrete
@@ -57,7 +58,8 @@ class EMPSPlant(eqx.Module):
 
     - `mass`: moving mass `M` [kg] (> 0; about 95 kg on EMPS). Stored through a log reparametrisation.
     - `friction`: any fricjax static friction law (`CoulombViscous`, `Threlfall`, `Tustin`, `BoPavelescu`,
-      symmetric or asymmetric, exact or smooth). Its own `offset` is part of the friction force.
+      symmetric or asymmetric, exact or smooth), or a `HybridFriction` (a law plus a network residual that may
+      also read the position and the drive force). Its own `offset` is part of the friction force.
     - `offset`: an extra constant force [N] (default 0), added to the friction law's offset.
 
     The published IDIM-LS model of the benchmark (Janot et al. 2019) is
@@ -85,15 +87,20 @@ class EMPSPlant(eqx.Module):
         self.friction = friction
         self.offset = real(offset, "offset", dtype)
 
-    def resisting_force(self, v: ArrayLike) -> Array:
-        """`F_f(v) + offset` [N] at velocity `v` [m/s] (the force the drive must overcome)."""
+    def resisting_force(self, v: ArrayLike, q: ArrayLike | None = None, force: ArrayLike | None = None) -> Array:
+        """`F_f(v) + offset` [N] at velocity `v` [m/s] (the force the drive must overcome).
+
+        A `HybridFriction` whose residual reads the position `q` [m] or the drive force `force` [N] gets them
+        too (the simulators pass both); a static law ignores them."""
         p = unwrap(self)
+        if isinstance(p.friction, HybridFriction):
+            return p.friction(v, q, force) + p.offset
         return p.friction(v) + p.offset
 
-    def acceleration(self, v: ArrayLike, force: ArrayLike) -> Array:
-        """`q'' = (force - F_f(v) - offset) / M` [m/s^2] for drive force `force` [N]."""
+    def acceleration(self, v: ArrayLike, force: ArrayLike, q: ArrayLike | None = None) -> Array:
+        """`q'' = (force - F_f(v) - offset) / M` [m/s^2] for drive force `force` [N] (at position `q` [m])."""
         p = unwrap(self)
-        return (jnp.asarray(force) - p.resisting_force(v)) / p.mass
+        return (jnp.asarray(force) - p.resisting_force(v, q, force)) / p.mass
 
 
 class EMPSSimulation(NamedTuple):
@@ -125,7 +132,7 @@ def _advance(plant: EMPSPlant, q: Array, v: Array, force: Array, h: Array, subst
 
     def one(_: Any, state: tuple[Array, Array]) -> tuple[Array, Array]:
         q, v = state
-        friction, slope = jax.jvp(plant.resisting_force, (v,), (jnp.ones_like(v),))
+        friction, slope = jax.jvp(lambda w: plant.resisting_force(w, q, force), (v,), (jnp.ones_like(v),))
         accel = (force - friction.astype(dtype)) / mass
         z = -jnp.maximum(slope.astype(dtype), 0.0) / mass * h
         phi1, phi2 = _phi12(z)
