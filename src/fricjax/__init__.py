@@ -80,6 +80,11 @@ from ._data._differentiators import al_alaoui_coefficients as al_alaoui_coeffici
 from ._data._differentiators import al_alaoui_derivative as al_alaoui_derivative
 from ._data._emps import EMPSRecord as EMPSRecord
 from ._data._emps import load_emps as load_emps
+from ._data._boucwen import BOUCWEN_DT as BOUCWEN_DT
+from ._data._boucwen import BOUCWEN_PERIOD as BOUCWEN_PERIOD
+from ._data._boucwen import BoucWenData as BoucWenData
+from ._data._boucwen import BoucWenRecord as BoucWenRecord
+from ._data._boucwen import load_boucwen as load_boucwen
 from ._data._io import RecordError as RecordError
 from ._data._io import load_record as load_record
 from ._data._preprocessing import Normaliser as Normaliser
@@ -147,6 +152,8 @@ from ._protocols._emps_open_loop import fit_emps_open_loop as fit_emps_open_loop
 from ._protocols._emps_open_loop import predict_emps_open_loop as predict_emps_open_loop
 from ._protocols._emps_open_loop import score_emps_open_loop as score_emps_open_loop
 from ._protocols._emps_open_loop import split_emps_record as split_emps_record
+from ._systems._boucwen import BoucWen as BoucWen
+from ._systems._boucwen import boucwen_inputs as boucwen_inputs
 from ._systems._emps import EMPSClosedLoop as EMPSClosedLoop
 from ._systems._emps import EMPSOpenLoop as EMPSOpenLoop
 from ._systems._emps import EMPSPlant as EMPSPlant
