@@ -76,15 +76,15 @@ except _PackageNotFoundError:  # pragma: no cover - running from a source tree
 
 from . import compare as compare  # noqa: E402 - the public `fj.compare` namespace
 from ._cli import main as main  # noqa: E402 - the command line, callable: fj.main(["compare", ...])
-from ._data._differentiators import al_alaoui_coefficients as al_alaoui_coefficients
-from ._data._differentiators import al_alaoui_derivative as al_alaoui_derivative
-from ._data._emps import EMPSRecord as EMPSRecord
-from ._data._emps import load_emps as load_emps
 from ._data._boucwen import BOUCWEN_DT as BOUCWEN_DT
 from ._data._boucwen import BOUCWEN_PERIOD as BOUCWEN_PERIOD
 from ._data._boucwen import BoucWenData as BoucWenData
 from ._data._boucwen import BoucWenRecord as BoucWenRecord
 from ._data._boucwen import load_boucwen as load_boucwen
+from ._data._differentiators import al_alaoui_coefficients as al_alaoui_coefficients
+from ._data._differentiators import al_alaoui_derivative as al_alaoui_derivative
+from ._data._emps import EMPSRecord as EMPSRecord
+from ._data._emps import load_emps as load_emps
 from ._data._io import RecordError as RecordError
 from ._data._io import load_record as load_record
 from ._data._preprocessing import Normaliser as Normaliser
@@ -142,6 +142,11 @@ from ._models.combine._ensemble import AverageEnsemble as AverageEnsemble
 from ._models.combine._ensemble import WeightedEnsemble as WeightedEnsemble
 from ._models.combine._sensor import SensorDrift as SensorDrift
 from ._models.combine._sensor import SensorDriftState as SensorDriftState
+from ._protocols._boucwen import BOUCWEN_STEADY_PERIODS as BOUCWEN_STEADY_PERIODS
+from ._protocols._boucwen import BoucWenLoss as BoucWenLoss
+from ._protocols._boucwen import BoucWenScores as BoucWenScores
+from ._protocols._boucwen import boucwen_rmse as boucwen_rmse
+from ._protocols._boucwen import score_boucwen as score_boucwen
 from ._protocols._emps_idm import EMPSIDMData as EMPSIDMData
 from ._protocols._emps_idm import EMPSIDMResult as EMPSIDMResult
 from ._protocols._emps_idm import emps_idm_data as emps_idm_data

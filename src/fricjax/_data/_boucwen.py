@@ -74,7 +74,8 @@ def _folder(path: str | os.PathLike[str] | None) -> str:
 def _vector(path: str, key: str) -> np.ndarray:
     if not os.path.isfile(path):
         raise FileNotFoundError(
-            f"load_boucwen: no file at {path!r}; the Bouc-Wen benchmark files (BoucWenFiles.zip, nonlinearbenchmark.org) "
+            f"load_boucwen: no file at {path!r}; the Bouc-Wen benchmark files (BoucWenFiles.zip, "
+            "nonlinearbenchmark.org) "
             "belong in $FRICJAX_DATA/boucwen/: set FRICJAX_DATA or pass `path=` the folder holding them."
         )
     try:
