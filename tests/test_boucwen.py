@@ -135,12 +135,13 @@ def test_boucwen_jit_and_vmap():
 
 def test_grey_box_gradient_matches_finite_differences():
     rng = np.random.default_rng(1)
-    u = 50 * rng.standard_normal(120)
+    u = 50 * rng.standard_normal(60)
     y = np.asarray(simulate(BoucWen(**PUBLISHED, substeps=2), boucwen_inputs(u)))
     record = BoucWenRecord(u, y, BOUCWEN_DT, "synthetic", "")
     names = list(PUBLISHED)
     start = np.array([2.2, 12.0, 5.5e4, 4.5e4, 1.2e3, 0.7, -1.0, 1.1])
 
+    @jax.jit
     def loss(theta):
         model = BoucWen(**dict(zip(names, theta, strict=True)), substeps=2)
         return BoucWenLoss()(model, None, record)
@@ -155,6 +156,7 @@ def test_grey_box_gradient_matches_finite_differences():
         assert np.isclose(grad[i], fd, rtol=1e-4, atol=1e-9 * np.max(np.abs(grad * start)) / abs(start[i])), names[i]
 
 
+@pytest.mark.slow
 def test_grey_box_fit_recovers_parameters():
     """Output-error fit through fj.fit on a noise-free synthetic record, from a start 10-20 % off."""
     rng = np.random.default_rng(2)
