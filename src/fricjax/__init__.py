@@ -76,6 +76,11 @@ except _PackageNotFoundError:  # pragma: no cover - running from a source tree
 
 from . import compare as compare  # noqa: E402 - the public `fj.compare` namespace
 from ._cli import main as main  # noqa: E402 - the command line, callable: fj.main(["compare", ...])
+from ._data._boucwen import BOUCWEN_DT as BOUCWEN_DT
+from ._data._boucwen import BOUCWEN_PERIOD as BOUCWEN_PERIOD
+from ._data._boucwen import BoucWenData as BoucWenData
+from ._data._boucwen import BoucWenRecord as BoucWenRecord
+from ._data._boucwen import load_boucwen as load_boucwen
 from ._data._differentiators import al_alaoui_coefficients as al_alaoui_coefficients
 from ._data._differentiators import al_alaoui_derivative as al_alaoui_derivative
 from ._data._emps import EMPSRecord as EMPSRecord
@@ -146,6 +151,11 @@ from ._protocols._emps_hybrid import emps_closed_loop_errors as emps_closed_loop
 from ._protocols._emps_hybrid import emps_hybrid_start as emps_hybrid_start
 from ._protocols._emps_hybrid import fit_emps_ensemble as fit_emps_ensemble
 from ._protocols._emps_hybrid import fit_emps_hybrid as fit_emps_hybrid
+from ._protocols._boucwen import BOUCWEN_STEADY_PERIODS as BOUCWEN_STEADY_PERIODS
+from ._protocols._boucwen import BoucWenLoss as BoucWenLoss
+from ._protocols._boucwen import BoucWenScores as BoucWenScores
+from ._protocols._boucwen import boucwen_rmse as boucwen_rmse
+from ._protocols._boucwen import score_boucwen as score_boucwen
 from ._protocols._emps_idm import EMPSIDMData as EMPSIDMData
 from ._protocols._emps_idm import EMPSIDMResult as EMPSIDMResult
 from ._protocols._emps_idm import emps_idm_data as emps_idm_data
@@ -156,6 +166,8 @@ from ._protocols._emps_open_loop import fit_emps_open_loop as fit_emps_open_loop
 from ._protocols._emps_open_loop import predict_emps_open_loop as predict_emps_open_loop
 from ._protocols._emps_open_loop import score_emps_open_loop as score_emps_open_loop
 from ._protocols._emps_open_loop import split_emps_record as split_emps_record
+from ._systems._boucwen import BoucWen as BoucWen
+from ._systems._boucwen import boucwen_inputs as boucwen_inputs
 from ._systems._emps import EMPSClosedLoop as EMPSClosedLoop
 from ._systems._emps import EMPSOpenLoop as EMPSOpenLoop
 from ._systems._emps import EMPSPlant as EMPSPlant
