@@ -144,6 +144,11 @@ from ._models.combine._hybrid import HybridFriction as HybridFriction
 from ._models.combine._sensor import SensorDrift as SensorDrift
 from ._models.combine._sensor import SensorDriftState as SensorDriftState
 from ._models.combine._tangent import TangentGradients as TangentGradients
+from ._protocols._boucwen import BOUCWEN_STEADY_PERIODS as BOUCWEN_STEADY_PERIODS
+from ._protocols._boucwen import BoucWenLoss as BoucWenLoss
+from ._protocols._boucwen import BoucWenScores as BoucWenScores
+from ._protocols._boucwen import boucwen_rmse as boucwen_rmse
+from ._protocols._boucwen import score_boucwen as score_boucwen
 from ._protocols._emps_hybrid import EMPSEnsemble as EMPSEnsemble
 from ._protocols._emps_hybrid import EMPSEnsembleFit as EMPSEnsembleFit
 from ._protocols._emps_hybrid import EMPSHybridFit as EMPSHybridFit
@@ -151,11 +156,6 @@ from ._protocols._emps_hybrid import emps_closed_loop_errors as emps_closed_loop
 from ._protocols._emps_hybrid import emps_hybrid_start as emps_hybrid_start
 from ._protocols._emps_hybrid import fit_emps_ensemble as fit_emps_ensemble
 from ._protocols._emps_hybrid import fit_emps_hybrid as fit_emps_hybrid
-from ._protocols._boucwen import BOUCWEN_STEADY_PERIODS as BOUCWEN_STEADY_PERIODS
-from ._protocols._boucwen import BoucWenLoss as BoucWenLoss
-from ._protocols._boucwen import BoucWenScores as BoucWenScores
-from ._protocols._boucwen import boucwen_rmse as boucwen_rmse
-from ._protocols._boucwen import score_boucwen as score_boucwen
 from ._protocols._emps_idm import EMPSIDMData as EMPSIDMData
 from ._protocols._emps_idm import EMPSIDMResult as EMPSIDMResult
 from ._protocols._emps_idm import emps_idm_data as emps_idm_data
