@@ -133,6 +133,7 @@ def test_boucwen_jit_and_vmap():
     np.testing.assert_allclose(batched[1], eager, rtol=1e-12, atol=1e-15)
 
 
+@pytest.mark.slow
 def test_grey_box_gradient_matches_finite_differences():
     rng = np.random.default_rng(1)
     u = 50 * rng.standard_normal(60)
