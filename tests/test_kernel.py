@@ -274,8 +274,11 @@ def test_output_error_refinement_with_fit(motion):
     result = fj.identify_kernel_narx(
         data, regressors=regressors(), kernel="polynomial", degree=2, ridge=1e-12, solver="nystrom", landmarks=60
     )
-    start = eqx.tree_at(lambda m: m.alpha, result.model, result.model.alpha * (1 + 0.01 * np.cos(np.arange(60))))
+    # the 60 coefficients nearly cancel (|alpha| ~ 0.7 for an output of order 1), so the free run is sensitive to
+    # them: a 1 % perturbation makes it diverge, 0.03 % gives an NMSE of about 0.3
+    start = eqx.tree_at(lambda m: m.alpha, result.model, result.model.alpha * (1 + 3e-4 * np.cos(np.arange(60))))
     before = float(fj.nmse(data.force, fj.simulate(start, motion)))
+    assert 1e-2 < before < 10, before
     fitted = fj.fit(start, data, loss=fj.SimulationLoss(), solver=fj.levenberg_marquardt(), steps=20)
     after = float(fj.nmse(data.force, fj.simulate(fitted.model, motion)))
     assert after < 1e-6 * before, (before, after)
