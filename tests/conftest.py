@@ -40,3 +40,46 @@ def test_record(data_dir):
     from fricjax import load_emps
 
     return load_emps(data_dir / "emps" / "DATA_EMPS_PULSES.mat")
+
+
+# Linux refuses a process more than vm.max_map_count (65,530 by default) memory mappings, and XLA:CPU maps every
+# compiled executable's code separately: the slow tier compiles thousands of programs, and once the count neared
+# the limit the compiler died with SIGSEGV inside backend_compile. Compiled code is therefore released after each
+# module, and after any test that leaves the process above this share of the limit.
+_MAP_LIMIT_SHARE = 0.5
+
+
+def _map_limit() -> int:
+    try:
+        return int(pathlib.Path("/proc/sys/vm/max_map_count").read_text())
+    except (OSError, ValueError):
+        return 65530
+
+
+def _mapping_count() -> int:
+    try:
+        with open("/proc/self/maps", "rb") as maps:
+            return sum(1 for _ in maps)
+    except OSError:  # not Linux: no such limit to keep clear of
+        return 0
+
+
+def _release_compiled_code() -> None:
+    import gc
+
+    jax.clear_caches()
+    gc.collect()
+
+
+@pytest.fixture(autouse=True)
+def _keep_clear_of_the_mapping_limit():
+    yield
+    if _mapping_count() > _MAP_LIMIT_SHARE * _map_limit():
+        _release_compiled_code()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_compiled_code_after_each_module():
+    """Drop JAX's compilation caches after each test module (see `_MAP_LIMIT_SHARE`)."""
+    yield
+    _release_compiled_code()
