@@ -4,6 +4,7 @@ The real-data tests read `$FRICJAX_DATA/boucwen` (see `shared/data/README.md`, s
 folder is missing.
 """
 
+import json
 import os
 import pathlib
 import subprocess
@@ -191,4 +192,7 @@ def test_benchmark_smoke(data_dir):
         check=True,
     )
     lines = [line for line in out.stdout.splitlines() if line.startswith("{")]
-    assert len(lines) == 3 and all('"kind": "boucwen"' in line for line in lines)
+    assert len(lines) == 4 and all('"kind": "boucwen"' in line for line in lines)
+    names = [json.loads(line)["name"] for line in lines]
+    assert any(name.startswith("MLP NARX") for name in names), names
+    assert all(np.isfinite(json.loads(line)["test_rmse_m"]) for line in lines)
