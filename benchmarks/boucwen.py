@@ -17,7 +17,9 @@ model with the machine and the versions:
 - `MLP NARX (NOE)`: a black box, `fj.MLPNARX` (16 tanh units and a linear part) on the regressors
   `u_k .. u_{k-4}, y_{k-1} .. y_{k-4}` (normalised by the training record), run on the force by
   `fj.InputOutputModel(narx, "u")`: teacher forcing (`fj.OneStepLoss`, Levenberg-Marquardt), then free-run output
-  error (`fj.SimulationLoss`, Levenberg-Marquardt), the model of least validation error kept.
+  error (`fj.SimulationLoss`, Levenberg-Marquardt), the model of least validation error kept;
+- `GSNN (NOE)`: the papers' generalised shunting neural network (`fj.GSNN`, worden2007 §6; 5 units and a linear
+  part) on the same regressors, trained the same way.
 
 Anchors (multisine test RMSE): PNLSS 1.87e-5 m, dynoNet 4.52e-5 m, NFIR 16.3e-5 m.
 
@@ -98,13 +100,17 @@ def arx(train: fj.BoucWenRecord, valid_u: np.ndarray, valid_y: np.ndarray, burn:
     return {"order": best[1], "theta": best[2], "scale": scale, "fit_s": time.perf_counter() - t0, "valid": best[0]}
 
 
-def mlp_narx(train: fj.BoucWenRecord, whole: fj.BoucWenRecord, valid_burn: int, steps: tuple[int, int]) -> dict:
-    """The black-box NARX: teacher forcing, then NOE, both by Levenberg-Marquardt; `steps` of each."""
-    lags, width = 4, 16
+def black_box_narx(
+    kind: str, train: fj.BoucWenRecord, whole: fj.BoucWenRecord, valid_burn: int, steps: tuple[int, int]
+) -> dict:
+    """A black-box NARX (`kind` "mlp": 16 tanh units, "gsnn": 5 GSNN units; both with a linear part): teacher
+    forcing, then NOE, both by Levenberg-Marquardt; `steps` of each."""
+    lags, width = 4, (16 if kind == "mlp" else 5)
     data = fj.input_output_data(train.u, train.y, train.dt)
     validation = fj.input_output_data(whole.u, whole.y, whole.dt)
     regressors = fj.NARXRegressors.from_data(data, ("x",), input_lags=lags, output_lags=lags)
-    start = fj.MLPNARX.init(regressors, width, key=jax.random.PRNGKey(0), linear=True)
+    network = fj.MLPNARX if kind == "mlp" else fj.GSNN
+    start = network.init(regressors, width, key=jax.random.PRNGKey(0), linear=True)
     t0 = time.perf_counter()
     teacher = fj.fit(start, data, loss=fj.OneStepLoss(), solver=fj.levenberg_marquardt(), steps=steps[0])
     noe = fj.fit(
@@ -138,11 +144,12 @@ def main() -> None:
     data = fj.load_boucwen()
     P = fj.BOUCWEN_PERIOD
     if args.smoke:
-        n_train, steps, substeps, orders, narx_steps = 2048, 3, 2, [2, 3], (3, 3)
+        n_train, steps, substeps, orders, narx_steps, gsnn_steps = 2048, 3, 2, [2, 3], (3, 3), (3, 3)
         full = data.sinesweep
         sweep = fj.BoucWenRecord(full.u[:7500], full.y[:7500], full.dt, "sinesweep (first 10 s)", full.source)
     else:
-        n_train, steps, substeps, orders, narx_steps = 4 * P, 80, 4, [2, 3, 4, 6, 8, 10], (30, 400)
+        n_train, steps, substeps, orders = 4 * P, 80, 4, [2, 3, 4, 6, 8, 10]
+        narx_steps, gsnn_steps = (30, 400), (30, 200)
         sweep = data.sinesweep
     train = fj.BoucWenRecord(data.train.u[:n_train], data.train.y[:n_train], data.train.dt, "train", data.train.source)
     valid_burn = 4 * P  # the last period of train.h5 validates, entered from the state its history gives
@@ -200,13 +207,15 @@ def main() -> None:
             parameters=params,
         )
     )
-    narx = mlp_narx(train, data.train, valid_burn, narx_steps)
-    model = narx.pop("model")
-    scores = fj.score_boucwen(model, data.multisine, sweep)
-    train_fit = rmse(fj.simulate(model, fj.boucwen_inputs(train.u)), train.y)
-    valid = fj.simulate(model, fj.boucwen_inputs(data.train.u))[valid_burn:]
-    narx["valid_rmse_m"] = rmse(valid, data.train.y[valid_burn:])
-    lines.append(line("MLP NARX (teacher forcing, then NOE)", scores[:2], train_fit, narx.pop("fit_s"), **narx))
+    for kind, name, kind_steps in (("mlp", "MLP NARX", narx_steps), ("gsnn", "GSNN", gsnn_steps)):
+        narx = black_box_narx(kind, train, data.train, valid_burn, kind_steps)
+        model = narx.pop("model")
+        scores = fj.score_boucwen(model, data.multisine, sweep)
+        train_fit = rmse(fj.simulate(model, fj.boucwen_inputs(train.u)), train.y)
+        valid = fj.simulate(model, fj.boucwen_inputs(data.train.u))[valid_burn:]
+        narx["valid_rmse_m"] = rmse(valid, data.train.y[valid_burn:])
+        label = f"{name} (teacher forcing, then NOE)"
+        lines.append(line(label, scores[:2], train_fit, narx.pop("fit_s"), **narx))
     for entry in lines:
         text = json.dumps(entry)
         print(text, flush=True)
