@@ -177,6 +177,8 @@ from ._systems._emps import simulate_closed_loop as simulate_closed_loop
 from ._systems._emps import simulate_open_loop as simulate_open_loop
 from ._systems._input_output import InputOutputModel as InputOutputModel
 from ._systems._input_output import input_output_data as input_output_data
+from ._systems._oscillator import HystereticOscillator as HystereticOscillator
+from ._systems._oscillator import OscillatorState as OscillatorState
 from ._systems._recursive import RecursiveLeastSquares as RecursiveLeastSquares
 from ._systems._recursive import RegressionData as RegressionData
 from ._systems._recursive import RLSState as RLSState
