@@ -19,7 +19,18 @@ model with the machine and the versions:
   `fj.InputOutputModel(narx, "u")`: teacher forcing (`fj.OneStepLoss`, Levenberg-Marquardt), then free-run output
   error (`fj.SimulationLoss`, Levenberg-Marquardt), the model of least validation error kept;
 - `GSNN (NOE)`: the papers' generalised shunting neural network (`fj.GSNN`, worden2007 §6; 5 units and a linear
-  part) on the same regressors, trained the same way.
+  part) on the same regressors, trained the same way;
+- `recurrent network (NOE)`: a black box, `fj.RecurrentNetwork` (parlitz2004 eqs. 26-28; 45 leaky elements, 20 %
+  connectivity, spectral radius 0.95, the force and its copies delayed by 1 and 2 samples as inputs) run on the
+  force by `fj.InputOutputModel`: readout by least squares, then every weight by free-run output error (Adam,
+  learning rate 3e-3), the model of least validation error kept;
+- `oscillator + <element>`: `fj.HystereticOscillator`, the benchmark's mass-spring-damper with a friction model of
+  the displacement in place of the Bouc-Wen force z: no element (the linear oscillator, the reference of the
+  family), Maxwell-slip NLR(8) (stiffnesses and thresholds free), Maxwell-slip DLR(12) (preassigned thresholds,
+  signed weights), GMS(4) with an exponential Stribeck curve, Dahl, and a hybrid: a tanh network (8 units and a
+  linear part) of the displacement, the velocity and 8 play operators of the displacement. All started from
+  m = 2 kg, c = 10 N s/m, k = 5e4 N/m and fitted like the grey box (OE, Levenberg-Marquardt, element offsets
+  frozen at 0), 8 velocity-Verlet substeps per sample.
 
 Anchors (multisine test RMSE): PNLSS 1.87e-5 m, dynoNet 4.52e-5 m, NFIR 16.3e-5 m.
 
@@ -43,6 +54,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
+import optax  # noqa: E402
 import scipy.signal  # noqa: E402
 
 import fricjax as fj  # noqa: E402
@@ -135,6 +147,77 @@ def black_box_narx(
     }
 
 
+def recurrent_network(
+    train: fj.BoucWenRecord, whole: fj.BoucWenRecord, valid_burn: int, elements: int, steps: int
+) -> dict:
+    """The parlitz2004 dynamical network as a black box on the force: readout by least squares, then NOE (Adam)."""
+    data = fj.input_output_data(train.u, train.y, train.dt)
+    validation = fj.input_output_data(whole.u, whole.y, whole.dt)
+    start = fj.RecurrentNetwork.init(
+        data,
+        elements,
+        key=jax.random.PRNGKey(0),
+        signals=("x",),
+        delays=(0, 1, 2),
+        connectivity=0.2,
+        spectral_radius=0.95,
+    )
+    t0 = time.perf_counter()
+    readout = fj.fit(start, data, train=("theta", "theta0"), separable=("theta", "theta0"), steps=1)
+    noe = fj.fit(
+        readout.model,
+        data,
+        loss=fj.SimulationLoss(),
+        solver=optax.adam(3e-3),
+        steps=steps,
+        validation=validation,
+        validation_burn_in=valid_burn,
+    )
+    return {
+        "model": fj.InputOutputModel(noe.model, "u"),
+        "fit_s": time.perf_counter() - t0,
+        "elements": elements,
+        "steps": steps,
+        "fit_result": noe.result,
+    }
+
+
+def oscillator_elements(train: fj.BoucWenRecord) -> list[tuple[str, Any, tuple[str, ...]]]:
+    """The restoring-force elements of the `fj.HystereticOscillator` rows: (name, element, frozen fields)."""
+    y_scale = float(np.std(train.y))
+    v_scale = float(np.std(np.diff(train.y)) / train.dt)
+    hybrid = fj.NARXRegressors(
+        ("x", "v"),
+        input_lags=0,
+        output_lags=0,
+        input_mean=[0.0, 0.0],
+        input_scale=[y_scale, v_scale],
+        output_scale=50.0,  # N, the size of the Bouc-Wen force z
+        plays=np.geomspace(5e-5, 2e-3, 8),
+    )
+    no_element = fj.MaxwellSlip.nlr(k=[1.0], thresholds=fj.Fixed(np.array([1e3])))  # never slips: k + 1 N/m
+    return [
+        ("none (linear oscillator)", no_element, ("element.force_map.k", "element.force_map.offset")),
+        (
+            "Maxwell-slip NLR(8)",
+            fj.MaxwellSlip.nlr(k=np.full(8, 5e4 / 8), thresholds=np.geomspace(2e-5, 2e-3, 8)),
+            ("element.force_map.offset",),
+        ),
+        (
+            "Maxwell-slip DLR(12, signed weights)",
+            fj.MaxwellSlip.dlr(theta=np.full((1, 12), 5e4 * 2e-3 / 12), max_deflection=2e-3),
+            ("element.force_map.offset",),
+        ),
+        (
+            "GMS(4)",
+            fj.GMS(fj.ExponentialStribeck(Fc=20.0, Fs=25.0, vs=0.01), k=[1e5, 5e4, 2e4, 1e4], alpha=[0.25] * 4, C=1e3),
+            ("element.offset",),
+        ),
+        ("Dahl", fj.Dahl(sigma0=5e4, Fc=60.0, alpha=1.0), ("element.offset", "element.F0")),
+        ("hybrid: MLP of y, v and 8 plays", fj.MLPNARX.init(hybrid, 8, key=jax.random.PRNGKey(0), linear=True), ()),
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--smoke", action="store_true", help="tiny sizes for CI (< 60 s)")
@@ -145,11 +228,13 @@ def main() -> None:
     P = fj.BOUCWEN_PERIOD
     if args.smoke:
         n_train, steps, substeps, orders, narx_steps, gsnn_steps = 2048, 3, 2, [2, 3], (3, 3), (3, 3)
+        oscillator_steps, oscillator_substeps, rnn_elements, rnn_steps = 2, 2, 8, 3
         full = data.sinesweep
         sweep = fj.BoucWenRecord(full.u[:7500], full.y[:7500], full.dt, "sinesweep (first 10 s)", full.source)
     else:
         n_train, steps, substeps, orders = 4 * P, 80, 4, [2, 3, 4, 6, 8, 10]
         narx_steps, gsnn_steps = (30, 400), (30, 200)
+        oscillator_steps, oscillator_substeps, rnn_elements, rnn_steps = 80, 8, 45, 3000
         sweep = data.sinesweep
     train = fj.BoucWenRecord(data.train.u[:n_train], data.train.y[:n_train], data.train.dt, "train", data.train.source)
     valid_burn = 4 * P  # the last period of train.h5 validates, entered from the state its history gives
@@ -216,6 +301,54 @@ def main() -> None:
         narx["valid_rmse_m"] = rmse(valid, data.train.y[valid_burn:])
         label = f"{name} (teacher forcing, then NOE)"
         lines.append(line(label, scores[:2], train_fit, narx.pop("fit_s"), **narx))
+    network = recurrent_network(train, data.train, valid_burn, rnn_elements, rnn_steps)
+    model = network.pop("model")
+    scores = fj.score_boucwen(model, data.multisine, sweep)
+    train_fit = rmse(fj.simulate(model, fj.boucwen_inputs(train.u)), train.y)
+    network["valid_rmse_m"] = rmse(
+        fj.simulate(model, fj.boucwen_inputs(data.train.u))[valid_burn:], data.train.y[valid_burn:]
+    )
+    lines.append(
+        line(
+            "recurrent network (readout by least squares, then NOE)",
+            scores[:2],
+            train_fit,
+            network.pop("fit_s"),
+            **network,
+        )
+    )
+    for name, element, frozen in oscillator_elements(train):
+        if args.smoke and name.startswith(("Maxwell-slip DLR", "GMS", "Dahl")):
+            continue  # the smoke run keeps one element of each kind (linear, Maxwell-slip, network)
+        start = fj.HystereticOscillator(m=2.0, c=10.0, k=5e4, element=element, substeps=oscillator_substeps)
+        t0 = time.perf_counter()
+        result = fj.fit(
+            start,
+            train,
+            loss=fj.BoucWenLoss(validation_burn_in=valid_burn),
+            validation=data.train,
+            solver=fj.levenberg_marquardt(),
+            steps=oscillator_steps,
+            freeze=frozen,
+            scaling=fj.ParameterScaling(),
+        )
+        fit_s = time.perf_counter() - t0
+        scores = fj.score_boucwen(result.model, data.multisine, sweep)
+        train_fit = rmse(fj.simulate(result.model, fj.boucwen_inputs(train.u)), train.y)
+        fitted = fj.unwrap(result.model)
+        lines.append(
+            line(
+                f"oscillator + {name} (OE, Levenberg-Marquardt)",
+                scores[:2],
+                train_fit,
+                fit_s,
+                steps=oscillator_steps,
+                substeps=oscillator_substeps,
+                valid_rmse_m=float(result.val_loss) ** 0.5 * float(np.std(data.train.y[valid_burn:])),
+                fit_result=result.result,
+                m_c_k=[float(fitted.m), float(fitted.c), float(fitted.k)],
+            )
+        )
     for entry in lines:
         text = json.dumps(entry)
         print(text, flush=True)

@@ -192,7 +192,8 @@ def test_benchmark_smoke(data_dir):
         check=True,
     )
     lines = [line for line in out.stdout.splitlines() if line.startswith("{")]
-    assert len(lines) == 5 and all('"kind": "boucwen"' in line for line in lines)
+    assert len(lines) == 9 and all('"kind": "boucwen"' in line for line in lines)
     names = [json.loads(line)["name"] for line in lines]
     assert any(name.startswith("MLP NARX") for name in names) and any(name.startswith("GSNN") for name in names)
+    assert sum(name.startswith("oscillator + ") for name in names) == 3
     assert all(np.isfinite(json.loads(line)["test_rmse_m"]) for line in lines)
