@@ -112,6 +112,40 @@ def arx(train: fj.BoucWenRecord, valid_u: np.ndarray, valid_y: np.ndarray, burn:
     return {"order": best[1], "theta": best[2], "scale": scale, "fit_s": time.perf_counter() - t0, "valid": best[0]}
 
 
+def scored_line(
+    name: str,
+    model: Any,
+    data: fj.BoucWenData,
+    sweep: fj.BoucWenRecord,
+    train: fj.BoucWenRecord,
+    fit_s: float,
+    **extra: Any,
+) -> dict:
+    """The JSON line of a fitted model: the official test scores and the training free-run RMSE."""
+    scores = fj.score_boucwen(model, data.multisine, sweep)
+    return line(name, scores[:2], rmse(fj.simulate(model, fj.boucwen_inputs(train.u)), train.y), fit_s, **extra)
+
+
+def fit_output_error(
+    start: Any, train: fj.BoucWenRecord, whole: fj.BoucWenRecord, valid_burn: int, steps: int, freeze: tuple
+) -> tuple[Any, float, float]:
+    """Free-run output error (`fj.BoucWenLoss`), Levenberg-Marquardt with `ParameterScaling`, the 5th training
+    period validating: (fit result, fit seconds, validation RMSE [m])."""
+    t0 = time.perf_counter()
+    result = fj.fit(
+        start,
+        train,
+        loss=fj.BoucWenLoss(validation_burn_in=valid_burn),
+        validation=whole,
+        solver=fj.levenberg_marquardt(),
+        steps=steps,
+        freeze=freeze,
+        scaling=fj.ParameterScaling(),
+    )
+    fit_s = time.perf_counter() - t0
+    return result, fit_s, float(result.val_loss) ** 0.5 * float(np.std(whole.y[valid_burn:]))
+
+
 def black_box_narx(
     kind: str, train: fj.BoucWenRecord, whole: fj.BoucWenRecord, valid_burn: int, steps: tuple[int, int]
 ) -> dict:
@@ -261,90 +295,60 @@ def main() -> None:
     )
 
     start = fj.BoucWen(**GREY_START, substeps=substeps)
-    t0 = time.perf_counter()
-    result = fj.fit(
-        start,
-        train,
-        loss=fj.BoucWenLoss(validation_burn_in=valid_burn),
-        validation=data.train,
-        solver=fj.levenberg_marquardt(),
-        steps=steps,
-        freeze=("nu",),
-        scaling=fj.ParameterScaling(),
-    )
-    fit_s = time.perf_counter() - t0
+    result, fit_s, valid_rmse = fit_output_error(start, train, data.train, valid_burn, steps, ("nu",))
     fitted = fj.unwrap(result.model)
-    params = {name: float(getattr(fitted, name)) for name in GREY_START}
-    model = result.model  # scored with the integrator it was fitted with (RK4, `substeps` per sample)
-    scores = fj.score_boucwen(model, data.multisine, sweep)
-    train_fit = rmse(fj.simulate(model, fj.boucwen_inputs(train.u)), train.y)
     lines.append(
-        line(
+        scored_line(  # scored with the integrator it was fitted with (RK4, `substeps` per sample)
             "grey-box Bouc-Wen (OE, Levenberg-Marquardt)",
-            scores[:2],
-            train_fit,
+            result.model,
+            data,
+            sweep,
+            train,
             fit_s,
             steps=steps,
             substeps=substeps,
-            valid_rmse_m=float(result.val_loss) ** 0.5 * float(np.std(data.train.y[valid_burn:])),
+            valid_rmse_m=valid_rmse,
             fit_result=result.result,
             start=GREY_START,
-            parameters=params,
+            parameters={name: float(getattr(fitted, name)) for name in GREY_START},
         )
     )
-    for kind, name, kind_steps in (("mlp", "MLP NARX", narx_steps), ("gsnn", "GSNN", gsnn_steps)):
-        narx = black_box_narx(kind, train, data.train, valid_burn, kind_steps)
-        model = narx.pop("model")
-        scores = fj.score_boucwen(model, data.multisine, sweep)
-        train_fit = rmse(fj.simulate(model, fj.boucwen_inputs(train.u)), train.y)
-        valid = fj.simulate(model, fj.boucwen_inputs(data.train.u))[valid_burn:]
-        narx["valid_rmse_m"] = rmse(valid, data.train.y[valid_burn:])
-        label = f"{name} (teacher forcing, then NOE)"
-        lines.append(line(label, scores[:2], train_fit, narx.pop("fit_s"), **narx))
-    network = recurrent_network(train, data.train, valid_burn, rnn_elements, rnn_steps)
-    model = network.pop("model")
-    scores = fj.score_boucwen(model, data.multisine, sweep)
-    train_fit = rmse(fj.simulate(model, fj.boucwen_inputs(train.u)), train.y)
-    network["valid_rmse_m"] = rmse(
-        fj.simulate(model, fj.boucwen_inputs(data.train.u))[valid_burn:], data.train.y[valid_burn:]
-    )
-    lines.append(
-        line(
+    black_boxes = [
+        (
+            f"{name} (teacher forcing, then NOE)",
+            lambda kind=kind, st=st: black_box_narx(kind, train, data.train, valid_burn, st),
+        )
+        for kind, name, st in (("mlp", "MLP NARX", narx_steps), ("gsnn", "GSNN", gsnn_steps))
+    ]
+    black_boxes.append(
+        (
             "recurrent network (readout by least squares, then NOE)",
-            scores[:2],
-            train_fit,
-            network.pop("fit_s"),
-            **network,
+            lambda: recurrent_network(train, data.train, valid_burn, rnn_elements, rnn_steps),
         )
     )
+    for label, fit_black_box in black_boxes:
+        fitted_box = fit_black_box()
+        model = fitted_box.pop("model")
+        valid = fj.simulate(model, fj.boucwen_inputs(data.train.u))[valid_burn:]
+        fitted_box["valid_rmse_m"] = rmse(valid, data.train.y[valid_burn:])
+        lines.append(scored_line(label, model, data, sweep, train, fitted_box.pop("fit_s"), **fitted_box))
     for name, element, frozen in oscillator_elements(train):
         if args.smoke and name.startswith(("Maxwell-slip DLR", "GMS", "Dahl")):
             continue  # the smoke run keeps one element of each kind (linear, Maxwell-slip, network)
         start = fj.HystereticOscillator(m=2.0, c=10.0, k=5e4, element=element, substeps=oscillator_substeps)
-        t0 = time.perf_counter()
-        result = fj.fit(
-            start,
-            train,
-            loss=fj.BoucWenLoss(validation_burn_in=valid_burn),
-            validation=data.train,
-            solver=fj.levenberg_marquardt(),
-            steps=oscillator_steps,
-            freeze=frozen,
-            scaling=fj.ParameterScaling(),
-        )
-        fit_s = time.perf_counter() - t0
-        scores = fj.score_boucwen(result.model, data.multisine, sweep)
-        train_fit = rmse(fj.simulate(result.model, fj.boucwen_inputs(train.u)), train.y)
+        result, fit_s, valid_rmse = fit_output_error(start, train, data.train, valid_burn, oscillator_steps, frozen)
         fitted = fj.unwrap(result.model)
         lines.append(
-            line(
+            scored_line(
                 f"oscillator + {name} (OE, Levenberg-Marquardt)",
-                scores[:2],
-                train_fit,
+                result.model,
+                data,
+                sweep,
+                train,
                 fit_s,
                 steps=oscillator_steps,
                 substeps=oscillator_substeps,
-                valid_rmse_m=float(result.val_loss) ** 0.5 * float(np.std(data.train.y[valid_burn:])),
+                valid_rmse_m=valid_rmse,
                 fit_result=result.result,
                 m_c_k=[float(fitted.m), float(fitted.c), float(fitted.k)],
             )
