@@ -15,12 +15,17 @@ of the laws and hybrids combining their simulated positions, weights from the tr
 closed-loop relative errors). One line per model: `{"kind": "hybrid" | "ensemble" | "member" | "closed_loop",
 "name", "test_rmse_mm", "train_rmse_mm", "fit_s", ...}`; `--smoke` is the CI size (< 90 s).
 
+`--bgbm` runs only the laws and their BGBM (`fj.fit_emps_bgbm`, emps-ensemble §3.2): the grey box's free run plus
+a linear output-error model of its position error driven by the force and / or the simulated velocity, fitted
+on the first 70 % of DATA_EMPS.mat, chosen on the last 30 %, refitted on the whole file (`{"kind": "bgbm" |
+"bgbm_choice", ...}`); `--hybrid` includes them.
+
 `--study` runs the sensitivity study behind the settings of `fit_emps_open_loop` instead (initial state, input
 timing, sub-steps, offset drift, and the fit settings compared by two-fold cross-validation over the halves of
 the training file); its test scores are printed for the record only (`"used_for_choice": false`).
 
-Run: `python benchmarks/emps.py [--quick] [--laws CoulombViscous Tustin] [--study | --hybrid [--smoke]]`; the data
-folder is `$FRICJAX_DATA` (default: `../shared/data` beside the repository).
+Run: `python benchmarks/emps.py [--quick] [--laws CoulombViscous Tustin] [--study | --bgbm | --hybrid [--smoke]]`;
+the data folder is `$FRICJAX_DATA` (default: `../shared/data` beside the repository).
 """
 
 from __future__ import annotations
@@ -340,6 +345,83 @@ HYBRID_VARIANTS = {
 70 % head of the training file; the frozen ones train only the network)."""
 
 
+BGBM_CONFIGS = [(inputs, order) for inputs in (("force",), ("force", "qd"), ("qd",)) for order in (1, 2, 4)]
+"""The BGBM error models tried per law: inputs (the paper's force; the grey box's simulated velocity) x order."""
+
+
+def run_bgbm(
+    train: fj.EMPSRecord,
+    test: fj.EMPSRecord,
+    members: dict[str, fj.EMPSPlant],
+    configs: list[tuple[tuple[str, ...], int]],
+) -> None:
+    """Per law: the BGBM (emps-ensemble §3.2) error models of `configs`, each fitted by output error on the first
+    70 % of the training file and scored on its last 30 %; the one with the lowest tail error is refitted on the
+    whole training file and scored on the test file (`bgbm_choice`)."""
+    for label, plant in members.items():
+        best: tuple[float, tuple[str, ...], int] | None = None
+        for inputs, order in configs:
+            t0 = time.perf_counter()
+            fitted = fj.fit_emps_bgbm(train, plant, inputs=inputs, order=order, validation=0.3)
+            fit_s = time.perf_counter() - t0
+            emit(
+                {
+                    "kind": "bgbm",
+                    "name": f"{label}+bgbm({','.join(inputs)};{order})",
+                    "test_rmse_mm": round(fitted.model.score(test), 4),
+                    "train_rmse_mm": round(fitted.model.score(train), 4),
+                    "fit_s": round(fit_s, 2),
+                    "val_tail30_rmse_mm": round(fitted.val_rmse_mm, 4),
+                    "val_tail30_physics_mm": round(fitted.val_physics_mm, 4),
+                    "head70_rmse_mm": round(fitted.train_rmse_mm, 4),
+                    "result": fitted.result,
+                    "used_for_choice": ["val_tail30_rmse_mm"],
+                }
+            )
+            if best is None or fitted.val_rmse_mm < best[0]:
+                best = (fitted.val_rmse_mm, inputs, order)
+        if best is None:
+            continue
+        _, inputs, order = best
+        t0 = time.perf_counter()
+        final = fj.fit_emps_bgbm(train, plant, inputs=inputs, order=order, validation=None)
+        emit(
+            {
+                "kind": "bgbm_choice",
+                "name": f"{label}+bgbm({','.join(inputs)};{order})",
+                "by": "val_tail30_rmse_mm, then refitted on the whole training file",
+                "test_rmse_mm": round(final.model.score(test), 4),
+                "train_rmse_mm": round(final.train_rmse_mm, 4),
+                "fit_s": round(time.perf_counter() - t0, 2),
+                "physics_test_rmse_mm": round(fj.score_emps_open_loop(plant, test), 4),
+                "denominator": rounded(final.model.denominator, 6),
+                "result": final.result,
+            }
+        )
+
+
+def fit_members(train: fj.EMPSRecord, test: fj.EMPSRecord, laws: list[str], steps: int) -> dict[str, fj.EMPSPlant]:
+    """The open-loop fits of `laws`, symmetric and asymmetric, one `member` line each."""
+    members: dict[str, fj.EMPSPlant] = {}
+    for name in laws:
+        for asymmetric in (False, True):
+            label = law_name(name, asymmetric)
+            t0 = time.perf_counter()
+            fitted = fj.fit_emps_open_loop(train, LAWS[name], asymmetric=asymmetric, steps=steps, compute_std=False)
+            fit_s = time.perf_counter() - t0
+            members[label] = fitted.plant
+            emit(
+                {
+                    "kind": "member",
+                    "name": label,
+                    "test_rmse_mm": round(fj.score_emps_open_loop(fitted.plant, test), 4),
+                    "train_rmse_mm": round(fj.score_emps_open_loop(fitted.plant, train), 4),
+                    "fit_s": round(fit_s, 2),
+                }
+            )
+    return members
+
+
 def law_name(name: str, asymmetric: bool) -> str:
     return f"{name}{'-asym' if asymmetric else ''}"
 
@@ -352,67 +434,52 @@ def run_hybrid(
     hybrid_steps: int,
     variants: list[str],
     width: int,
+    bgbm_configs: list[tuple[tuple[str, ...], int]] = BGBM_CONFIGS,
 ) -> None:
     score = fj.score_emps_open_loop
-    members: dict[str, fj.EMPSPlant] = {}
+    members = fit_members(train, test, laws, steps)
+    run_bgbm(train, test, members, bgbm_configs)
     hybrids: dict[str, fj.EMPSPlant] = {}
-    for name in laws:
-        for asymmetric in (False, True):
-            label = law_name(name, asymmetric)
+    for label, plant in members.items():
+        best: tuple[float, str] | None = None
+        for variant in variants:
             t0 = time.perf_counter()
-            fitted = fj.fit_emps_open_loop(train, LAWS[name], asymmetric=asymmetric, steps=steps, compute_std=False)
+            hybrid = fj.fit_emps_hybrid(train, plant, steps=hybrid_steps, width=width, **HYBRID_VARIANTS[variant])
             fit_s = time.perf_counter() - t0
-            members[label] = fitted.plant
+            val = hybrid.val_rmse_mm
+            cut = int(round(0.7 * train.length))
+            start_val = score(plant, fj.split_emps_record(train, cut))
+            key = f"{label}+{variant}"
+            hybrids[key] = hybrid.plant
             emit(
                 {
-                    "kind": "member",
-                    "name": label,
-                    "test_rmse_mm": round(score(fitted.plant, test), 4),
-                    "train_rmse_mm": round(score(fitted.plant, train), 4),
+                    "kind": "hybrid",
+                    "name": key,
+                    "test_rmse_mm": round(score(hybrid.plant, test), 4),
+                    "train_rmse_mm": round(score(hybrid.plant, train), 4),
                     "fit_s": round(fit_s, 2),
+                    "val_tail30_rmse_mm": round(val, 4),
+                    "val_tail30_physics_mm": round(start_val, 4),
+                    "head70_rmse_mm": round(float(np.sqrt(hybrid.result.train_loss)), 4),
+                    "adam_steps": hybrid_steps,
+                    "width": width,
+                    "result": hybrid.result.result,
+                    "used_for_choice": ["val_tail30_rmse_mm"],
                 }
             )
-            best: tuple[float, str] | None = None
-            for variant in variants:
-                t0 = time.perf_counter()
-                hybrid = fj.fit_emps_hybrid(
-                    train, fitted.plant, steps=hybrid_steps, width=width, **HYBRID_VARIANTS[variant]
-                )
-                fit_s = time.perf_counter() - t0
-                val = hybrid.val_rmse_mm
-                cut = int(round(0.7 * train.length))
-                start_val = score(fitted.plant, fj.split_emps_record(train, cut))
-                key = f"{label}+{variant}"
-                hybrids[key] = hybrid.plant
-                emit(
-                    {
-                        "kind": "hybrid",
-                        "name": key,
-                        "test_rmse_mm": round(score(hybrid.plant, test), 4),
-                        "train_rmse_mm": round(score(hybrid.plant, train), 4),
-                        "fit_s": round(fit_s, 2),
-                        "val_tail30_rmse_mm": round(val, 4),
-                        "val_tail30_physics_mm": round(start_val, 4),
-                        "head70_rmse_mm": round(float(np.sqrt(hybrid.result.train_loss)), 4),
-                        "adam_steps": hybrid_steps,
-                        "width": width,
-                        "result": hybrid.result.result,
-                        "used_for_choice": ["val_tail30_rmse_mm"],
-                    }
-                )
-                if best is None or val < best[0]:
-                    best = (val, key)
-            if best is not None:
-                emit(
-                    {
-                        "kind": "hybrid_choice",
-                        "law": label,
-                        "chosen": best[1],
-                        "by": "val_tail30_rmse_mm",
-                        "test_rmse_mm": round(score(hybrids[best[1]], test), 4),
-                        "train_rmse_mm": round(score(hybrids[best[1]], train), 4),
-                    }
-                )
+            if best is None or val < best[0]:
+                best = (val, key)
+        if best is not None:
+            emit(
+                {
+                    "kind": "hybrid_choice",
+                    "law": label,
+                    "chosen": best[1],
+                    "by": "val_tail30_rmse_mm",
+                    "test_rmse_mm": round(score(hybrids[best[1]], test), 4),
+                    "train_rmse_mm": round(score(hybrids[best[1]], train), 4),
+                }
+            )
 
     # ensembles of the simulated positions, weights fitted on the training file
     everything = {**members, **hybrids}
@@ -470,6 +537,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="60 steps per fit")
     parser.add_argument("--study", action="store_true", help="run the sensitivity study instead (~15 min)")
     parser.add_argument("--hybrid", action="store_true", help="grey + black-box hybrids, ensembles, closed loop")
+    parser.add_argument("--bgbm", action="store_true", help="only the laws and their BGBM error models (~6 min)")
     parser.add_argument("--hybrid-steps", type=int, default=200, help="Adam steps of each hybrid fit")
     parser.add_argument(
         "--variants", nargs="+", default=["mlp(v,q)/free", "mlp(v,q)/frozen"], choices=list(HYBRID_VARIANTS)
@@ -484,9 +552,12 @@ def main() -> None:
         run_study(train, test)
     elif args.hybrid:
         if args.smoke:
-            run_hybrid(train, test, ["CoulombViscous"], 20, 20, ["mlp(v,q)/free", "mlp(v,q)/frozen"], 8)
+            smoke_bgbm = [(("force",), 1), (("force", "qd"), 1)]
+            run_hybrid(train, test, ["CoulombViscous"], 20, 20, ["mlp(v,q)/free", "mlp(v,q)/frozen"], 8, smoke_bgbm)
         else:
             run_hybrid(train, test, args.laws, args.steps, args.hybrid_steps, args.variants, args.width)
+    elif args.bgbm:
+        run_bgbm(train, test, fit_members(train, test, args.laws, args.steps), BGBM_CONFIGS)
     else:
         run_laws(train, test, args.laws, 60 if args.quick else args.steps)
     emit({"kind": "total", "wall_s": round(time.perf_counter() - t0, 1)})

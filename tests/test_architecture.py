@@ -112,9 +112,10 @@ def test_deferred_imports_against_the_layering_are_the_documented_ones():
 
 
 def test_one_scan_over_time():
-    """`lax.scan` appears in `_simulate.py` (time), in the fit and sweep drivers (optimiser steps) and in the NARX
+    """`lax.scan` appears in `_simulate.py` (time), in the fit and sweep drivers (optimiser steps), in the NARX
     regressors' play operators (their states along a record for teacher-forced rows: a recursion of the
-    displacement alone, no model), nowhere else."""
+    displacement alone, no model) and in the BGBM's linear error filter (`B / A` of recorded signals, as
+    `scipy.signal.lfilter`, no model), nowhere else."""
     users = sorted(
         str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py") if re.search(r"lax\.scan\(", p.read_text())
     )
@@ -122,6 +123,7 @@ def test_one_scan_over_time():
         "_estimation/_fit.py",
         "_estimation/_sweep.py",
         "_models/blackbox/_regressors.py",
+        "_protocols/_emps_bgbm.py",
         "_simulate.py",
     ], users
 

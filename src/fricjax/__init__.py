@@ -149,6 +149,9 @@ from ._protocols._boucwen import BoucWenLoss as BoucWenLoss
 from ._protocols._boucwen import BoucWenScores as BoucWenScores
 from ._protocols._boucwen import boucwen_rmse as boucwen_rmse
 from ._protocols._boucwen import score_boucwen as score_boucwen
+from ._protocols._emps_bgbm import EMPSBGBMFit as EMPSBGBMFit
+from ._protocols._emps_bgbm import EMPSErrorModel as EMPSErrorModel
+from ._protocols._emps_bgbm import fit_emps_bgbm as fit_emps_bgbm
 from ._protocols._emps_hybrid import EMPSEnsemble as EMPSEnsemble
 from ._protocols._emps_hybrid import EMPSEnsembleFit as EMPSEnsembleFit
 from ._protocols._emps_hybrid import EMPSHybridFit as EMPSHybridFit
