@@ -20,6 +20,13 @@ NOT_IN_BATTERY = ("gsnn_exp", "gsnn_tanh", "gsnn_plays", "mlp_plays")
 MODELS = {**model_table(), **{k: m for k, m in neural_table().items() if k not in NOT_IN_BATTERY}}
 NAMES = sorted(MODELS)
 MOTION = presliding_to_sliding(300)
+CORE = ("lugre", "gms", "maxwell_nlr", "coulomb_viscous_asym", "mlp_narx")
+"""The models the costliest checks run on in the fast tier; the slow tier runs them on every model."""
+
+
+def tiered(names: list[str]) -> list:
+    """`names` with every model outside `CORE` marked slow."""
+    return [name if name in CORE else pytest.param(name, marks=pytest.mark.slow) for name in names]
 
 
 def _loss_fn(motion: fj.Motion, target: jax.Array):
@@ -42,7 +49,7 @@ def test_shape_dtype_finite(name, mode):
 
 
 # the neural models' step loops are checked against NumPy loops in test_neural.py; one stays here
-@pytest.mark.parametrize("name", [n for n in NAMES if n not in ("gsnn", "rnn", "avd")])
+@pytest.mark.parametrize("name", tiered([n for n in NAMES if n not in ("gsnn", "rnn", "avd")]))
 def test_step_loop_equals_simulate_and_no_jit(name):
     model = smooth(name, MODELS[name])
     motion = presliding_to_sliding(60)
@@ -103,7 +110,7 @@ def _relative_fd_check(name, model):
         assert abs(float(grad[i]) - float(fd)) <= 1e-4 * scale + 1e-9, (name, i, float(grad[i]), float(fd))
 
 
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name", tiered(NAMES))
 def test_gradients_match_finite_differences_smooth(name):
     _relative_fd_check(name, smooth(name, MODELS[name]))
 
