@@ -59,7 +59,7 @@ from numba import njit  # noqa: E402
 
 import fricjax as fj  # noqa: E402
 from _environment import environment as shared_environment  # noqa: E402
-from fricjax._simulate import DEFAULT_UNROLL, preferred_unroll  # noqa: E402
+from fricjax._simulate import DEFAULT_UNROLL  # noqa: E402
 
 DT = 1e-3
 UNROLLS = (1, 2, 4, 8)
@@ -346,7 +346,7 @@ def bench_single(name: str, model: Any, motion: fj.Motion, cfg: argparse.Namespa
                 "benchmark": "single",
                 "model": name,
                 "impl": "fricjax",
-                "unroll": preferred_unroll(model) if key == "default" else int(key.removeprefix("unroll")),
+                "unroll": DEFAULT_UNROLL if key == "default" else int(key.removeprefix("unroll")),
                 "default_call": key == "default",
                 "steps": steps,
                 "ns_per_step": round(ns[key], 2),

@@ -30,7 +30,7 @@ def simulate(
     *,
     measured: Any = None,
     horizon: int | None = None,
-    unroll: int | None = None,
+    unroll: int = DEFAULT_UNROLL,
 ) -> Any:
     """Run `model` along `inputs`: one jit-compiled `lax.scan` over time.
 
@@ -55,8 +55,7 @@ def simulate(
     - `state0`: the initial state; `None` means `model.init_state()` (at rest).
     - `measured`: the measured outputs, shaped like the output (for a friction model the force, `(T,)`).
     - `horizon`: prediction horizon k >= 1 (needs `measured`); a horizon of T or more is the free run.
-    - `unroll`: scan unrolling (performance only); default: the model class's `preferred_unroll` where it
-      declares one, else `DEFAULT_UNROLL`.
+    - `unroll`: scan unrolling (performance only).
 
     **Returns:** the outputs along time: the friction force `(T,)` for friction models.
 
@@ -86,11 +85,8 @@ def simulate(
 
 
 @eqx.filter_jit
-def _simulate(
-    model: AbstractModel, inputs: Any, state0: Any, measured: Any, horizon: int | None, unroll: int | None
-) -> Any:
+def _simulate(model: AbstractModel, inputs: Any, state0: Any, measured: Any, horizon: int | None, unroll: int) -> Any:
     model = unwrap(model)
-    unroll = preferred_unroll(model) if unroll is None else unroll
     samples = model.samples(inputs)
     length = _length(samples)
     if measured is not None:
@@ -115,7 +111,7 @@ def run(
     state: Any,
     measured: Any = None,
     *,
-    unroll: int | None = None,
+    unroll: int = DEFAULT_UNROLL,
     return_states: bool = False,
 ) -> tuple[Any, Any]:
     """The scan itself (not jitted, no checks): `model` must be unwrapped (`fj.unwrap`), `samples` the model's
@@ -126,15 +122,12 @@ def run(
     **Returns:** `(final_state, outputs)`, or `(final_state, (outputs, states))` with `return_states=True`
     (the state after every sample, feedback applied).
     """
-    unroll = preferred_unroll(model) if unroll is None else unroll
     if measured is None and not return_states and model.tangent_gradients() and _all_inexact(samples, state):
         return _tangent_run(model, samples, state, unroll)
     steps, rebuild = split_time_signals(samples)
-    flat, rebuild_model = pack_parameters(model)
 
     def body(carry: Any, xs: tuple[Any, Any]) -> tuple[Any, Any]:
         step_signals, y_measured = xs
-        model = rebuild_model(flat)
         carry, y = model.step(carry, rebuild(step_signals))
         if y_measured is not None:  # teacher forcing; the state keeps its dtype (float32 models, float64 data)
             forced = model.feedback(carry, y_measured)
@@ -142,35 +135,6 @@ def run(
         return carry, ((y, carry) if return_states else y)
 
     return jax.lax.scan(body, state, (steps, measured), unroll=unroll)
-
-
-PACK_MAX_TOTAL = 64
-"""Models with at most this many floating-point parameter elements are packed for the scan (`pack_parameters`)."""
-
-
-def pack_parameters(model: Any) -> tuple[jax.Array, Callable[[jax.Array], Any]]:
-    """`(flat, rebuild)`: a small model's floating-point arrays concatenated into one vector `flat`, and
-    `rebuild(flat)` the model again; for a model with more than `PACK_MAX_TOTAL` parameter elements, `flat` is
-    empty and `rebuild` returns the model as it is.
-
-    A loop body that closes over `flat` and rebuilds the model inside runs much faster on XLA:CPU than one that
-    closes over the parameters as separate arrays, each of which the while loop then carries as its own operand
-    (GMS with 4 elements, 40 000 steps: 111 against 514 ns per step; benchmarks/README.md). For the black-box
-    models (hundreds of weights) the packed form made reverse mode 2-2.5x slower (its cotangent is gathered into
-    the vector at every step), so they are left as they are.
-    """
-    params, static = eqx.partition(model, eqx.is_inexact_array)
-    if sum(leaf.size for leaf in jax.tree_util.tree_leaves(params)) > PACK_MAX_TOTAL:
-        return jnp.zeros((0,)), lambda vector: model
-    flat, unravel = ravel_pytree(params)
-    return flat, lambda vector: eqx.combine(unravel(vector), static)
-
-
-def preferred_unroll(model: Any) -> int:
-    """The scan unrolling `simulate` uses for `model` by default: the model's `preferred_unroll` if it declares
-    one (GMS: 1, measured; `TangentGradients` passes its model's on), else `DEFAULT_UNROLL`."""
-    unroll = getattr(model, "preferred_unroll", None)
-    return DEFAULT_UNROLL if unroll is None else int(unroll)
 
 
 def _all_inexact(*trees: Any) -> bool:
@@ -193,8 +157,8 @@ def _tangent_run(model: AbstractModel, samples: Any, state: Any, unroll: int) ->
         return ravel_pytree(new)[0].astype(s.dtype), y
 
     def primal_scan(theta: Any, s0: jax.Array, signals: list[Any], body: Any) -> tuple[jax.Array, Any]:
-        flat, rebuild_theta = pack_parameters(theta)  # see pack_parameters: the primal loop runs ~4x faster
-        return jax.lax.scan(lambda s, u: body(rebuild_theta(flat), s, u), s0, signals, unroll=unroll)
+        flat, unravel_theta = ravel_pytree(theta)  # one packed vector in the loop body (see below)
+        return jax.lax.scan(lambda s, u: body(unravel_theta(flat), s, u), s0, signals, unroll=unroll)
 
     @jax.custom_jvp
     def scan(theta: Any, s0: jax.Array, signals: list[Any], scalars: list[Any]) -> tuple[jax.Array, Any]:

@@ -40,11 +40,6 @@ class TangentGradients(AbstractFrictionModel):
 
     model: AbstractFrictionModel
 
-    @property
-    def preferred_unroll(self) -> int | None:
-        """The wrapped model's scan unrolling for `fj.simulate` (`None`: the default)."""
-        return getattr(self.model, "preferred_unroll", None)
-
     def __init__(self, model: AbstractFrictionModel):
         if not isinstance(model, AbstractFrictionModel):
             raise TypeError(f"TangentGradients: `model` must be a fricjax friction model, got {type(model).__name__}.")
