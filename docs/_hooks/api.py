@@ -87,8 +87,15 @@ SECTIONS = (
     Section(
         "systems.md",
         "EMPS: systems and protocols",
-        ("_systems", "_protocols._emps_idm", "_protocols._emps_open_loop"),
-        "The EMPS axis as a model under `fj.simulate` (open and closed loop) and its identification protocols.",
+        (
+            "_systems",
+            "_protocols._emps_idm",
+            "_protocols._emps_open_loop",
+            "_protocols._emps_hybrid",
+            "_protocols._emps_bgbm",
+        ),
+        "The EMPS axis as a model under `fj.simulate` (open and closed loop), its identification protocols and its "
+        "grey + black-box models (hybrids, BGBM, ensembles).",
     ),
     Section(
         "metrics.md",
