@@ -446,24 +446,18 @@ def bench_vmap(name: str, run_numba: Callable[[], Any], steps_numba: int, cfg: a
         throughput = traj_steps / timing["vmap_sharded"]["median"]
         numba_throughput = steps_numba / timing["numba"]["median"]
         record["sharded"] = {
+            **record,
+            "benchmark": "vmap_sharded",
             "devices": devices,
+            "run_s": round(timing["vmap_sharded"]["median"], 4),
             "ns_per_step": round(timing["vmap_sharded"]["median"] / traj_steps * 1e9, 3),
+            "traj_steps_per_s": round(throughput),
+            "numba_traj_steps_per_s": round(numba_throughput),
             "ratio_vs_numba": round(throughput / numba_throughput, 3),
+            "repeats": timing["vmap_sharded"]["n"],
+            "loadavg_1min": load_average(),
         }
-        emit(
-            {
-                **{k: v for k, v in record.items() if k != "sharded"},
-                "benchmark": "vmap_sharded",
-                "devices": devices,
-                "run_s": round(timing["vmap_sharded"]["median"], 4),
-                "ns_per_step": record["sharded"]["ns_per_step"],
-                "traj_steps_per_s": round(throughput),
-                "numba_traj_steps_per_s": round(numba_throughput),
-                "ratio_vs_numba": record["sharded"]["ratio_vs_numba"],
-                "repeats": timing["vmap_sharded"]["n"],
-                "loadavg_1min": load_average(),
-            }
-        )
+        emit(record["sharded"])
     return record
 
 

@@ -34,7 +34,7 @@ from jaxtyping import Array, Float
 from .._data._emps import EMPSRecord
 from .._systems._emps import EMPSPlant, emps_open_loop_rmse_mm
 from ._emps_hybrid import _split
-from ._emps_open_loop import INIT_WINDOW, _check_plant, _check_record, predict_emps_open_loop
+from ._emps_open_loop import INIT_WINDOW, _check_plant, _check_record, predict_emps_open_loop, score_emps_open_loop
 
 ERROR_MODEL_INPUTS = ("force", "qd", "q", "bias")
 """The signals an `EMPSErrorModel` may read: drive force [N], the grey box's simulated velocity [m/s] and
@@ -132,7 +132,8 @@ class EMPSBGBMFit(NamedTuple):
     - `train_rmse_mm`: the official score of `model` on the part it was fitted on.
     - `val_rmse_mm`: its score on the held-out part (run from that part's own initialisation window), NaN
       without one; `val_physics_mm`: the grey box's own score there.
-    - `result`: optimistix's result code of the Levenberg-Marquardt solve (`"successful"` or `"max_steps"`).
+    - `result`: how the Levenberg-Marquardt solve ended: `"successful"`, `"max_steps"` or `"failed"` (optimistix's
+      other codes); `"nonfinite: returned the start"` when it produced NaN or inf.
     """
 
     model: EMPSErrorModel
@@ -188,8 +189,8 @@ def fit_emps_bgbm(
 
     sim = predict_emps_open_loop(plant, train)
     u = _signals(train, plant, inputs, sim)
-    scales = jnp.where(jnp.std(u, axis=0) > 0, jnp.std(u, axis=0), 1.0)
-    scales = jnp.where(jnp.asarray([name == "bias" for name in inputs]), 1.0, scales)
+    std = jnp.std(u, axis=0)
+    scales = jnp.where(std > 0, std, 1.0)  # the bias (std 0) keeps scale 1
     un = u / scales
     target = jnp.asarray(train.qm, un.dtype) - sim.q
     scored = slice(INIT_WINDOW, None)
@@ -215,20 +216,19 @@ def fit_emps_bgbm(
     if not ok:  # keep the start rather than return NaN
         reflection, b = params0
     model = EMPSErrorModel(plant=plant, reflection=reflection, numerators=b, scales=scales, inputs=inputs)
-    result = "successful" if solution.result == optx.RESULTS.successful else "max_steps"
+    if solution.result == optx.RESULTS.successful:
+        result = "successful"
+    else:
+        result = "max_steps" if solution.result == optx.RESULTS.max_steps_reached else "failed"
+    train_q = sim.q + model.error(train, sim)  # the grey box's free run of the head, simulated once
     nan = float("nan")
     return EMPSBGBMFit(
         model=model,
-        train_rmse_mm=model.score(train),
+        train_rmse_mm=float(emps_open_loop_rmse_mm(jnp.asarray(train.qm, train_q.dtype), train_q, skip=INIT_WINDOW)),
         val_rmse_mm=nan if val is None else model.score(val),
-        val_physics_mm=nan if val is None else float(_physics_score(plant, val)),
+        val_physics_mm=nan if val is None else score_emps_open_loop(plant, val),
         result=result if ok else "nonfinite: returned the start",
     )
-
-
-def _physics_score(plant: EMPSPlant, record: EMPSRecord) -> float:
-    q = predict_emps_open_loop(plant, record).q
-    return float(emps_open_loop_rmse_mm(jnp.asarray(record.qm, q.dtype), q, skip=INIT_WINDOW))
 
 
 def _reflection_from_denominator(a: np.ndarray) -> np.ndarray:
