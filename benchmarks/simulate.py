@@ -347,7 +347,6 @@ def bench_single(name: str, model: Any, motion: fj.Motion, cfg: argparse.Namespa
     match = bool(np.isfinite(rel) and rel <= MATCH_RTOL)
     unroll_spread = max(float(np.max(np.abs(f - force_ref))) for f in forces.values())
 
-    default_unroll = model.packed_unroll or DEFAULT_UNROLL  # what `fj.simulate` picks without `unroll=`
     for key in variants:
         if key == "numba":
             continue
@@ -357,8 +356,7 @@ def bench_single(name: str, model: Any, motion: fj.Motion, cfg: argparse.Namespa
                 "model": name,
                 "impl": "fricjax",
                 "call": "jax.jit" if key == "compiled" else "eqx.filter_jit",
-                "unroll": default_unroll if key in ("default", "compiled") else int(key.removeprefix("unroll")),
-                "packed": model.packed_unroll is not None,
+                "unroll": DEFAULT_UNROLL if key in ("default", "compiled") else int(key.removeprefix("unroll")),
                 "default_call": key in ("default", "compiled"),
                 "steps": steps,
                 "ns_per_step": round(ns[key], 2),

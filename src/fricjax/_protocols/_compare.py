@@ -18,7 +18,6 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import optax
@@ -30,7 +29,6 @@ from .._estimation._result import FitResult
 from .._estimation._strategies import Continuation, MultiStart, ParameterScaling
 from .._metrics import max_error, nmse
 from .._models.combine._sensor import SensorDrift
-from .._models.combine._tangent import TangentGradients
 from .._models.physics._gms import GMS
 from .._models.physics._lugre import LuGre
 from .._models.physics._maxwell_slip import MaxwellSlip
@@ -288,35 +286,15 @@ def _lm(separable: tuple[str, ...], starts: int, settings: FitSettings) -> Calla
     return run
 
 
-def _with_tangent_gradients(model: Any) -> Any:
-    """The friction model (inside a `SensorDrift`, if any) wrapped in `TangentGradients`: first-order gradients
-    at ~2x the forward pass instead of ~20x (benchmarks/README.md)."""
-    if isinstance(model, SensorDrift):
-        return eqx.tree_at(lambda m: m.model, model, TangentGradients(model.model))
-    return TangentGradients(model)
-
-
-def _without_tangent_gradients(model: Any) -> Any:
-    if isinstance(model, SensorDrift):
-        return eqx.tree_at(lambda m: m.model, model, model.model.model)  # type: ignore[attr-defined]
-    return model.model
-
-
 def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
-    """Adam with smoothing continuation from `gms_starts` starts, then a Levenberg-Marquardt polish.
-
-    The Adam stage takes first-order gradients only: it trains the model wrapped in `TangentGradients` and fits
-    the offset with the rest (no `separable=`, which would nest a forward Jacobian inside the gradient). The LM
-    polish differentiates twice (the offset by least squares), where the plain scan's derivatives compile and run
-    faster. Measured on 2 cores: the GMS fit 49 -> 27 s, test NMSE 0.240 -> 0.238 % (benchmarks/README.md).
-    """
+    """Adam with smoothing continuation from `gms_starts` starts, then a Levenberg-Marquardt polish."""
 
     def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
         train, validation = split.train, split.until_validation_end
         scales = DataScales.from_data(train)
         eps_end = max(1e-3 * scales.dx, 1e-12)
         coarse = fit(
-            _with_tangent_gradients(start),
+            start,
             train,
             scaling=ParameterScaling(),
             validation=validation,
@@ -324,11 +302,11 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
             solver=optax.adam(3e-2),
             steps=8 * settings.steps,
             continuation=Continuation(100 * eps_end, eps_end, stages=3),
+            separable=_separable(start, ("offset",)),
             multistart=MultiStart(settings.gms_starts, spread=0.3) if settings.gms_starts > 1 else None,
             seed=seed,
             progress=progress,
         )
-        coarse = dataclasses.replace(coarse, model=_without_tangent_gradients(coarse.model))
         polished = fit(
             coarse.model,
             train,
