@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from .._constraints import Positive
 from .._data._io import Units, read_record
 from .._data._record import FrictionData
 from .._estimation._fit import fit, levenberg_marquardt
@@ -95,7 +96,7 @@ class FitSettings:
       then an LM polish of `steps`). An LM fit ends earlier, as converged (`successful`), when its training
       loss falls by less than `tolerance` (relative) over `steps / 8` steps; `max_steps` means not converged.
     - `gms_elements`, `maxwell_elements`: the element counts of GMS and of Maxwell-slip NLR / DNLRX.
-    - `gms_starts`: starts of the GMS Adam stage (a vmap-ed multi-start: cold GMS fits have local minima).
+    - `gms_starts`: starts of the GMS fit, split between its two Stribeck-velocity ends (at least one each).
     - `neural_steps`: the output-error (NOE) Adam steps of the neural models (`mlp`, `gsnn`, `rnn`, `avd`; see
       `neural_models`), after their teacher-forced stage.
     - `drift`: the force sensor's drift fitted with every model (`fj.SensorDrift`): `"linear"` (default),
@@ -305,15 +306,33 @@ def _without_tangent_gradients(model: Any) -> Any:
     return model.model
 
 
-def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
-    """Adam with smoothing continuation from `gms_starts` starts, then a Levenberg-Marquardt polish.
+def _with_stribeck_velocity(model: Any, vs: float) -> Any:
+    """`model` (a GMS, possibly inside a `SensorDrift`) with its Stribeck velocity set to `vs` [m/s]."""
 
-    Only first-order derivatives: the Adam stage trains the model wrapped in `TangentGradients` (~2x the forward
-    pass instead of ~20x), and both stages fit the offset with the other parameters (`separable=` would nest a
-    forward Jacobian inside each derivative: slower to compile and run, no more accurate here). The viscous
-    coefficient, which starts at 0, moves on the scale `Fc / v_fast` (a viscous force of the order of the
-    Coulomb level at the record's fast end) instead of 1 N s/m. Measured on the default record (2 cores):
-    49 -> 22 s, test NMSE 0.211 -> 0.103 % (noise floor 0.096 %; benchmarks/README.md).
+    def velocity(tree: Any) -> Any:
+        node = tree
+        while not hasattr(node, "stribeck"):
+            node = node.model
+        return node.stribeck.vs
+
+    old = velocity(model)
+    return eqx.tree_at(velocity, model, Positive(vs, transform=old.transform, name="vs", dtype=old.raw.dtype))
+
+
+def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
+    """From each end of the record's velocity range: Adam with smoothing continuation, then a Levenberg-Marquardt
+    polish; the polished model with the lower validation loss is kept.
+
+    The Stribeck velocity starts once at the slow end (`DataScales.vs`) and once at the fast end (`v_fast`) of
+    the record: from the wrong end the fit settles in a flat curve (small vs and delta) that costs ~2x in test
+    NMSE, and which end is wrong depends on the record (mixed: the slow one; sliding: the fast one). The end of the
+    Adam stage does not tell them apart, the polished models' validation loss does. `gms_starts` starts are split
+    between the two ends (at least one each). Only first-order derivatives: the Adam stage trains the model wrapped
+    in `TangentGradients` (~2x the forward pass instead of ~20x), and both stages fit the offset with the other
+    parameters (`separable=` would nest a forward Jacobian inside each derivative: slower to compile and run, no
+    more accurate here). The viscous coefficient, which starts at 0, moves on the scale `Fc / v_fast` (a viscous
+    force of the order of the Coulomb level at the fast end) instead of 1 N s/m. The second end reuses the
+    first's compiled programs (benchmarks/README.md).
     """
 
     def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
@@ -322,33 +341,39 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         eps_end = max(1e-3 * scales.dx, 1e-12)
         prefix = "model." if isinstance(start, SensorDrift) else ""
         viscous_scale = scales.Fc / scales.v_fast
-        coarse = fit(
-            _with_tangent_gradients(start),
-            train,
-            scaling=ParameterScaling({f"{prefix}model.sigma2": viscous_scale}),
-            validation=validation,
-            validation_burn_in=split.train_end,
-            solver=optax.adam(3e-2),
-            steps=8 * settings.steps,
-            continuation=Continuation(100 * eps_end, eps_end, stages=3),
-            multistart=MultiStart(settings.gms_starts, spread=0.3) if settings.gms_starts > 1 else None,
-            seed=seed,
-            progress=progress,
-        )
-        coarse = dataclasses.replace(coarse, model=_without_tangent_gradients(coarse.model))
-        polished = fit(
-            coarse.model,
-            train,
-            scaling=ParameterScaling({f"{prefix}sigma2": viscous_scale}),
-            validation=validation,
-            validation_burn_in=split.train_end,
-            solver=levenberg_marquardt(),
-            steps=settings.steps,
-            tolerance=settings.tolerance,
-            compute_std=True,
-        )
-        better = polished if polished.success and polished.train_loss <= coarse.train_loss else coarse
-        return dataclasses.replace(better, wall_time=coarse.wall_time + polished.wall_time)
+        per_end = max(settings.gms_starts // 2, 1)
+        results, wall_time = [], 0.0
+        adam, lm = optax.adam(3e-2), levenberg_marquardt()  # one solver object each: the second end reuses the jit
+        for vs in (scales.vs, scales.v_fast):
+            coarse = fit(
+                _with_tangent_gradients(_with_stribeck_velocity(start, vs)),
+                train,
+                scaling=ParameterScaling({f"{prefix}model.sigma2": viscous_scale}),
+                validation=validation,
+                validation_burn_in=split.train_end,
+                solver=adam,
+                steps=8 * settings.steps,
+                continuation=Continuation(100 * eps_end, eps_end, stages=3),
+                multistart=MultiStart(per_end, spread=0.3) if per_end > 1 else None,
+                seed=seed,
+                progress=progress,
+            )
+            coarse = dataclasses.replace(coarse, model=_without_tangent_gradients(coarse.model))
+            polished = fit(
+                coarse.model,
+                train,
+                scaling=ParameterScaling({f"{prefix}sigma2": viscous_scale}),
+                validation=validation,
+                validation_burn_in=split.train_end,
+                solver=lm,
+                steps=settings.steps,
+                tolerance=settings.tolerance,
+                compute_std=True,
+            )
+            results.append(polished if polished.success and polished.train_loss <= coarse.train_loss else coarse)
+            wall_time += coarse.wall_time + polished.wall_time
+        best = min(results, key=lambda r: r.val_loss if np.isfinite(r.val_loss) else np.inf)
+        return dataclasses.replace(best, wall_time=wall_time)
 
     return run
 
@@ -384,9 +409,7 @@ def default_models(settings: FitSettings | None = None) -> dict[str, ModelSpec]:
         "gms": ModelSpec(
             f"GMS (N={n_gms})",
             lambda s: GMS(
-                # the Stribeck velocity starts at the record's fast end: from the slow end (`s.vs`) the fit drifts
-                # into a flat curve (vs ~ 0.2 mm/s, delta ~ 0.15) that misses the noise floor by 2x
-                ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.v_fast, delta=2.0),
+                stribeck(s),
                 k=s.stiffness * shares / shares.sum(),
                 alpha=np.full(n_gms, 1.0 / n_gms),
                 C=10.0 * s.Fs,
