@@ -325,15 +325,15 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
 
     The Stribeck velocity starts once at the slow end (`DataScales.vs`) and once at the fast end (`v_fast`) of
     the record: from the wrong end the fit settles in a flat curve (small vs and delta) that costs ~2x in test
-    NMSE, and which end is wrong depends on the record (mixed: the slow one; sliding: the fast one). The end of the
+    NMSE, and which end is wrong depends on the record (the default mixed record: the slow one). The end of the
     Adam stage does not tell them apart, the polished models' validation loss does. `gms_starts` starts are split
     between the two ends (at least one each). Only first-order derivatives: the Adam stage trains the model wrapped
     in `TangentGradients` (~2x the forward pass instead of ~20x), and both stages fit the offset with the other
     parameters (`separable=` would nest a forward Jacobian inside each derivative: slower to compile and run, no
     more accurate here). The viscous coefficient, which starts at 0, moves on the scale `0.1 Fc / v_fast` (a
     viscous force of 10 % of the Coulomb level at the fast end) instead of 1 N s/m (with `Fc / v_fast` the sliding
-    record's fit stopped at 1.7x the noise floor instead of 1.1x). The second end reuses the first's compiled
-    programs (benchmarks/README.md).
+    record's fit stopped at 1.7x the noise floor). The second end reuses the first's compiled programs
+    (benchmarks/README.md).
     """
 
     def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
@@ -373,7 +373,7 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
             )
             results.append(polished if polished.success and polished.train_loss <= coarse.train_loss else coarse)
             wall_time += coarse.wall_time + polished.wall_time
-        best = min(results, key=lambda r: r.val_loss if np.isfinite(r.val_loss) else np.inf)
+        best = min(results, key=lambda r: r.val_loss if np.isfinite(r.val_loss) else r.train_loss)
         return dataclasses.replace(best, wall_time=wall_time)
 
     return run
