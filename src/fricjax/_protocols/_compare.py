@@ -292,31 +292,22 @@ def _lm(separable: tuple[str, ...], starts: int, settings: FitSettings) -> Calla
     return run
 
 
-def _with_tangent_gradients(model: Any) -> Any:
-    """The friction model (inside a `SensorDrift`, if any) wrapped in `TangentGradients`: first-order gradients
-    at ~2x the forward pass instead of ~20x (benchmarks/README.md)."""
-    if isinstance(model, SensorDrift):
-        return eqx.tree_at(lambda m: m.model, model, TangentGradients(model.model))
-    return TangentGradients(model)
+def _friction(model: Any) -> Any:
+    """The friction model of a start: `model` itself, or the one inside its `SensorDrift`."""
+    return model.model if isinstance(model, SensorDrift) else model
 
 
-def _without_tangent_gradients(model: Any) -> Any:
-    if isinstance(model, SensorDrift):
-        return eqx.tree_at(lambda m: m.model, model, model.model.model)  # type: ignore[attr-defined]
-    return model.model
+def _with_friction(model: Any, friction: Any) -> Any:
+    """`model` with its friction model (`_friction`) replaced by `friction`."""
+    return eqx.tree_at(lambda m: m.model, model, friction) if isinstance(model, SensorDrift) else friction
 
 
 def _with_stribeck_velocity(model: Any, vs: float) -> Any:
     """`model` (a GMS, possibly inside a `SensorDrift`) with its Stribeck velocity set to `vs` [m/s]."""
-
-    def velocity(tree: Any) -> Any:
-        node = tree
-        while not hasattr(node, "stribeck"):
-            node = node.model
-        return node.stribeck.vs
-
-    old = velocity(model)
-    return eqx.tree_at(velocity, model, Positive(vs, transform=old.transform, name="vs", dtype=old.raw.dtype))
+    gms = _friction(model)
+    old = gms.stribeck.vs
+    new = Positive(vs, transform=old.transform, name="vs", dtype=old.raw.dtype)
+    return _with_friction(model, eqx.tree_at(lambda g: g.stribeck.vs, gms, new))
 
 
 def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
@@ -346,8 +337,9 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         results, wall_time = [], 0.0
         adam, lm = optax.adam(3e-2), levenberg_marquardt()  # one solver object each: the second end reuses the jit
         for vs in (scales.vs, scales.v_fast):
+            begin = _with_stribeck_velocity(start, vs)
             coarse = fit(
-                _with_tangent_gradients(_with_stribeck_velocity(start, vs)),
+                _with_friction(begin, TangentGradients(_friction(begin))),  # first-order gradients at ~2x forward
                 train,
                 scaling=ParameterScaling({f"{prefix}model.sigma2": viscous_scale}),
                 validation=validation,
@@ -359,7 +351,7 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
                 seed=seed,
                 progress=progress,
             )
-            coarse = dataclasses.replace(coarse, model=_without_tangent_gradients(coarse.model))
+            coarse = dataclasses.replace(coarse, model=_with_friction(coarse.model, _friction(coarse.model).model))
             polished = fit(
                 coarse.model,
                 train,
