@@ -838,3 +838,22 @@ def test_a_second_fit_of_the_same_shapes_does_not_recompile(solver):
         fj.fit(start, data, validation=data, multistart=2, progress=False, **options)
         counts.append(len(compiles) - before)
     assert counts[0] > 0 and counts[1] == 0, counts
+
+
+def test_optax_chunks_of_any_length_share_one_compilation():
+    """Issue 12: the number of optax steps between checks is a traced argument, so a fit whose chunks have other
+    lengths (7 steps checked every 2: chunks of 2, 2, 2, 1) compiles nothing after one with chunks of 3."""
+    compiles = []
+    jax.monitoring.register_event_duration_secs_listener(
+        lambda event, duration, **kw: compiles.append(event) if "backend_compile" in event else None
+    )
+    adam = optax.adam(1e-2)
+    motion = fj.Motion.from_position(1e-3 * np.sin(np.linspace(0, 12, N)), dt=DT)
+    data = fj.FrictionData(motion, fj.simulate(fj.CoulombViscous(Fc=1.0, Fv=20.0, smoothing=fj.Smooth(EPS)), motion))
+    start = fj.CoulombViscous(Fc=0.5, Fv=10.0, smoothing=fj.Smooth(EPS))
+    first = fj.fit(start, data, solver=adam, steps=6, eval_every=3, progress=False)
+    before = len(compiles)
+    second = fj.fit(start, data, solver=adam, steps=7, eval_every=2, progress=False)
+    assert len(compiles) == before, compiles[before:]
+    assert first.history["step"][-1] == 6 and second.history["step"][-1] == 7, (first.history, second.history)
+    assert second.train_loss < first.train_loss  # the seventh step went on from the sixth's state

@@ -362,7 +362,9 @@ def fit(
             done = 0
             while done < budget and not stop:
                 n = min(chunk, budget - done)
-                states, opt_states, bad, _ = _run_chunk(solver, problem, search.states, opt_states, static, n)
+                # the chunk length is a traced argument: chunks of any length (a stage's last, shorter one, the
+                # next stage's) share one compilation of the gradient program
+                states, opt_states, bad = _run_chunk(solver, problem, search.states, opt_states, static, jnp.asarray(n))
                 done += n
                 search.observe(states, n, np.asarray(bad), *_batched_losses(problem, states, static), eps)
                 if search.diverged.all():
@@ -593,11 +595,13 @@ def _batched_losses(problem: _Problem, states: Any, static: Any) -> tuple[jax.Ar
 
 
 @eqx.filter_jit
-def _run_chunk(solver: Any, problem: _Problem, states: Any, opt_states: Any, static: Any, n: int) -> Any:
+def _run_chunk(solver: Any, problem: _Problem, states: Any, opt_states: Any, static: Any, n: jax.Array) -> Any:
+    """`n` (a traced integer) optimiser steps of every start, each start's steps stopping at its first
+    non-finite value or gradient. Returns `(states, opt_states, bad)`."""
     solver = optax.with_extra_args_support(solver)
 
     def one(state: Any, opt_state: Any) -> Any:
-        def body(carry: Any, _: Any) -> Any:
+        def body(_: Any, carry: Any) -> Any:
             s, o, bad = carry
             value, grads = jax.value_and_grad(problem.objective)(s, static)
             updates, o_new = solver.update(
@@ -608,10 +612,9 @@ def _run_chunk(solver: Any, problem: _Problem, states: Any, opt_states: Any, sta
             ok = jnp.isfinite(value) & _tree_finite(grads) & _tree_finite(s_new) & ~bad
             s = _where_tree(ok, s_new, s)
             o = _where_tree(ok, o_new, o)
-            return (s, o, bad | ~ok), jnp.where(ok, value, jnp.nan)
+            return s, o, bad | ~ok
 
-        (state, opt_state, bad), values = jax.lax.scan(body, (state, opt_state, jnp.asarray(False)), None, length=n)
-        return state, opt_state, bad, values
+        return jax.lax.fori_loop(0, n, body, (state, opt_state, jnp.asarray(False)))
 
     return jax.vmap(one)(states, opt_states)
 
