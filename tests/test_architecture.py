@@ -112,7 +112,8 @@ def test_deferred_imports_against_the_layering_are_the_documented_ones():
 
 
 def test_one_scan_over_time():
-    """`lax.scan` appears in `_simulate.py` (time), in the fit and sweep drivers (optimiser steps), in the NARX
+    """`lax.scan` appears in `_simulate.py` (time), in the sweep driver (optimiser steps; the fit driver loops
+    over them with `lax.fori_loop`, its step count traced), in the NARX
     regressors' play operators (their states along a record for teacher-forced rows: a recursion of the
     displacement alone, no model) and in the BGBM's linear error filter (`B / A` of recorded signals, as
     `scipy.signal.lfilter`, no model), nowhere else."""
@@ -120,7 +121,6 @@ def test_one_scan_over_time():
         str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py") if re.search(r"lax\.scan\(", p.read_text())
     )
     assert users == [
-        "_estimation/_fit.py",
         "_estimation/_sweep.py",
         "_models/blackbox/_regressors.py",
         "_protocols/_emps_bgbm.py",
