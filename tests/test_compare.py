@@ -19,6 +19,7 @@ from fricjax.compare import (
     format_table,
     load_record_spec,
     load_split,
+    paired_validation_gain,
     reference_scores,
     score,
     score_prediction,
@@ -330,3 +331,20 @@ def test_linear_in_parameters_models_reach_the_noise_floor():
     assert rows["kernel"].nmse <= 20 * floor, (rows["kernel"].nmse, floor)
     assert "width" in rows["kernel"].message and "best of 24" in rows["kernel"].message
     assert "locally linear" in rows["knn"].message
+
+
+def test_paired_validation_gain_tells_a_real_improvement_from_none():
+    """The rule that keeps a neural model's NOE stage: the relative drop of the validation error and its paired t
+    over blocks; the same model gains nothing (t = 0), the true model against one with its Coulomb level 40 % off
+    gains much (t above 3; NOE is kept from 2), and the reverse comparison is negative."""
+    import equinox as eqx
+
+    data = fj.make_tribometer("mixed", seed=0)
+    split, _, _ = load_split("tribometer:mixed", seed=0)
+    truth = data.true_model
+    off = eqx.tree_at(lambda m: m.stribeck, truth, fj.ExponentialStribeck(Fc=0.6, Fs=1.4, vs=1e-3, delta=1.0))
+    assert paired_validation_gain(truth, truth, split) == (0.0, 0.0)
+    gain, t = paired_validation_gain(off, truth, split)
+    assert 0.5 < gain < 1 and t > 3, (gain, t)
+    loss, t_reverse = paired_validation_gain(truth, off, split)
+    assert loss < 0 and t_reverse < -3, (loss, t_reverse)

@@ -4,7 +4,8 @@ The recipe registry (`default_models`: each model's start from the training reco
 names in `PHYSICS_MODELS`, fitted by default, `NEURAL_MODELS` and `LINEAR_MODELS`, `MODEL_NAMES` for all),
 data (`load_record_spec`, `load_split`, `split_record`, `Split`, `TestRecord`: a test part or another record, with an
 initialisation window that estimates the force offset), budgets (`FitSettings`), fitting and exact-mode scoring
-(`fit_and_score`, `free_run`, `score`, `score_prediction`, `reference_scores`: the noise floor), ensembles of
+(`fit_and_score`, `free_run`, `score`, `score_prediction`, `reference_scores`: the noise floor;
+`paired_validation_gain`: whether a neural model's output-error stage improved on its least-squares start), ensembles of
 the fitted models (`add_ensembles`) and the comparison table (`format_table`). Figures:
 `plot_prediction_errors`, `plot_test_loops`.
 
@@ -40,6 +41,7 @@ from ._protocols._compare import format_table as format_table
 from ._protocols._compare import free_run as free_run
 from ._protocols._compare import load_record_spec as load_record_spec
 from ._protocols._compare import load_split as load_split
+from ._protocols._compare import paired_validation_gain as paired_validation_gain
 from ._protocols._compare import reference_scores as reference_scores
 from ._protocols._compare import score as score
 from ._protocols._compare import score_prediction as score_prediction

@@ -459,7 +459,11 @@ def neural_models(settings: FitSettings) -> dict[str, ModelSpec]:
     Training: the output layer (linear: `d`, `d0`, `theta`, or the readout) by least squares with the hidden
     weights at their random start (echo-state / extreme-learning-machine style), then every weight by output
     error through the whole free run (NOE, Adam with warm-up, cosine decay and gradient clipping), the
-    validation part keeping the best model.
+    validation part keeping the best model. The NOE model replaces the least-squares one only when its gain on
+    the validation part is significant (`paired_validation_gain`, t >= 2 over 16 blocks): on the built-in
+    mixed regime NOE gained 1-2 % at t = 0.2-0.7 for `mlp`, `gsnn` and `rnn`, and which NOE iterate won then
+    moved with round-off (the recurrent network's test error went from 2.5x to 3.9x the floor with records
+    changed at 1e-16), so there the least-squares models are kept and the row's message says so.
     """
     import jax
 
@@ -708,7 +712,9 @@ def _structure_by_validation(
 
 
 def _least_squares_then_noe(linear: tuple[str, ...], settings: FitSettings) -> Callable[..., FitResult]:
-    """The output layer `linear` (and the drift rate) by least squares, then every weight by output error."""
+    """The output layer `linear` (and the drift rate) by least squares, then every weight by output error; the
+    output-error model is kept only when it predicts the validation part significantly better
+    (`paired_validation_gain`)."""
 
     def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
         validation: dict[str, Any] = {"validation": split.until_validation_end, "validation_burn_in": split.train_end}
@@ -730,9 +736,57 @@ def _least_squares_then_noe(linear: tuple[str, ...], settings: FitSettings) -> C
             progress=progress,
             **validation,
         )
-        return dataclasses.replace(noe, wall_time=first.wall_time + noe.wall_time)
+        wall_time = first.wall_time + noe.wall_time
+        if not noe.val_loss < first.val_loss:  # the NOE stage returned its start
+            return dataclasses.replace(noe, wall_time=wall_time)
+        improvement, t = paired_validation_gain(first.model, noe.model, split)
+        if t >= SIGNIFICANT_T:
+            return dataclasses.replace(noe, wall_time=wall_time)
+        note = (
+            f"; output error improved the validation error by {100 * improvement:.2g} % only (paired t = {t:.2f} "
+            f"over {VALIDATION_BLOCKS} blocks, < {SIGNIFICANT_T:g}: within the noise), so the least-squares start "
+            "is kept"
+        )
+        return dataclasses.replace(
+            noe,
+            model=first.model,
+            message=noe.message + note,
+            train_loss=first.train_loss,
+            val_loss=first.val_loss,
+            exact_val_loss=first.exact_val_loss,
+            std=first.std,
+            wall_time=wall_time,
+        )
 
     return run
+
+
+VALIDATION_BLOCKS = 16
+SIGNIFICANT_T = 2.0
+
+
+def paired_validation_gain(reference: Any, candidate: Any, split: Split) -> tuple[float, float]:
+    """How much better `candidate` predicts the validation part than `reference` (exact-mode free runs from the
+    record's start): the relative drop of the mean squared error, and the paired t statistic of the drops over
+    `VALIDATION_BLOCKS` consecutive blocks (blocks, not samples: the errors of a free run are correlated over
+    many samples). The neural models keep their output-error (NOE) stage only when t >= `SIGNIFICANT_T`:
+    measured on the mixed regime, NOE improved their validation error by 1-2 % at t = 0.4-0.7, and such
+    iterates scored from 0.7x to 2.4x the least-squares start's test error as the records changed by
+    round-off (benchmarks/README.md)."""
+    record = split.until_validation_end
+    measured = np.asarray(record.force)[split.train_end :]
+    size = max(len(measured) // VALIDATION_BLOCKS, 1)
+    count = len(measured) // size
+
+    def block_errors(model: Any) -> np.ndarray:
+        error = free_run(model, record)[split.train_end :] - measured
+        return np.mean(error[: count * size].reshape(count, size) ** 2, axis=1)
+
+    before, after = block_errors(reference), block_errors(candidate)
+    drops = before - after
+    spread = np.std(drops, ddof=1) / np.sqrt(count) if count > 1 else 0.0
+    t = float(np.mean(drops) / spread) if spread > 0 else (np.inf if np.mean(drops) > 0 else 0.0)
+    return float(np.mean(drops) / np.mean(before)), t
 
 
 def _with_drift(spec: ModelSpec, kind: str) -> ModelSpec:
