@@ -512,3 +512,55 @@ def test_float32_smooth_mode_keeps_float32(name):
     force = fj.simulate(model, make_motion())
     assert force.dtype == np.float32
     assert np.all(np.isfinite(np.asarray(force)))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# GMS's packed free run (`packed_unroll`): a performance path whose values and derivatives are the plain scan's
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def test_gms_packed_free_run_equals_plain_scan_values_and_derivatives():
+    """The free run of GMS packs its parameters (a custom JVP whose rule is the plain scan's JVP); the one-step
+    mode (`measured=`, equal to the free run for a model without fed-back outputs) runs the plain scan."""
+    import equinox as eqx
+
+    t = np.arange(600) * 1e-3
+    motion = fj.Motion.from_position(2e-4 * np.sin(2 * np.pi * 3 * t) * (0.2 + t), dt=1e-3)
+    model = fj.GMS(
+        fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3),
+        k=[4e4, 2e4, 1e4],
+        alpha=[0.5, 0.3, 0.2],
+        C=20.0,
+        sigma2=0.4,
+        smoothing=fj.Smooth(1e-6),
+    )
+    dummy = np.zeros(600)
+
+    def free(m):
+        return fj.simulate(m, motion)
+
+    def plain(m):
+        return fj.simulate(m, motion, measured=dummy)
+
+    np.testing.assert_allclose(free(model), plain(model), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(fj.simulate(model, motion, unroll=3), plain(model), rtol=0, atol=1e-13)
+
+    def loss(run):
+        return lambda m: jax.numpy.mean((run(m) - 0.5) ** 2)
+
+    g_free = eqx.filter_grad(loss(free))(model)
+    g_plain = eqx.filter_grad(loss(plain))(model)
+    for a, b in zip(jax.tree_util.tree_leaves(g_free), jax.tree_util.tree_leaves(g_plain), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-14 * float(np.max(np.abs(b))))
+
+    # a derivative of a derivative (the separable fits' forward Jacobian under reverse mode), and vmap
+    def nested(run):
+        def f(Fc):
+            m = eqx.tree_at(lambda g: g.stribeck.Fc, model, Fc)
+            return jax.numpy.sum(jax.jacfwd(lambda s: run(eqx.tree_at(lambda g: g.sigma2, m, s)))(0.4) ** 2)
+
+        return jax.grad(f)(1.0)
+
+    np.testing.assert_allclose(nested(free), nested(plain), rtol=1e-10)
+    batch = eqx.filter_vmap(lambda s: free(eqx.tree_at(lambda g: g.sigma2, model, s)))(jax.numpy.array([0.1, 0.4]))
+    np.testing.assert_allclose(batch[1], plain(model), rtol=0, atol=1e-13)

@@ -37,6 +37,10 @@ class AbstractModel(eqx.Module):
     # real (not reparametrised) fields that are physically >= 0 (damping coefficients): separable least squares
     # keeps them >= 0 (`fj.fit(..., separable=...)`)
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset()
+    # performance only: when set, the free run outside derivatives runs with the parameters packed into one
+    # vector that the loop body unpacks, at this scan unrolling (faster loops on XLA:CPU for some models; see
+    # `fricjax._simulate.run` and benchmarks/README.md). Derivatives are those of the plain scan.
+    packed_unroll: ClassVar[int | None] = None
 
     def parameter_ranges(self) -> dict[str, float]:
         """The physical magnitude of real fields that may start at 0 (`{field: magnitude}` in the field's

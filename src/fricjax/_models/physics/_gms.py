@@ -14,7 +14,6 @@ from ..._constraints import ParamLike, Simplex, as_float_array, model_dtype, pos
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._base import AbstractFrictionModel
-from ._lugre import relax
 from ._stribeck import AbstractStribeck
 
 
@@ -73,6 +72,9 @@ class GMS(AbstractFrictionModel):
     smoothing: AbstractSmoothing
 
     requires: ClassVar[frozenset[str]] = frozenset({"x", "v", "dt"})
+    packed_unroll: ClassVar[int | None] = (
+        1  # packed, unroll 1: ~110 ns per step against ~430 plain (benchmarks/README.md)
+    )
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"sigma2"})
 
     def __init__(
@@ -121,14 +123,20 @@ class GMS(AbstractFrictionModel):
     def step(self, state: GMSState, sample: MotionSample) -> tuple[GMSState, Array]:
         p = unwrap(self)
         sm = p.smoothing
-        s = p.stribeck(sample.dx / sample.dt)  # at the velocity held over the step, as the slip law
+        # every per-step scalar is broadcast to the elements first: XLA:CPU then builds the step from a few
+        # element-wise kernels instead of scalar kernels feeding vector ones (measured ~5x fewer ns per step)
+        dx = jnp.broadcast_to(sample.dx, jnp.shape(state.F))
+        s = p.stribeck(dx / sample.dt)  # at the velocity held over the step, as the slip law
         bound = p.alpha * s
-        direction = sm.sign(sample.dx)
+        direction = sm.sign(dx)
         # continue slipping while the motion keeps the direction of the element force; a rest (dx = 0,
         # direction 0) ends the slip in both modes (direction**2 is 0 there)
         keeps_slipping = state.slipping * sm.step(direction * state.F / p.k) * direction**2
-        F_slip = relax(state.F, p.C / s, p.C * p.alpha * direction, sample.dt)
-        F_trial = state.F + p.k * sample.dx
+        # exact relaxation towards alpha s sgn(dx) at rate C / s: relax(F, C / s, C alpha sgn, dt) written as
+        # F e + alpha s sgn (1 - e), e = exp(-C dt / s), which needs no small-rate branch (C / s > 0)
+        decay = jnp.exp(-p.C * sample.dt / s)
+        F_slip = state.F * decay + bound * direction * (1.0 - decay)
+        F_trial = state.F + p.k * dx
         starts_slipping = (1.0 - keeps_slipping) * sm.step((sm.abs(F_trial) - bound) / p.k)
         F_stick = sm.clip(F_trial, bound)
         F = keeps_slipping * F_slip + (1.0 - keeps_slipping) * F_stick
