@@ -741,7 +741,10 @@ def _least_squares_then_noe(linear: tuple[str, ...], settings: FitSettings) -> C
             return dataclasses.replace(noe, wall_time=wall_time)
         improvement, t = paired_validation_gain(first.model, noe.model, split)
         if t >= SIGNIFICANT_T:
-            return dataclasses.replace(noe, wall_time=wall_time)
+            kept = (
+                f"; output error improved the validation error by {100 * improvement:.2g} % (paired t = {t:.2f}): kept"
+            )
+            return dataclasses.replace(noe, message=noe.message + kept, wall_time=wall_time)
         note = (
             f"; output error improved the validation error by {100 * improvement:.2g} % only (paired t = {t:.2f} "
             f"over {VALIDATION_BLOCKS} blocks, < {SIGNIFICANT_T:g}: within the noise), so the least-squares start "
