@@ -773,9 +773,9 @@ def paired_validation_gain(reference: Any, candidate: Any, split: Split) -> tupl
     record's start): the relative drop of the mean squared error, and the paired t statistic of the drops over
     `VALIDATION_BLOCKS` consecutive blocks (blocks, not samples: the errors of a free run are correlated over
     many samples). The neural models keep their output-error (NOE) stage only when t >= `SIGNIFICANT_T`:
-    measured on the mixed regime, NOE improved their validation error by 1-2 % at t = 0.4-0.7, and such
-    iterates scored from 0.7x to 2.4x the least-squares start's test error as the records changed by
-    round-off (benchmarks/README.md)."""
+    measured on the mixed regime, NOE improved their validation error by 1-2 % at t = 0.2-0.7, and such
+    iterates scored from 0.75x to 4x the least-squares start's test error as the records changed by round-off
+    or the learning rate and the trained weights were varied (benchmarks/README.md)."""
     record = split.until_validation_end
     measured = np.asarray(record.force)[split.train_end :]
     size = max(len(measured) // VALIDATION_BLOCKS, 1)
