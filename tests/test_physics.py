@@ -519,11 +519,7 @@ def test_float32_smooth_mode_keeps_float32(name):
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def test_gms_packed_free_run_equals_plain_scan_values_and_derivatives():
-    """The free run of GMS packs its parameters (a custom JVP whose rule is the plain scan's JVP); the one-step
-    mode (`measured=`, equal to the free run for a model without fed-back outputs) runs the plain scan."""
-    import equinox as eqx
-
+def _gms_packed_case():
     t = np.arange(600) * 1e-3
     motion = fj.Motion.from_position(2e-4 * np.sin(2 * np.pi * 3 * t) * (0.2 + t), dt=1e-3)
     model = fj.GMS(
@@ -536,14 +532,23 @@ def test_gms_packed_free_run_equals_plain_scan_values_and_derivatives():
     )
     dummy = np.zeros(600)
 
-    def free(m):
-        return fj.simulate(m, motion)
+    def free(m, unroll=None):
+        return fj.simulate(m, motion) if unroll is None else fj.simulate(m, motion, unroll=unroll)
 
     def plain(m):
         return fj.simulate(m, motion, measured=dummy)
 
+    return model, free, plain
+
+
+def test_gms_packed_free_run_equals_plain_scan_values_and_gradients():
+    """The free run of GMS packs its parameters (a custom JVP whose rule is the plain scan's JVP); the one-step
+    mode (`measured=`, equal to the free run for a model without fed-back outputs) runs the plain scan."""
+    import equinox as eqx
+
+    model, free, plain = _gms_packed_case()
     np.testing.assert_allclose(free(model), plain(model), rtol=0, atol=1e-13)
-    np.testing.assert_allclose(fj.simulate(model, motion, unroll=3), plain(model), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(free(model, unroll=3), plain(model), rtol=0, atol=1e-13)
 
     def loss(run):
         return lambda m: jax.numpy.mean((run(m) - 0.5) ** 2)
@@ -553,7 +558,15 @@ def test_gms_packed_free_run_equals_plain_scan_values_and_derivatives():
     for a, b in zip(jax.tree_util.tree_leaves(g_free), jax.tree_util.tree_leaves(g_plain), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-14 * float(np.max(np.abs(b))))
 
-    # a derivative of a derivative (the separable fits' forward Jacobian under reverse mode), and vmap
+
+@pytest.mark.slow  # the nested derivative compiles for ~6 s
+def test_gms_packed_free_run_equals_plain_scan_nested_derivatives_and_vmap():
+    """A derivative of a derivative (the separable fits' forward Jacobian under reverse mode) and vmap of GMS's
+    packed free run equal the plain scan's."""
+    import equinox as eqx
+
+    model, free, plain = _gms_packed_case()
+
     def nested(run):
         def f(Fc):
             m = eqx.tree_at(lambda g: g.stribeck.Fc, model, Fc)
