@@ -533,7 +533,7 @@ def _gms_packed_case():
     dummy = np.zeros(600)
 
     def free(m, unroll=None):
-        return fj.simulate(m, motion) if unroll is None else fj.simulate(m, motion, unroll=unroll)
+        return fj.simulate(m, motion, unroll=unroll)
 
     def plain(m):
         return fj.simulate(m, motion, measured=dummy)

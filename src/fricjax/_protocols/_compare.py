@@ -740,20 +740,15 @@ def _least_squares_then_noe(linear: tuple[str, ...], settings: FitSettings) -> C
         if not noe.val_loss < first.val_loss:  # the NOE stage returned its start
             return dataclasses.replace(noe, wall_time=wall_time)
         improvement, t = paired_validation_gain(first.model, noe.model, split)
+        gain = f"; output error improved the validation error by {100 * improvement:.2g} % (paired t = {t:.2f}"
         if t >= SIGNIFICANT_T:
-            kept = (
-                f"; output error improved the validation error by {100 * improvement:.2g} % (paired t = {t:.2f}): kept"
-            )
-            return dataclasses.replace(noe, message=noe.message + kept, wall_time=wall_time)
-        note = (
-            f"; output error improved the validation error by {100 * improvement:.2g} % only (paired t = {t:.2f} "
-            f"over {VALIDATION_BLOCKS} blocks, < {SIGNIFICANT_T:g}: within the noise), so the least-squares start "
-            "is kept"
-        )
+            return dataclasses.replace(noe, message=f"{noe.message}{gain}): kept", wall_time=wall_time)
+        noise = f" over {VALIDATION_BLOCKS} blocks, < {SIGNIFICANT_T:g}: within the noise)"
+        within = noise + ", so the least-squares start is kept"
         return dataclasses.replace(
             noe,
             model=first.model,
-            message=noe.message + note,
+            message=noe.message + gain + within,
             train_loss=first.train_loss,
             val_loss=first.val_loss,
             exact_val_loss=first.exact_val_loss,
