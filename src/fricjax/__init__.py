@@ -3,6 +3,8 @@
 One flat public namespace: `import fricjax as fj`.
 """
 
+# first, before any JAX computation: sets XLA_FLAGS so that XLA:CPU compiles each scan as one function
+from . import _xla_flags as _xla_flags  # isort: skip
 from importlib.metadata import PackageNotFoundError as _PackageNotFoundError
 from importlib.metadata import version as _version
 

@@ -1,0 +1,71 @@
+"""The one XLA setting fricjax makes: XLA:CPU compiles every `lax.scan` into a single function.
+
+XLA:CPU runs a while loop (a `lax.scan`) either op by op, each fused kernel of every iteration dispatched by its
+runtime, or, for a loop whose body touches fewer than `xla_cpu_small_while_loop_byte_threshold` bytes (default
+1 024), as one compiled function ("small call"). The byte count includes the buffers the loop writes its outputs
+into, so the cheap loops of friction models leave the fast path as soon as they stack a state vector per step,
+and every reverse-mode derivative of a scan (which stores the states) ran op by op: on the 2-core CPU of
+benchmarks/README.md, value_and_grad / forward was 59x for LuGre, 22x for GMS and 20x for Maxwell-slip; with the
+threshold raised, 1.3x, 3.5x and 4.1x, with the forward passes unchanged (benchmarks/simulate.py,
+`results/cpu-2core-small-call.jsonl`).
+
+`import fricjax` therefore adds `xla_cpu_small_while_loop_byte_threshold=SMALL_WHILE_LOOP_BYTES` to the
+`--xla_backend_extra_options` of the `XLA_FLAGS` environment variable, which XLA reads when JAX starts its
+backends (at the first computation, not at `import jax`). It leaves `XLA_FLAGS` alone when the key is already
+there (set it yourself, e.g. to XLA's default 1024, to opt out) or when `FRICJAX_KEEP_XLA_FLAGS` is set to a
+non-empty value. GPU and TPU backends ignore the key.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import MutableMapping
+
+SMALL_WHILE_LOOP_KEY = "xla_cpu_small_while_loop_byte_threshold"
+SMALL_WHILE_LOOP_BYTES = 1 << 40  # every loop, whatever the length of the record it stacks
+_EXTRA_OPTIONS = "--xla_backend_extra_options="
+
+
+def add_small_while_loop_flag(environ: MutableMapping[str, str]) -> bool:
+    """Add the small-while-loop threshold to `environ["XLA_FLAGS"]` (merged into an existing
+    `--xla_backend_extra_options=` list). Returns whether `environ` was changed."""
+    if environ.get("FRICJAX_KEEP_XLA_FLAGS"):
+        return False
+    flags = environ.get("XLA_FLAGS", "")
+    if SMALL_WHILE_LOOP_KEY in flags:
+        return False
+    option = f"{SMALL_WHILE_LOOP_KEY}={SMALL_WHILE_LOOP_BYTES}"
+    tokens = flags.split()
+    for i, token in enumerate(tokens):
+        if token.startswith(_EXTRA_OPTIONS):
+            existing = token[len(_EXTRA_OPTIONS) :]
+            tokens[i] = _EXTRA_OPTIONS + (f"{existing},{option}" if existing else option)
+            break
+    else:
+        tokens.append(_EXTRA_OPTIONS + option)
+    environ["XLA_FLAGS"] = " ".join(tokens)
+    return True
+
+
+def configure() -> None:
+    """Called once by `import fricjax`: set the flag, and warn when JAX's backends already started without it."""
+    if not add_small_while_loop_flag(os.environ):
+        return
+    try:
+        from jax._src import xla_bridge  # private: only to tell whether the setting can still take effect
+
+        started = xla_bridge.backends_are_initialized()
+    except (ImportError, AttributeError):  # pragma: no cover - other JAX versions
+        return
+    if started:
+        warnings.warn(
+            "fricjax was imported after JAX started its backends, so its XLA:CPU setting "
+            f"(--xla_backend_extra_options={SMALL_WHILE_LOOP_KEY}=...) does not apply in this process: gradients "
+            "of long simulations run up to 20x slower on CPU. Import fricjax before the first JAX computation, "
+            "or set FRICJAX_KEEP_XLA_FLAGS=1 to silence this.",
+            stacklevel=3,
+        )
+
+
+configure()
