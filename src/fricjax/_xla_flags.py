@@ -1,19 +1,19 @@
 """The one XLA setting fricjax makes: XLA:CPU compiles every `lax.scan` into a single function.
 
 XLA:CPU runs a while loop (a `lax.scan`) either op by op, each fused kernel of every iteration dispatched by its
-runtime, or, for a loop whose body touches fewer than `xla_cpu_small_while_loop_byte_threshold` bytes (default
-1 024), as one compiled function ("small call"). The byte count includes the buffers the loop writes its outputs
-into, so the cheap loops of friction models leave the fast path as soon as they stack a state vector per step,
-and every reverse-mode derivative of a scan (which stores the states) ran op by op: on the 2-core CPU of
-benchmarks/README.md, value_and_grad / forward was 59x for LuGre, 22x for GMS and 20x for Maxwell-slip; with the
-threshold raised, 1.3x, 3.5x and 4.1x, with the forward passes unchanged (benchmarks/simulate.py,
+runtime, or, when XLA's cost analysis finds that the loop body accesses fewer than
+`xla_cpu_small_while_loop_byte_threshold` bytes (default 1 024), as one compiled function ("small call"). Friction
+models sit at that limit: the GMS free run that returns only the force is under it, the same loop storing its
+states, as every reverse-mode derivative of a scan does, is over it and ran 4x slower per step. On the 2-core CPU
+of benchmarks/README.md, value_and_grad / forward was 59x for LuGre, 22x for GMS and 20x for Maxwell-slip; with
+the threshold raised, 1.3x, 3.5x and 4.1x, the forward passes unchanged (benchmarks/simulate.py,
 `results/cpu-2core-small-call.jsonl`).
 
 `import fricjax` therefore adds `xla_cpu_small_while_loop_byte_threshold=SMALL_WHILE_LOOP_BYTES` to the
 `--xla_backend_extra_options` of the `XLA_FLAGS` environment variable, which XLA reads when JAX starts its
 backends (at the first computation, not at `import jax`). It leaves `XLA_FLAGS` alone when the key is already
 there (set it yourself, e.g. to XLA's default 1024, to opt out) or when `FRICJAX_KEEP_XLA_FLAGS` is set to a
-non-empty value. GPU and TPU backends ignore the key.
+non-empty value. Only the CPU compiler reads the key (`xla::cpu::options`).
 """
 
 from __future__ import annotations

@@ -1,0 +1,83 @@
+"""`import fricjax` makes XLA:CPU compile every scan as one function (the small-while-loop threshold in XLA_FLAGS),
+keeps the user's own XLA flags, and can be turned off (src/fricjax/_xla_flags.py; benchmarks/README.md)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+
+import fricjax as fj
+
+KEY = "xla_cpu_small_while_loop_byte_threshold"
+
+# run in a fresh interpreter: XLA reads XLA_FLAGS once, when JAX starts its backends. The scan carries 64 values:
+# a loop body touching more than 1 024 bytes, which XLA by default runs op by op
+PROBE = """
+import json, os, sys, warnings
+warnings.simplefilter("always")
+import jax, jax.numpy as jnp
+if sys.argv[1] == "started":
+    jnp.ones(2).block_until_ready()  # JAX's backends start before fricjax is imported
+with warnings.catch_warnings(record=True) as caught:
+    import fricjax
+def stacked_states(x):
+    return jax.lax.scan(lambda s, u: (jnp.sin(s) + u, (s.sum(), s)), jnp.zeros(64), x)
+hlo = jax.jit(stacked_states).lower(jnp.ones(4000)).compile().as_text()
+print(json.dumps({"flags": os.environ.get("XLA_FLAGS", ""), "one_function": "xla_cpu_small_call" in hlo,
+                  "devices": jax.device_count(), "warnings": [str(w.message) for w in caught]}))
+"""
+
+
+def _probe(xla_flags: str, *, started: bool = False, keep: bool = False) -> dict:
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "FRICJAX_KEEP_XLA_FLAGS")}
+    env.update(JAX_PLATFORMS="cpu", XLA_FLAGS=xla_flags)
+    if keep:
+        env["FRICJAX_KEEP_XLA_FLAGS"] = "1"
+    result = subprocess.run(
+        [sys.executable, "-c", PROBE, "started" if started else "fresh"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def _hlo_of_a_scan_stacking_its_states() -> str:
+    def run(x: jax.Array) -> tuple:
+        return jax.lax.scan(lambda s, u: (jnp.sin(s) + u, (s.sum(), s)), jnp.zeros(64), x)
+
+    return jax.jit(run).lower(jnp.ones(4000)).compile().as_text()
+
+
+def test_this_process_compiles_a_scan_with_stacked_states_into_one_function():
+    assert fj.simulate is not None  # fricjax is imported (by this module and conftest) before any computation
+    assert KEY in os.environ["XLA_FLAGS"]
+    assert "xla_cpu_small_call" in _hlo_of_a_scan_stacking_its_states()
+
+
+def test_the_users_flags_are_kept_and_extra_options_merged():
+    out = _probe("--xla_backend_extra_options=xla_cpu_disable_loop_unrolling --xla_force_host_platform_device_count=2")
+    assert f"--xla_backend_extra_options=xla_cpu_disable_loop_unrolling,{KEY}=" in out["flags"]
+    assert out["flags"].count("--xla_backend_extra_options") == 1
+    assert out["devices"] == 2 and out["one_function"] and out["warnings"] == []
+
+
+def test_opting_out_leaves_xla_flags_alone_and_xla_its_default():
+    out = _probe("--xla_force_host_platform_device_count=2", keep=True)
+    assert out["flags"] == "--xla_force_host_platform_device_count=2"
+    assert not out["one_function"]  # XLA's own default threshold: the scan runs op by op
+    own = _probe(f"--xla_backend_extra_options={KEY}=1024")  # the user's own value wins
+    assert own["flags"] == f"--xla_backend_extra_options={KEY}=1024" and not own["one_function"]
+
+
+def test_importing_fricjax_after_jax_started_warns_how_to_fix_it():
+    out = _probe("", started=True)
+    assert not out["one_function"]
+    assert len(out["warnings"]) == 1 and "Import fricjax before the first JAX computation" in out["warnings"][0]
