@@ -314,17 +314,17 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
     """From each end of the record's velocity range: Adam with smoothing continuation, then a Levenberg-Marquardt
     polish; the polished model with the lower validation loss is kept.
 
-    The Stribeck velocity starts once at the slow end (`DataScales.vs`) and once at the fast end (`v_fast`) of
-    the record: from the wrong end the fit settles in a flat curve (small vs and delta) that costs ~2x in test
-    NMSE, and which end is wrong depends on the record (the default mixed record: the slow one). The end of the
-    Adam stage does not tell them apart, the polished models' validation loss does. `gms_starts` starts are split
-    between the two ends (at least one each). Only first-order derivatives: the Adam stage trains the model wrapped
-    in `TangentGradients` (~2x the forward pass instead of ~20x), and both stages fit the offset with the other
-    parameters (`separable=` would nest a forward Jacobian inside each derivative: slower to compile and run, no
-    more accurate here). The viscous coefficient, which starts at 0, moves on the scale `0.1 Fc / v_fast` (a
-    viscous force of 10 % of the Coulomb level at the fast end) instead of 1 N s/m (with `Fc / v_fast` the sliding
-    record's fit stopped at 1.7x the noise floor). The second end reuses the first's compiled programs
-    (benchmarks/README.md).
+    The Stribeck velocity starts once at the slow end (`DataScales.vs`) and once at the fast end (`v_fast`) of the
+    record: from the wrong end the fit settles in a flat curve (small vs and delta) that costs ~2x in test NMSE, and
+    which end is wrong depends on the record (the default mixed record: the slow one). The end of the Adam stage does
+    not tell them apart, the polished models' validation loss does. `gms_starts` starts are split between the two ends
+    (at least one each). Only first-order derivatives: the Adam stage trains the model wrapped in `TangentGradients`
+    (chosen when the scan's own reverse pass cost ~20x the forward pass; with fricjax's XLA setting both cost 3-5x, and
+    the wrapper stays so that the documented results hold), and both stages fit the offset with the other parameters
+    (`separable=` would nest a forward Jacobian inside each derivative: slower to compile and run, no more accurate
+    here). The viscous coefficient, which starts at 0, moves on the scale `0.1 Fc / v_fast` (a viscous force of 10 % of
+    the Coulomb level at the fast end) instead of 1 N s/m (with `Fc / v_fast` the sliding record's fit stopped at 1.7x
+    the noise floor). The second end reuses the first's compiled programs (benchmarks/README.md).
     """
 
     def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
@@ -339,7 +339,7 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         for vs in (scales.vs, scales.v_fast):
             begin = _with_stribeck_velocity(start, vs)
             coarse = fit(
-                _with_friction(begin, TangentGradients(_friction(begin))),  # first-order gradients at ~2x forward
+                _with_friction(begin, TangentGradients(_friction(begin))),  # the documented results' derivative path
                 train,
                 scaling=ParameterScaling({f"{prefix}model.sigma2": viscous_scale}),
                 validation=validation,

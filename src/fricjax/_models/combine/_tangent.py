@@ -16,12 +16,14 @@ class TangentGradients(AbstractFrictionModel):
     runs only the small linear recurrence `ds_k = A_k ds_k-1 + b_k` step by step; reverse mode transposes it
     into the adjoint recurrence.
 
-    When it pays (benchmarks/README.md, 2-core CPU, 40 000 steps, exact mode): a **first-order** derivative of a
-    long free run of a small-state model whose step uses `where`, `expm1`, powers or `abs`, as in gradient
-    training (Adam, NOE) or `jax.grad` sweeps: value_and_grad / forward LuGre 34x -> 2.2x, GMS N=4 6.3x -> 2.4x,
-    Dahl 31x -> 1.3x, Bo-Pavelescu 10x -> 2.2x. When it does not: fits whose loss is itself differentiated twice
-    (Levenberg-Marquardt with `separable=` parameters: compare's LuGre fit 16 s -> 30 s, GMS 120 s -> 220 s,
-    mostly compilation of the nested derivatives), Maxwell-slip with many elements or FIR histories. Parameter
+    When it pays (benchmarks/README.md, 2-core CPU, 40 000 steps, exact mode): since `import fricjax` makes XLA:CPU
+    compile each scan into one function (src/fricjax/_xla_flags.py), the plain reverse pass costs 1.6-4.3x the
+    forward pass and this wrapper gains nothing (value_and_grad LuGre 101 against 96 ns/step, GMS N=4 339 against
+    372, Maxwell-slip 72 against 174). It pays where XLA runs the scan op by op, i.e. in a process where
+    `FRICJAX_KEEP_XLA_FLAGS` is set or JAX started before fricjax was imported: value_and_grad / forward LuGre
+    59x -> 1.5x, GMS 22x -> 2.6x, Dahl 31x -> 1.3x, Bo-Pavelescu 10x -> 2.2x there. It does not pay for fits whose
+    loss is itself differentiated twice (Levenberg-Marquardt with `separable=` parameters: mostly compilation of
+    the nested derivatives), nor for Maxwell-slip with many elements or FIR histories. Parameter
     paths gain a `model.` prefix (`fj.fit(..., train=("model.sigma0",))`).
 
     **Arguments:** `model` any friction model that does not feed back its outputs (not a NARX).
