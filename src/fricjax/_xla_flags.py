@@ -23,7 +23,7 @@ import warnings
 from collections.abc import MutableMapping
 
 SMALL_WHILE_LOOP_KEY = "xla_cpu_small_while_loop_byte_threshold"
-SMALL_WHILE_LOOP_BYTES = 1 << 40  # every loop, whatever the length of the record it stacks
+SMALL_WHILE_LOOP_BYTES = 1 << 40  # every loop body, whatever it touches per iteration
 _EXTRA_OPTIONS = "--xla_backend_extra_options="
 
 
