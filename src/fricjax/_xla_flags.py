@@ -5,9 +5,9 @@ runtime, or, when XLA's cost analysis finds that the loop body accesses fewer th
 `xla_cpu_small_while_loop_byte_threshold` bytes (default 1 024), as one compiled function ("small call"). Friction
 models sit at that limit: the GMS free run that returns only the force is under it, the same loop storing its
 states, as every reverse-mode derivative of a scan does, is over it and ran 4x slower per step. On the 2-core CPU
-of benchmarks/README.md, value_and_grad / forward was 59x for LuGre, 22x for GMS and 20x for Maxwell-slip; with
-the threshold raised, 1.3x, 3.5x and 4.1x, the forward passes unchanged (benchmarks/simulate.py,
-`results/cpu-2core-small-call.jsonl`).
+of benchmarks/README.md, value_and_grad / forward is 27.5x for LuGre, 21.4x for GMS and 17.4x for Maxwell-slip
+with XLA's default and 1.6x, 3.1x and 4.3x with the threshold raised, the forward passes unchanged
+(benchmarks/simulate.py, `results/cpu-2core-small-call.jsonl` and `...-off.jsonl`, one session).
 
 `import fricjax` therefore adds `xla_cpu_small_while_loop_byte_threshold=SMALL_WHILE_LOOP_BYTES` to the
 `--xla_backend_extra_options` of the `XLA_FLAGS` environment variable, which XLA reads when JAX starts its
@@ -62,8 +62,8 @@ def configure() -> None:
         warnings.warn(
             "fricjax was imported after JAX started its backends, so its XLA:CPU setting "
             f"(--xla_backend_extra_options={SMALL_WHILE_LOOP_KEY}=...) does not apply in this process: gradients "
-            "of long simulations run up to 20x slower on CPU. Import fricjax before the first JAX computation, "
-            "or set FRICJAX_KEEP_XLA_FLAGS=1 to silence this.",
+            "of long simulations run up to 20x slower on CPU (benchmarks/README.md). Import fricjax before the "
+            "first JAX computation, or set FRICJAX_KEEP_XLA_FLAGS=1 to silence this.",
             stacklevel=3,
         )
 
