@@ -1,4 +1,4 @@
-"""The one XLA setting fricjax makes: XLA:CPU compiles every `lax.scan` into a single function.
+"""The one XLA setting fricjax makes: XLA:CPU compiles every small `lax.scan` (up to 64 KiB per step) into one function.
 
 XLA:CPU runs a while loop (a `lax.scan`) either op by op, each fused kernel of every iteration dispatched by its
 runtime, or, when XLA's cost analysis finds that the loop body accesses fewer than
@@ -23,7 +23,11 @@ import warnings
 from collections.abc import MutableMapping
 
 SMALL_WHILE_LOOP_KEY = "xla_cpu_small_while_loop_byte_threshold"
-SMALL_WHILE_LOOP_BYTES = 1 << 40  # every loop body, whatever it touches per iteration
+# 64 KiB per iteration: every friction model's loop and its reverse pass (16 KiB suffice for LuGre, GMS and
+# Maxwell-slip gradients), not the loops over large arrays (k-nearest-neighbour searches over the training set,
+# kernel models, wide batches), which keep XLA's op-by-op execution and its intra-op threads: with no limit, a
+# notebook's k-nearest-neighbour free run hung once in a CI run (a wait inside XLA that never returned)
+SMALL_WHILE_LOOP_BYTES = 1 << 16
 _EXTRA_OPTIONS = "--xla_backend_extra_options="
 
 
