@@ -1,4 +1,4 @@
-"""`import fricjax` makes XLA:CPU compile every scan as one function (the small-while-loop threshold in XLA_FLAGS),
+"""`import fricjax` makes XLA:CPU compile small scans as one function (the small-while-loop threshold in XLA_FLAGS),
 keeps the user's own XLA flags, and can be turned off (src/fricjax/_xla_flags.py; benchmarks/README.md)."""
 
 from __future__ import annotations
@@ -11,13 +11,14 @@ import sys
 import jax
 import jax.numpy as jnp
 
-import fricjax as fj
+import fricjax  # noqa: F401  (imported before any computation, as conftest does: the setting applies here)
 
 KEY = "xla_cpu_small_while_loop_byte_threshold"
 
 # run in a fresh interpreter: XLA reads XLA_FLAGS once, when JAX starts its backends. The scan carries 64 values:
 # a loop body touching more than 1 024 bytes, which XLA by default runs op by op
-PROBE = """
+SCAN = "lambda x: jax.lax.scan(lambda s, u: (jnp.sin(s) + u, (s.sum(), s)), jnp.zeros(64), x)"
+PROBE = f"""
 import json, os, sys, warnings
 warnings.simplefilter("always")
 import jax, jax.numpy as jnp
@@ -25,11 +26,9 @@ if sys.argv[1] == "started":
     jnp.ones(2).block_until_ready()  # JAX's backends start before fricjax is imported
 with warnings.catch_warnings(record=True) as caught:
     import fricjax
-def stacked_states(x):
-    return jax.lax.scan(lambda s, u: (jnp.sin(s) + u, (s.sum(), s)), jnp.zeros(64), x)
-hlo = jax.jit(stacked_states).lower(jnp.ones(4000)).compile().as_text()
-print(json.dumps({"flags": os.environ.get("XLA_FLAGS", ""), "one_function": "xla_cpu_small_call" in hlo,
-                  "devices": jax.device_count(), "warnings": [str(w.message) for w in caught]}))
+hlo = jax.jit({SCAN}).lower(jnp.ones(4000)).compile().as_text()
+print(json.dumps({{"flags": os.environ.get("XLA_FLAGS", ""), "one_function": "xla_cpu_small_call" in hlo,
+                  "devices": jax.device_count(), "warnings": [str(w.message) for w in caught]}}))
 """
 
 
@@ -50,14 +49,10 @@ def _probe(xla_flags: str, *, started: bool = False, keep: bool = False) -> dict
 
 
 def _hlo_of_a_scan_stacking_its_states() -> str:
-    def run(x: jax.Array) -> tuple:
-        return jax.lax.scan(lambda s, u: (jnp.sin(s) + u, (s.sum(), s)), jnp.zeros(64), x)
-
-    return jax.jit(run).lower(jnp.ones(4000)).compile().as_text()
+    return jax.jit(eval(SCAN)).lower(jnp.ones(4000)).compile().as_text()
 
 
 def test_this_process_compiles_a_scan_with_stacked_states_into_one_function():
-    assert fj.simulate is not None  # fricjax is imported (by this module and conftest) before any computation
     assert KEY in os.environ["XLA_FLAGS"]
     assert "xla_cpu_small_call" in _hlo_of_a_scan_stacking_its_states()
 
