@@ -24,7 +24,12 @@ on the first 70 % of DATA_EMPS.mat, chosen on the last 30 %, refitted on the who
 timing, sub-steps, offset drift, and the fit settings compared by two-fold cross-validation over the halves of
 the training file); its test scores are printed for the record only (`"used_for_choice": false`).
 
-Run: `python benchmarks/emps.py [--quick] [--laws CoulombViscous Tustin] [--study | --bgbm | --hybrid [--smoke]]`;
+`--crossfile` asks whether the two records describe the same axis (diagnosis, not a protocol): the mean drive force
+on each constant-velocity plateau of both files, then each law fitted on each file and scored on both
+(`{"kind": "plateau_force" | "crossfile", ...}`, every line `"used_for_choice": false`).
+
+Run: `python benchmarks/emps.py [--quick] [--laws CoulombViscous Tustin] [--study | --bgbm | --crossfile |
+--hybrid [--smoke]]`;
 the data folder is `$FRICJAX_DATA` (default: `../shared/data` beside the repository).
 """
 
@@ -333,6 +338,106 @@ def run_study(train: fj.EMPSRecord, test: fj.EMPSRecord) -> None:
 
 
 # --------------------------------------------------------------------------------------------------------------
+# Do the two records describe the same axis? (diagnosis only: nothing here chooses a model)
+
+PLATEAUS = (0.0825, 0.1247, -0.0825, -0.1247)
+"""The constant velocities [m/s] of the EMPS reference trajectory (both files)."""
+
+
+def plateau_forces(record: fj.EMPSRecord, tolerance: float = 0.003, max_accel: float = 0.05) -> dict[str, Any]:
+    """The mean drive force [N] on each constant-velocity plateau, per quarter of the record.
+
+    On a plateau the acceleration is zero, so the drive force balances the friction (and the offset) at that
+    velocity. Velocity and acceleration from the position low-passed at 20 Hz (4th-order Butterworth,
+    zero-phase); a sample counts when its velocity is within `tolerance` [m/s] of the plateau and
+    `|acceleration| < max_accel` [m/s^2]."""
+    from scipy.signal import butter, filtfilt
+
+    b, a = butter(4, 20.0 * 2 * record.dt)
+    v = np.gradient(filtfilt(b, a, np.asarray(record.qm)), record.dt)
+    accel = np.gradient(v, record.dt)
+    force = np.asarray(record.force)
+    quarter = np.arange(record.length) * 4 // record.length
+    out: dict[str, Any] = {}
+    for level in PLATEAUS:
+        on = (np.abs(v - level) < tolerance) & (np.abs(accel) < max_accel)
+        out[f"{level:+.4f}"] = {
+            "mean_force_N": round(float(force[on].mean()), 3),
+            "samples": int(on.sum()),
+            "per_quarter_N": [round(float(force[on & (quarter == k)].mean()), 3) for k in range(4)],
+        }
+    return out
+
+
+def run_crossfile(train: fj.EMPSRecord, test: fj.EMPSRecord, laws: list[str], steps: int) -> None:
+    """The plateau forces of both records, then each law fitted on each record and scored on both.
+
+    The official protocol fits on `DATA_EMPS.mat` and scores on `DATA_EMPS_PULSES.mat`; fitting on the test file
+    is not a model of this benchmark, only a measure of how far apart the two records are for a model class: a
+    law fitted on one record scored on the other. Every line says `"used_for_choice": false`."""
+    forces = {record.name: plateau_forces(record) for record in (train, test)}
+    for level in forces[train.name]:
+        on_train, on_test = forces[train.name][level], forces[test.name][level]
+        emit(
+            {
+                "kind": "plateau_force",
+                "velocity_m_s": float(level),
+                "train_force_N": on_train["mean_force_N"],
+                "test_force_N": on_test["mean_force_N"],
+                "test_minus_train_N": round(on_test["mean_force_N"] - on_train["mean_force_N"], 3),
+                "train_per_quarter_N": on_train["per_quarter_N"],
+                "test_per_quarter_N": on_test["per_quarter_N"],
+                "samples": [on_train["samples"], on_test["samples"]],
+            }
+        )
+    score = fj.score_emps_open_loop
+    # the test file's friction, read off its plateaus: the train-fitted symmetric Coulomb + viscous model with its
+    # Coulomb force raised by the mean change of the plateau force magnitudes and its offset moved by their mean
+    # signed change (both from the data, no fit)
+    changes = [forces[test.name][k]["mean_force_N"] - forces[train.name][k]["mean_force_N"] for k in forces[train.name]]
+    signs = np.sign([float(k) for k in forces[train.name]])
+    magnitude, offset = float(np.mean(signs * changes)), float(np.mean(changes))
+    base = fj.exact(fj.fit_emps_open_loop(train, fj.CoulombViscous, steps=steps, compute_std=False).plant)
+    p = fj.unwrap(base)
+    shifted_plant = fj.EMPSPlant(
+        p.mass, fj.CoulombViscous(Fc=p.friction.Fc + magnitude, Fv=p.friction.Fv, offset=p.friction.offset + offset)
+    )
+    emit(
+        {
+            "kind": "plateau_shift",
+            "name": "CoulombViscous fitted on DATA_EMPS, Fc and offset moved by the plateau changes",
+            "delta_Fc_N": round(magnitude, 3),
+            "delta_offset_N": round(offset, 3),
+            "train_rmse_mm": round(score(shifted_plant, train), 4),
+            "test_rmse_mm": round(score(shifted_plant, test), 4),
+            "unshifted_train_rmse_mm": round(score(base, train), 4),
+            "unshifted_test_rmse_mm": round(score(base, test), 4),
+            "used_for_choice": False,
+        }
+    )
+    for name in laws:
+        for asymmetric in (False, True):
+            for fit_on in (train, test):
+                t0 = time.perf_counter()
+                fitted = fj.fit_emps_open_loop(
+                    fit_on, LAWS[name], asymmetric=asymmetric, steps=steps, compute_std=False
+                )
+                emit(
+                    {
+                        "kind": "crossfile",
+                        "name": law_name(name, asymmetric),
+                        "fitted_on": fit_on.name,
+                        "train_rmse_mm": round(score(fitted.plant, train), 4),
+                        "test_rmse_mm": round(score(fitted.plant, test), 4),
+                        "params": plant_parameters(fitted.plant),
+                        "result": fitted.result.result,
+                        "fit_s": round(time.perf_counter() - t0, 2),
+                        "used_for_choice": False,
+                    }
+                )
+
+
+# --------------------------------------------------------------------------------------------------------------
 # Grey + black-box hybrids, ensembles, closed loop (training file only for every fit and choice)
 
 HYBRID_VARIANTS = {
@@ -538,6 +643,9 @@ def main() -> None:
     parser.add_argument("--study", action="store_true", help="run the sensitivity study instead (~15 min)")
     parser.add_argument("--hybrid", action="store_true", help="grey + black-box hybrids, ensembles, closed loop")
     parser.add_argument("--bgbm", action="store_true", help="only the laws and their BGBM error models (~6 min)")
+    parser.add_argument(
+        "--crossfile", action="store_true", help="plateau forces of both records; each law fitted on each (~3 min)"
+    )
     parser.add_argument("--hybrid-steps", type=int, default=200, help="Adam steps of each hybrid fit")
     parser.add_argument(
         "--variants", nargs="+", default=["mlp(v,q)/free", "mlp(v,q)/frozen"], choices=list(HYBRID_VARIANTS)
@@ -556,6 +664,8 @@ def main() -> None:
             run_hybrid(train, test, ["CoulombViscous"], 20, 20, ["mlp(v,q)/free", "mlp(v,q)/frozen"], 8, smoke_bgbm)
         else:
             run_hybrid(train, test, args.laws, args.steps, args.hybrid_steps, args.variants, args.width)
+    elif args.crossfile:
+        run_crossfile(train, test, args.laws, args.steps)
     elif args.bgbm:
         run_bgbm(train, test, fit_members(train, test, args.laws, args.steps), BGBM_CONFIGS)
     else:

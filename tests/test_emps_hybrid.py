@@ -240,3 +240,36 @@ def test_benchmark_hybrid_smoke(data_dir):
             assert np.isfinite(line["test_rmse_mm"]) and line["test_rmse_mm"] < 50.0
     closed = [line for line in lines if line["kind"] == "closed_loop"]
     assert all(line["test_position_pct"] < 0.01 for line in closed)
+
+
+@pytest.mark.slow  # about 40 s
+def test_benchmark_crossfile_diagnosis(data_dir):
+    """`emps.py --crossfile`: the test file's plateau forces are higher in magnitude than the training file's in
+    both directions (the measured reason the 3 mm goal is out of reach), a law fitted on either file scores
+    better on it than on the other, and moving the training fit's Coulomb force by the plateau change helps on
+    the test file."""
+    env = {**os.environ, "FRICJAX_DATA": str(data_dir), "PYTHONPATH": str(ROOT / "src")}
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "emps.py"), "--crossfile", "--laws", "CoulombViscous"],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=True,
+        timeout=600,
+    )
+    lines = [json.loads(line) for line in out.stdout.splitlines() if line.startswith("{")]
+    plateaus = [line for line in lines if line["kind"] == "plateau_force"]
+    assert len(plateaus) == 4
+    for line in plateaus:
+        assert line["test_minus_train_N"] * np.sign(line["velocity_m_s"]) > 0.5  # more friction, both directions
+        assert min(line["samples"]) > 1000
+    (shift,) = [line for line in lines if line["kind"] == "plateau_shift"]
+    assert 1.0 < shift["delta_Fc_N"] < 1.6
+    assert shift["test_rmse_mm"] < 0.6 * shift["unshifted_test_rmse_mm"]
+    assert shift["train_rmse_mm"] > shift["unshifted_train_rmse_mm"]
+    crossfile = {(line["name"], line["fitted_on"]): line for line in lines if line["kind"] == "crossfile"}
+    assert len(crossfile) == 4 and not any(line["used_for_choice"] for line in crossfile.values())
+    for name in ("CoulombViscous", "CoulombViscous-asym"):
+        on_train, on_test = crossfile[(name, "DATA_EMPS")], crossfile[(name, "DATA_EMPS_PULSES")]
+        assert on_train["train_rmse_mm"] < on_test["train_rmse_mm"]
+        assert on_test["test_rmse_mm"] < on_train["test_rmse_mm"]

@@ -283,7 +283,8 @@ def _lstsq_numpy(A: np.ndarray, b: np.ndarray, ridge: float, rcond: float, mask:
         z = _filter_solve(*_svd(As * free, rcond, np), b2, ridge, np)
         z[mask, 0] = np.maximum(z[mask, 0], 0.0)
     x = (z / norms[:, None]).reshape((A.shape[1], *b.shape[1:]))
-    cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+    with np.errstate(over="ignore"):  # a singular value near the smallest double: the condition number is inf
+        cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
     return LstsqResult(x=x, residual=b - A @ x, rank=int(keep.sum()), cond=cond)
 
 
