@@ -1,0 +1,175 @@
+#!/usr/bin/env python
+"""Where the Maxwell-slip sweep's time goes: the loop, or the layout of its output (issue 12, vmap target).
+
+`benchmarks/simulate.py` measures `eqx.filter_vmap(fj.simulate)` of Maxwell-slip NLR(7) over 1024 parameter sets
+(4 000 steps) at about 2x a single numba trajectory's throughput, against a target of 3x. This script splits
+that figure, on the same models, record and numba loop, every variant in the same run (round-robin timing):
+
+- `fricjax (B, T)`: `filter_vmap(fj.simulate)`, the forces as vmap returns them, one row per configuration;
+- `fricjax (T, B)`: the same with `out_axes=1` (time-major: the scan's own stacking, no transposition);
+- `fricjax loss`: a mean-squared error per configuration inside the vmap (what a sweep or a fit computes);
+- `hand (T, B)`: a hand-written `lax.scan` of the same equations with the elements and the batch as a
+  `(M, B)` carry (batch-minor: the sum over the elements is a vector add), the forces stacked time-major;
+- `hand (B, T)` by a final transposition, by stacking blocks of K steps transposed in the loop body
+  (`chunked K`), or by writing `(B, K)` blocks into a `(B, T)` buffer with `dynamic_update_slice` (`blocks K`);
+- `numba`: `maxwell_nlr_numba` of simulate.py, one trajectory (the target's reference).
+
+Each line: `ns_per_trajectory_step` (wall time / (B T)) and `ratio_vs_numba` (numba ns per step / that: the
+target is >= 3). `--host-devices N` shards the batch over N XLA host devices (`fj.shard_batch`) as simulate.py
+does. Informational: nothing here is a test.
+
+Run: `python benchmarks/vmap_layout.py [--host-devices 2] [--batch 1024] [--steps 4000]`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import simulate as bench  # isort: skip  (first: it sets XLA_FLAGS for --host-devices before jax starts)
+
+import equinox as eqx  # noqa: E402
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+import fricjax as fj  # noqa: E402
+
+
+def hand_time_major(thresholds: jax.Array, k: jax.Array, offset: jax.Array, dx: jax.Array) -> jax.Array:
+    """NLR Maxwell-slip, exact clip, batch-minor carry: forces (T, B). `thresholds`, `k`: (B, M); `offset`: (B,)."""
+    th, kk = thresholds.T, k.T
+
+    def step(delta: jax.Array, d: jax.Array) -> tuple[jax.Array, jax.Array]:
+        delta = jnp.clip((delta + d) / th, -1.0, 1.0) * th
+        return delta, jnp.sum(kk * delta, axis=0) + offset
+
+    return jax.lax.scan(step, jnp.zeros_like(th), dx)[1]
+
+
+def hand_chunked(thresholds: jax.Array, k: jax.Array, offset: jax.Array, dx: jax.Array, block: int) -> jax.Array:
+    """As `hand_time_major`, K steps per outer iteration, each block transposed to (B, K) in the loop: (B, T)."""
+    th, kk = thresholds.T, k.T
+
+    def step(delta: jax.Array, d: jax.Array) -> tuple[jax.Array, jax.Array]:
+        delta = jnp.clip((delta + d) / th, -1.0, 1.0) * th
+        return delta, jnp.sum(kk * delta, axis=0) + offset
+
+    def outer(delta: jax.Array, d: jax.Array) -> tuple[jax.Array, jax.Array]:
+        delta, forces = jax.lax.scan(step, delta, d)
+        return delta, forces.T
+
+    steps = dx.shape[0]
+    _, out = jax.lax.scan(outer, jnp.zeros_like(th), dx.reshape(steps // block, block))  # (T/K, B, K)
+    return jnp.moveaxis(out, 0, 1).reshape(thresholds.shape[0], steps)
+
+
+def hand_blocks(thresholds: jax.Array, k: jax.Array, offset: jax.Array, dx: jax.Array, block: int) -> jax.Array:
+    """As `hand_chunked`, each (B, K) block written into a (B, T) buffer by `dynamic_update_slice`."""
+    th, kk = thresholds.T, k.T
+
+    def step(delta: jax.Array, d: jax.Array) -> tuple[jax.Array, jax.Array]:
+        delta = jnp.clip((delta + d) / th, -1.0, 1.0) * th
+        return delta, jnp.sum(kk * delta, axis=0) + offset
+
+    steps = dx.shape[0]
+    blocks = dx.reshape(steps // block, block)
+
+    def outer(i: jax.Array, carry: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
+        delta, out = carry
+        delta, forces = jax.lax.scan(step, delta, blocks[i])
+        return delta, jax.lax.dynamic_update_slice(out, forces.T, (0, i * block))
+
+    start = (jnp.zeros_like(th), jnp.zeros((thresholds.shape[0], steps), thresholds.dtype))
+    return jax.lax.fori_loop(0, steps // block, outer, start)[1]
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batch", type=int, default=1024)
+    parser.add_argument("--steps", type=int, default=4000, help="record length of the batch (a multiple of 200)")
+    parser.add_argument("--numba-steps", type=int, default=40_000, help="record length of the numba trajectory")
+    parser.add_argument("--host-devices", type=int, default=1)
+    parser.add_argument("--repeats", type=int, default=41)
+    parser.add_argument("--budget", type=float, default=6.0, help="seconds of timed rounds")
+    cfg = parser.parse_args()
+    if cfg.steps % 200:
+        sys.exit("--steps must be a multiple of 200 (the block sizes)")
+    bench.ENV.update(bench.environment())
+
+    motion = bench.make_motion(cfg.steps)
+    models = eqx.filter_vmap(bench.make_maxwell)(jnp.asarray(bench.batch_parameters("maxwell_nlr7", cfg.batch)))
+    p = fj.unwrap(models)
+    x = jnp.asarray(motion.x)
+    dx = jnp.diff(x, prepend=x[:1])  # the per-step signal fj.simulate derives (dx_0 = 0)
+    arrays = (p.thresholds, p.force_map.k, p.force_map.offset)
+    if cfg.host_devices > 1:
+        models, arrays = fj.shard_batch(models), fj.shard_batch(arrays)
+    target = jnp.zeros(cfg.steps)
+
+    @eqx.filter_jit
+    def fricjax_rows(ms: fj.MaxwellSlip, mo: fj.Motion) -> jax.Array:
+        return eqx.filter_vmap(lambda m: fj.simulate(m, mo))(ms)
+
+    @eqx.filter_jit
+    def fricjax_time_major(ms: fj.MaxwellSlip, mo: fj.Motion) -> jax.Array:
+        return eqx.filter_vmap(lambda m: fj.simulate(m, mo), out_axes=1)(ms)
+
+    @eqx.filter_jit
+    def fricjax_loss(ms: fj.MaxwellSlip, mo: fj.Motion) -> jax.Array:
+        return eqx.filter_vmap(lambda m: jnp.mean((fj.simulate(m, mo) - target) ** 2))(ms)
+
+    hand_tb = jax.jit(hand_time_major)
+    hand_bt = jax.jit(lambda *a: hand_time_major(*a).T)
+    variants = {
+        "fricjax (B, T)": lambda: fricjax_rows(models, motion),
+        "fricjax (T, B)": lambda: fricjax_time_major(models, motion),
+        "fricjax loss": lambda: fricjax_loss(models, motion),
+        "hand (T, B)": lambda: hand_tb(*arrays, dx),
+        "hand (B, T), transposed": lambda: hand_bt(*arrays, dx),
+    }
+    for block in (8, 50):
+        chunked = jax.jit(lambda *a, _k=block: hand_chunked(*a, _k))
+        variants[f"hand (B, T), chunked {block}"] = lambda _f=chunked: _f(*arrays, dx)
+    for block in (50, 200):
+        blocks = jax.jit(lambda *a, _k=block: hand_blocks(*a, _k))
+        variants[f"hand (B, T), blocks {block}"] = lambda _f=blocks: _f(*arrays, dx)
+
+    reference = np.asarray(fricjax_rows(models, motion))
+    for name, fn in variants.items():  # compile, and check every variant computes the same forces
+        out = np.asarray(fn())
+        if name == "fricjax loss":
+            expected = np.mean(reference**2, axis=1)
+        else:
+            expected = reference.T if "(T, B)" in name else reference
+        if not np.allclose(out, expected, rtol=1e-9, atol=1e-12 * np.abs(reference).max()):
+            sys.exit(f"{name}: differs from fj.simulate")
+
+    run_numba = bench.numba_runner(
+        "maxwell_nlr7", bench.make_maxwell(bench.NOMINAL["maxwell_nlr7"][1]), bench.make_motion(cfg.numba_steps)
+    )
+    run_numba()  # compile
+    timing = bench.steady({**variants, "numba": run_numba}, cfg.repeats, cfg.budget)
+    numba_ns = timing["numba"]["median"] / cfg.numba_steps * 1e9
+    for name in variants:
+        ns = timing[name]["median"] / (cfg.batch * cfg.steps) * 1e9
+        bench.emit(
+            {
+                "benchmark": "vmap_layout",
+                "model": "maxwell_nlr7",
+                "variant": name,
+                "ns_per_trajectory_step": round(ns, 3),
+                "ratio_vs_numba": round(numba_ns / ns, 3),
+                "numba_ns_per_step": round(numba_ns, 3),
+                "batch": cfg.batch,
+                "steps": cfg.steps,
+                "host_devices": cfg.host_devices,
+                "repeats": timing[name]["n"],
+                "loadavg_1min": bench.load_average(),
+            }
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
