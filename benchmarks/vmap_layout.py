@@ -8,6 +8,7 @@ that figure, on the same models, record and numba loop, every variant in the sam
 - `fricjax (B, T)`: `filter_vmap(fj.simulate)`, the forces as vmap returns them, one row per configuration;
 - `fricjax (T, B)`: the same with `out_axes=1` (time-major: the scan's own stacking, no transposition);
 - `fricjax loss`: a mean-squared error per configuration inside the vmap (what a sweep or a fit computes);
+  `fricjax loss, time-major`: the same error computed outside the vmap from the time-major forces;
 - `hand (T, B)`: a hand-written `lax.scan` of the same equations with the elements and the batch as a
   `(M, B)` carry (batch-minor: the sum over the elements is a vector add), the forces stacked time-major;
 - `hand (B, T)` by a final transposition, by stacking blocks of K steps transposed in the loop body
@@ -119,12 +120,18 @@ def main() -> int:
     def fricjax_loss(ms: fj.MaxwellSlip, mo: fj.Motion) -> jax.Array:
         return eqx.filter_vmap(lambda m: jnp.mean((fj.simulate(m, mo) - target) ** 2))(ms)
 
+    @eqx.filter_jit
+    def fricjax_loss_time_major(ms: fj.MaxwellSlip, mo: fj.Motion) -> jax.Array:
+        forces = eqx.filter_vmap(lambda m: fj.simulate(m, mo), out_axes=1)(ms)
+        return jnp.mean((forces - target[:, None]) ** 2, axis=0)
+
     hand_tb = jax.jit(hand_time_major)
     hand_bt = jax.jit(lambda *a: hand_time_major(*a).T)
     variants = {
         "fricjax (B, T)": lambda: fricjax_rows(models, motion),
         "fricjax (T, B)": lambda: fricjax_time_major(models, motion),
         "fricjax loss": lambda: fricjax_loss(models, motion),
+        "fricjax loss, time-major": lambda: fricjax_loss_time_major(models, motion),
         "hand (T, B)": lambda: hand_tb(*arrays, dx),
         "hand (B, T), transposed": lambda: hand_bt(*arrays, dx),
     }
@@ -138,7 +145,7 @@ def main() -> int:
     reference = np.asarray(fricjax_rows(models, motion))
     for name, fn in variants.items():  # compile, and check every variant computes the same forces
         out = np.asarray(fn())
-        if name == "fricjax loss":
+        if name.startswith("fricjax loss"):
             expected = np.mean(reference**2, axis=1)
         else:
             expected = reference.T if "(T, B)" in name else reference
