@@ -340,62 +340,34 @@ def run_study(train: fj.EMPSRecord, test: fj.EMPSRecord) -> None:
 # --------------------------------------------------------------------------------------------------------------
 # Do the two records describe the same axis? (diagnosis only: nothing here chooses a model)
 
-PLATEAUS = (0.0825, 0.1247, -0.0825, -0.1247)
-"""The constant velocities [m/s] of the EMPS reference trajectory (both files)."""
-
-
-def plateau_forces(record: fj.EMPSRecord, tolerance: float = 0.003, max_accel: float = 0.05) -> dict[str, Any]:
-    """The mean drive force [N] on each constant-velocity plateau, per quarter of the record.
-
-    On a plateau the acceleration is zero, so the drive force balances the friction (and the offset) at that
-    velocity. Velocity and acceleration from the position low-passed at 20 Hz (4th-order Butterworth,
-    zero-phase); a sample counts when its velocity is within `tolerance` [m/s] of the plateau and
-    `|acceleration| < max_accel` [m/s^2]."""
-    from scipy.signal import butter, filtfilt
-
-    b, a = butter(4, 20.0 * 2 * record.dt)
-    v = np.gradient(filtfilt(b, a, np.asarray(record.qm)), record.dt)
-    accel = np.gradient(v, record.dt)
-    force = np.asarray(record.force)
-    quarter = np.arange(record.length) * 4 // record.length
-    out: dict[str, Any] = {}
-    for level in PLATEAUS:
-        on = (np.abs(v - level) < tolerance) & (np.abs(accel) < max_accel)
-        out[f"{level:+.4f}"] = {
-            "mean_force_N": round(float(force[on].mean()), 3),
-            "samples": int(on.sum()),
-            "per_quarter_N": [round(float(force[on & (quarter == k)].mean()), 3) for k in range(4)],
-        }
-    return out
-
 
 def run_crossfile(train: fj.EMPSRecord, test: fj.EMPSRecord, laws: list[str], steps: int) -> None:
-    """The plateau forces of both records, then each law fitted on each record and scored on both.
+    """The plateau forces of both records (`fj.emps_plateau_forces`: the mean drive force on each constant-velocity
+    plateau, per quarter of the record), then each law fitted on each record and scored on both.
 
     The official protocol fits on `DATA_EMPS.mat` and scores on `DATA_EMPS_PULSES.mat`; fitting on the test file
     is not a model of this benchmark, only a measure of how far apart the two records are for a model class: a
     law fitted on one record scored on the other. Every line says `"used_for_choice": false`."""
-    forces = {record.name: plateau_forces(record) for record in (train, test)}
-    for level in forces[train.name]:
-        on_train, on_test = forces[train.name][level], forces[test.name][level]
+    plateaus = {record.name: fj.emps_plateau_forces(record) for record in (train, test)}
+    for on_train, on_test in zip(plateaus[train.name], plateaus[test.name], strict=True):
         emit(
             {
                 "kind": "plateau_force",
-                "velocity_m_s": float(level),
-                "train_force_N": on_train["mean_force_N"],
-                "test_force_N": on_test["mean_force_N"],
-                "test_minus_train_N": round(on_test["mean_force_N"] - on_train["mean_force_N"], 3),
-                "train_per_quarter_N": on_train["per_quarter_N"],
-                "test_per_quarter_N": on_test["per_quarter_N"],
-                "samples": [on_train["samples"], on_test["samples"]],
+                "velocity_m_s": on_train.velocity,
+                "train_force_N": round(on_train.force, 3),
+                "test_force_N": round(on_test.force, 3),
+                "test_minus_train_N": round(on_test.force - on_train.force, 3),
+                "train_per_quarter_N": [round(f, 3) for f in on_train.force_per_part],
+                "test_per_quarter_N": [round(f, 3) for f in on_test.force_per_part],
+                "samples": [on_train.samples, on_test.samples],
             }
         )
     score = fj.score_emps_open_loop
     # the test file's friction, read off its plateaus: the train-fitted symmetric Coulomb + viscous model with its
     # Coulomb force raised by the mean change of the plateau force magnitudes and its offset moved by their mean
     # signed change (both from the data, no fit)
-    changes = [forces[test.name][k]["mean_force_N"] - forces[train.name][k]["mean_force_N"] for k in forces[train.name]]
-    signs = np.sign([float(k) for k in forces[train.name]])
+    changes = [b.force - a.force for a, b in zip(plateaus[train.name], plateaus[test.name], strict=True)]
+    signs = np.sign([a.velocity for a in plateaus[train.name]])
     magnitude, offset = float(np.mean(signs * changes)), float(np.mean(changes))
     base = fj.exact(fj.fit_emps_open_loop(train, fj.CoulombViscous, steps=steps, compute_std=False).plant)
     p = fj.unwrap(base)

@@ -19,6 +19,7 @@ from fricjax import (
     EMPSIDMData,
     EMPSIDMResult,
     EMPSPlant,
+    EMPSRecord,
     EMPSSimulation,
     Smooth,
     Threlfall,
@@ -26,6 +27,7 @@ from fricjax import (
     butter_filtfilt,
     emps_idm_data,
     emps_open_loop_rmse_mm,
+    emps_plateau_forces,
     fit_emps_idm,
     load_emps,
     simulate_closed_loop,
@@ -333,3 +335,67 @@ def test_plant_and_simulator_errors():
         emps_open_loop_rmse_mm(np.zeros(20), np.zeros(20))
     assert float(emps_open_loop_rmse_mm(np.zeros(25), np.full(25, 2e-3))) == pytest.approx(2.0)
     assert math.isclose(float(plant.resisting_force(0.1)), 40.0)
+
+
+# --- friction read off the constant-velocity plateaus -------------------------------------------------------------
+
+
+def plateau_record(M=95.0, Fc=20.0, Fv=200.0, offset=-3.0):
+    """A record moving at +0.1 m/s, then -0.05 m/s (smooth transitions), whose force is the exact inverse
+    dynamics `M q'' + Fc sign(q') + Fv q' + offset`."""
+    dt, t = 1e-3, np.arange(8000) * 1e-3
+    step = lambda t0: 0.5 * (1 + np.tanh((t - t0) / 0.05))  # noqa: E731
+    v = 0.1 * step(0.5) - 0.15 * step(3.5) + 0.05 * step(6.5)
+    q = np.cumsum(v) * dt
+    a = np.gradient(v, dt)
+    force = M * a + Fc * np.sign(v) + Fv * v + offset
+    return EMPSRecord(
+        t=t,
+        qm=q,
+        qg=q,
+        vir=force / 35.0,
+        force=force,
+        pulses=None,
+        gtau=35.0,
+        kp=160.18,
+        kv=243.45,
+        dt=dt,
+        name="plateaus",
+    )
+
+
+def test_plateau_forces_are_the_friction_characteristic():
+    record = plateau_record()
+    plateaus = emps_plateau_forces(record, (0.1, -0.05), parts=2)
+    assert [p.velocity for p in plateaus] == [0.1, -0.05]
+    # friction + offset at the plateau velocity: 20 + 20 - 3 and -20 - 10 - 3
+    np.testing.assert_allclose([p.force for p in plateaus], [37.0, -33.0], rtol=2e-4)
+    assert all(p.samples > 2000 for p in plateaus)
+    # per part: the +0.1 plateau lies in the first half of the record, the -0.05 one in both
+    assert np.isfinite(plateaus[0].force_per_part[0]) and np.isnan(plateaus[0].force_per_part[1])
+    # each part's mean, the plateau's edges (where M q'' is up to M * max_accel) weigh more in a short part
+    np.testing.assert_allclose(plateaus[1].force_per_part, [-33.0, -33.0], atol=95.0 * 0.05)
+    strict = emps_plateau_forces(record, (-0.05,), max_accel=1e-3, parts=2)[0]
+    np.testing.assert_allclose(strict.force_per_part, [-33.0, -33.0], atol=95.0 * 1e-3)
+
+
+def test_plateau_forces_errors():
+    record = plateau_record()
+    with pytest.raises(ValueError, match="wider `tolerance`"):
+        emps_plateau_forces(record, (0.3,))
+    with pytest.raises(ValueError, match="tolerance"):
+        emps_plateau_forces(record, tolerance=0.0)
+    with pytest.raises(ValueError, match="parts"):
+        emps_plateau_forces(record, parts=0)
+    with pytest.raises(TypeError, match="EMPSRecord"):
+        emps_plateau_forces(np.zeros(10))  # type: ignore[arg-type]
+
+
+def test_plateau_forces_of_the_two_benchmark_files(train, test_record):
+    """The documented figures (benchmarks/README.md): the test file needs 0.9-1.6 N more drive force in magnitude
+    on every plateau of the common trajectory."""
+    on_train, on_test = emps_plateau_forces(train), emps_plateau_forces(test_record)
+    np.testing.assert_allclose([p.force for p in on_train], [34.308, 40.700, -40.261, -50.570], atol=2e-3)
+    np.testing.assert_allclose([p.force for p in on_test], [35.203, 41.990, -41.866, -51.971], atol=2e-3)
+    for a, b in zip(on_train, on_test, strict=True):
+        assert 0.85 < (b.force - a.force) * np.sign(a.velocity) < 1.65

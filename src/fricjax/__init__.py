@@ -161,9 +161,12 @@ from ._protocols._emps_hybrid import emps_closed_loop_errors as emps_closed_loop
 from ._protocols._emps_hybrid import emps_hybrid_start as emps_hybrid_start
 from ._protocols._emps_hybrid import fit_emps_ensemble as fit_emps_ensemble
 from ._protocols._emps_hybrid import fit_emps_hybrid as fit_emps_hybrid
+from ._protocols._emps_idm import EMPS_PLATEAU_VELOCITIES as EMPS_PLATEAU_VELOCITIES
 from ._protocols._emps_idm import EMPSIDMData as EMPSIDMData
 from ._protocols._emps_idm import EMPSIDMResult as EMPSIDMResult
+from ._protocols._emps_idm import EMPSPlateau as EMPSPlateau
 from ._protocols._emps_idm import emps_idm_data as emps_idm_data
+from ._protocols._emps_idm import emps_plateau_forces as emps_plateau_forces
 from ._protocols._emps_idm import fit_emps_idm as fit_emps_idm
 from ._protocols._emps_open_loop import EMPSOpenLoopFit as EMPSOpenLoopFit
 from ._protocols._emps_open_loop import EMPSOpenLoopLoss as EMPSOpenLoopLoss

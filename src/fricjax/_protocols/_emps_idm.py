@@ -12,14 +12,15 @@ emps-ensemble paper (Coulomb + viscous, Threlfall, Tustin, Bo-Pavelescu; symmetr
 linear in their parameters by ordinary least squares exactly as IDIM-LS (reproducing the published estimates,
 standard deviations, condition number and relative errors to every printed digit), the others by separable
 least squares (linear coefficients solved exactly for each value of the nonlinear ones, which are found by a
-bounded global-then-local search).
+bounded global-then-local search). `emps_plateau_forces` reads the friction characteristic off a record's
+constant-velocity plateaus, with no model.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import numpy as np
@@ -114,6 +115,93 @@ def emps_idm_data(
         decimation=decimation,
         name=record.name,
     )
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Friction read off the constant-velocity plateaus (no model)
+
+EMPS_PLATEAU_VELOCITIES = (0.0825, 0.1247, -0.0825, -0.1247)
+"""The constant velocities [m/s] of the EMPS reference trajectory (both benchmark files)."""
+
+
+class EMPSPlateau(NamedTuple):
+    """The drive force on one constant-velocity plateau of an EMPS record.
+
+    `velocity` [m/s]; `force` the mean drive force `gtau * vir` [N] over the plateau's samples (with zero
+    acceleration it balances the friction plus the offset at that velocity); `samples` how many; `force_per_part`
+    the mean in each of `parts` equal stretches of the record (NaN where a stretch has none of its samples).
+    """
+
+    velocity: float
+    force: float
+    samples: int
+    force_per_part: tuple[float, ...]
+
+
+def emps_plateau_forces(
+    record: EMPSRecord,
+    velocities: Sequence[float] = EMPS_PLATEAU_VELOCITIES,
+    *,
+    tolerance: float = 3e-3,
+    max_accel: float = 0.05,
+    cutoff_hz: float = 20.0,
+    parts: int = 4,
+) -> list[EMPSPlateau]:
+    """The friction force at the trajectory's constant velocities, measured without a model.
+
+    On a plateau of constant velocity the acceleration is zero, so the drive force balances the friction (and the
+    offset): the mean of `record.force` over the plateau is the friction characteristic at that velocity, as a
+    Stribeck-curve experiment measures it. The velocity and acceleration are central differences of the position
+    low-passed at `cutoff_hz` (4th-order Butterworth, zero phase, `butter_filtfilt`); a sample belongs to the
+    plateau of velocity `v` when its velocity is within `tolerance` [m/s] of `v` and its acceleration below
+    `max_accel` [m/s^2] in magnitude. Comparing two records' plateaus tells whether they hold the same friction
+    (on EMPS they do not: benchmarks/README.md, "why 3 mm on the test file is out of reach").
+
+    **Arguments:** `record` an `EMPSRecord`; `velocities` [m/s] (default: the EMPS trajectory's four);
+    `tolerance` [m/s] and `max_accel` [m/s^2] (> 0); `cutoff_hz` [Hz] (> 0, below the Nyquist frequency);
+    `parts` (integer >= 1) stretches of the record for the drift over time.
+
+    **Returns:** one `EMPSPlateau` per velocity, in the given order.
+
+    **Raises:** `ValueError` when a velocity has no sample on the record (name, and the fix: another velocity or a
+    wider `tolerance`).
+
+    ```python
+    >>> import fricjax as fj
+    >>> train = fj.load_emps("../shared/data/emps/DATA_EMPS.mat")  # doctest: +SKIP
+    >>> [round(p.force, 2) for p in fj.emps_plateau_forces(train)]  # doctest: +SKIP
+    [34.31, 40.7, -40.26, -50.57]
+    ```
+    """
+    if not isinstance(record, EMPSRecord):
+        raise TypeError(f"`record` must be an EMPSRecord (from load_emps), got {type(record).__name__}.")
+    parts = _positive_int(parts, "parts")
+    for name, value in (("tolerance", tolerance), ("max_accel", max_accel), ("cutoff_hz", cutoff_hz)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not 0 < value < np.inf:
+            raise ValueError(f"`{name}` must be a positive number, got {value!r}.")
+    levels = [float(v) for v in np.atleast_1d(np.asarray(velocities, dtype=np.float64))]
+    if not levels or not all(np.isfinite(levels)):
+        raise ValueError(f"`velocities` must be finite plateau velocities in m/s, got {velocities!r}.")
+    q = butter_filtfilt(record.qm, record.dt, cutoff_hz, 4)
+    qd = central_difference(q, record.dt)
+    qdd = central_difference(qd, record.dt)
+    force = np.asarray(record.force, dtype=np.float64)
+    part = np.arange(record.length) * parts // record.length
+    out = []
+    for level in levels:
+        on = (np.abs(qd - level) < tolerance) & (np.abs(qdd) < max_accel)
+        if not on.any():
+            raise ValueError(
+                f"emps_plateau_forces: no sample of {record.name} moves at {level} m/s (within {tolerance} m/s, "
+                f"|acceleration| < {max_accel} m/s^2); give the record's plateau velocities or a wider `tolerance`."
+            )
+        per_part = tuple(
+            float(force[on & (part == k)].mean()) if (on & (part == k)).any() else np.nan for k in range(parts)
+        )
+        out.append(
+            EMPSPlateau(velocity=level, force=float(force[on].mean()), samples=int(on.sum()), force_per_part=per_part)
+        )
+    return out
 
 
 # ---------------------------------------------------------------------------------------------------------------
