@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
+from typing import Any
 
 import simulate as bench  # isort: skip  (first: it sets XLA_FLAGS for --host-devices before jax starts)
 
@@ -37,24 +39,27 @@ import numpy as np  # noqa: E402
 import fricjax as fj  # noqa: E402
 
 
-def hand_time_major(thresholds: jax.Array, k: jax.Array, offset: jax.Array, dx: jax.Array) -> jax.Array:
-    """NLR Maxwell-slip, exact clip, batch-minor carry: forces (T, B). `thresholds`, `k`: (B, M); `offset`: (B,)."""
-    th, kk = thresholds.T, k.T
+def element_step(th: jax.Array, kk: jax.Array, offset: jax.Array) -> Callable[[jax.Array, jax.Array], Any]:
+    """The NLR Maxwell-slip step (exact clip) on a batch-minor carry: `th`, `kk` (M, B), `offset` (B,)."""
 
     def step(delta: jax.Array, d: jax.Array) -> tuple[jax.Array, jax.Array]:
         delta = jnp.clip((delta + d) / th, -1.0, 1.0) * th
         return delta, jnp.sum(kk * delta, axis=0) + offset
 
-    return jax.lax.scan(step, jnp.zeros_like(th), dx)[1]
+    return step
+
+
+def hand_time_major(thresholds: jax.Array, k: jax.Array, offset: jax.Array, dx: jax.Array) -> jax.Array:
+    """The forces (T, B) of a batch: `thresholds`, `k` (B, M), `offset` (B,), the elements and the batch carried as
+    (M, B) (batch-minor: the sum over the elements is a vector add), the outputs stacked time-major."""
+    th = thresholds.T
+    return jax.lax.scan(element_step(th, k.T, offset), jnp.zeros_like(th), dx)[1]
 
 
 def hand_chunked(thresholds: jax.Array, k: jax.Array, offset: jax.Array, dx: jax.Array, block: int) -> jax.Array:
     """As `hand_time_major`, K steps per outer iteration, each block transposed to (B, K) in the loop: (B, T)."""
-    th, kk = thresholds.T, k.T
-
-    def step(delta: jax.Array, d: jax.Array) -> tuple[jax.Array, jax.Array]:
-        delta = jnp.clip((delta + d) / th, -1.0, 1.0) * th
-        return delta, jnp.sum(kk * delta, axis=0) + offset
+    th = thresholds.T
+    step = element_step(th, k.T, offset)
 
     def outer(delta: jax.Array, d: jax.Array) -> tuple[jax.Array, jax.Array]:
         delta, forces = jax.lax.scan(step, delta, d)
@@ -67,12 +72,8 @@ def hand_chunked(thresholds: jax.Array, k: jax.Array, offset: jax.Array, dx: jax
 
 def hand_blocks(thresholds: jax.Array, k: jax.Array, offset: jax.Array, dx: jax.Array, block: int) -> jax.Array:
     """As `hand_chunked`, each (B, K) block written into a (B, T) buffer by `dynamic_update_slice`."""
-    th, kk = thresholds.T, k.T
-
-    def step(delta: jax.Array, d: jax.Array) -> tuple[jax.Array, jax.Array]:
-        delta = jnp.clip((delta + d) / th, -1.0, 1.0) * th
-        return delta, jnp.sum(kk * delta, axis=0) + offset
-
+    th = thresholds.T
+    step = element_step(th, k.T, offset)
     steps = dx.shape[0]
     blocks = dx.reshape(steps // block, block)
 
@@ -106,32 +107,24 @@ def main() -> int:
     arrays = (p.thresholds, p.force_map.k, p.force_map.offset)
     if cfg.host_devices > 1:
         models, arrays = fj.shard_batch(models), fj.shard_batch(arrays)
-    target = jnp.zeros(cfg.steps)
+    target = jnp.asarray(np.random.default_rng(1).normal(0.0, 0.1, cfg.steps))  # a measured force [N], say
 
     @eqx.filter_jit
-    def fricjax_rows(ms: fj.MaxwellSlip, mo: fj.Motion) -> jax.Array:
-        return eqx.filter_vmap(lambda m: fj.simulate(m, mo))(ms)
+    def fricjax_loss(ms: fj.MaxwellSlip, mo: fj.Motion, y: jax.Array) -> jax.Array:
+        return eqx.filter_vmap(lambda m: jnp.mean((fj.simulate(m, mo) - y) ** 2))(ms)
 
     @eqx.filter_jit
-    def fricjax_time_major(ms: fj.MaxwellSlip, mo: fj.Motion) -> jax.Array:
-        return eqx.filter_vmap(lambda m: fj.simulate(m, mo), out_axes=1)(ms)
-
-    @eqx.filter_jit
-    def fricjax_loss(ms: fj.MaxwellSlip, mo: fj.Motion) -> jax.Array:
-        return eqx.filter_vmap(lambda m: jnp.mean((fj.simulate(m, mo) - target) ** 2))(ms)
-
-    @eqx.filter_jit
-    def fricjax_loss_time_major(ms: fj.MaxwellSlip, mo: fj.Motion) -> jax.Array:
-        forces = eqx.filter_vmap(lambda m: fj.simulate(m, mo), out_axes=1)(ms)
-        return jnp.mean((forces - target[:, None]) ** 2, axis=0)
+    def fricjax_loss_time_major(ms: fj.MaxwellSlip, mo: fj.Motion, y: jax.Array) -> jax.Array:
+        forces = bench.vmap_simulate(ms, mo, time_major=True)
+        return jnp.mean((forces - y[:, None]) ** 2, axis=0)
 
     hand_tb = jax.jit(hand_time_major)
     hand_bt = jax.jit(lambda *a: hand_time_major(*a).T)
     variants = {
-        "fricjax (B, T)": lambda: fricjax_rows(models, motion),
-        "fricjax (T, B)": lambda: fricjax_time_major(models, motion),
-        "fricjax loss": lambda: fricjax_loss(models, motion),
-        "fricjax loss, time-major": lambda: fricjax_loss_time_major(models, motion),
+        "fricjax (B, T)": lambda: bench.vmap_simulate(models, motion),
+        "fricjax (T, B)": lambda: bench.vmap_simulate(models, motion, time_major=True),
+        "fricjax loss": lambda: fricjax_loss(models, motion, target),
+        "fricjax loss, time-major": lambda: fricjax_loss_time_major(models, motion, target),
         "hand (T, B)": lambda: hand_tb(*arrays, dx),
         "hand (B, T), transposed": lambda: hand_bt(*arrays, dx),
     }
@@ -142,11 +135,11 @@ def main() -> int:
         blocks = jax.jit(lambda *a, _k=block: hand_blocks(*a, _k))
         variants[f"hand (B, T), blocks {block}"] = lambda _f=blocks: _f(*arrays, dx)
 
-    reference = np.asarray(fricjax_rows(models, motion))
+    reference = np.asarray(bench.vmap_simulate(models, motion))
     for name, fn in variants.items():  # compile, and check every variant computes the same forces
         out = np.asarray(fn())
         if name.startswith("fricjax loss"):
-            expected = np.mean(reference**2, axis=1)
+            expected = np.mean((reference - np.asarray(target)) ** 2, axis=1)
         else:
             expected = reference.T if "(T, B)" in name else reference
         if not np.allclose(out, expected, rtol=1e-9, atol=1e-12 * np.abs(reference).max()):

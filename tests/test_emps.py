@@ -371,24 +371,39 @@ def test_plateau_forces_are_the_friction_characteristic():
     # friction + offset at the plateau velocity: 20 + 20 - 3 and -20 - 10 - 3
     np.testing.assert_allclose([p.force for p in plateaus], [37.0, -33.0], rtol=2e-4)
     assert all(p.samples > 2000 for p in plateaus)
-    # per part: the +0.1 plateau lies in the first half of the record, the -0.05 one in both
+    # per part: the +0.1 plateau lies in the first half of the record, the -0.05 one in both; a stricter
+    # acceleration bound keeps each part's mean close though the plateau's edges weigh more in a short part
     assert np.isfinite(plateaus[0].force_per_part[0]) and np.isnan(plateaus[0].force_per_part[1])
-    # each part's mean, the plateau's edges (where M q'' is up to M * max_accel) weigh more in a short part
-    np.testing.assert_allclose(plateaus[1].force_per_part, [-33.0, -33.0], atol=95.0 * 0.05)
     strict = emps_plateau_forces(record, (-0.05,), max_accel=1e-3, parts=2)[0]
     np.testing.assert_allclose(strict.force_per_part, [-33.0, -33.0], atol=95.0 * 1e-3)
+    # `where` restricts the samples: only the second half of the record
+    late = np.arange(record.length) >= record.length // 2
+    masked = emps_plateau_forces(record, (-0.05,), max_accel=1e-3, where=late, parts=2)[0]
+    assert masked.samples < strict.samples and np.isnan(masked.force_per_part[0])
+    assert masked.force == pytest.approx(-33.0, abs=95.0 * 1e-3)
 
 
 def test_plateau_forces_errors():
     record = plateau_record()
-    with pytest.raises(ValueError, match="wider `tolerance`"):
+    with pytest.raises(ValueError, match="wider `tolerance` or a larger `max_accel`"):
         emps_plateau_forces(record, (0.3,))
-    with pytest.raises(ValueError, match="tolerance"):
+    with pytest.raises(ValueError, match="`tolerance` must be a positive"):
         emps_plateau_forces(record, tolerance=0.0)
-    with pytest.raises(ValueError, match="parts"):
+    with pytest.raises(ValueError, match="`max_accel` must be a positive"):
+        emps_plateau_forces(record, max_accel=-1.0)
+    with pytest.raises(TypeError, match="`cutoff_hz` must be a number"):
+        emps_plateau_forces(record, cutoff_hz=None)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="`velocities` must be finite"):
+        emps_plateau_forces(record, (0.1, np.nan))
+    with pytest.raises(ValueError, match="`parts` must be >= 1"):
         emps_plateau_forces(record, parts=0)
+    with pytest.raises(ValueError, match="`where` must be a boolean mask"):
+        emps_plateau_forces(record, where=np.ones(10, dtype=bool))
     with pytest.raises(TypeError, match="EMPSRecord"):
         emps_plateau_forces(np.zeros(10))  # type: ignore[arg-type]
+    broken = eqx.tree_at(lambda r: r.force, record, np.where(np.arange(record.length) == 5, np.nan, record.force))
+    with pytest.raises(ValueError, match="`record.force`"):
+        emps_plateau_forces(broken)
 
 
 def test_plateau_forces_of_the_two_benchmark_files(train, test_record):

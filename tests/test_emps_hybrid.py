@@ -242,7 +242,7 @@ def test_benchmark_hybrid_smoke(data_dir):
     assert all(line["test_position_pct"] < 0.01 for line in closed)
 
 
-@pytest.mark.slow  # about 40 s
+@pytest.mark.slow  # about 25 s
 def test_benchmark_crossfile_diagnosis(data_dir):
     """`emps.py --crossfile`: the test file's plateau forces are higher in magnitude than the training file's in
     both directions (the measured reason the 3 mm goal is out of reach), a law fitted on either file scores
@@ -263,6 +263,8 @@ def test_benchmark_crossfile_diagnosis(data_dir):
     for line in plateaus:
         assert line["test_minus_train_N"] * np.sign(line["velocity_m_s"]) > 0.5  # more friction, both directions
         assert min(line["samples"]) > 1000
+        assert line["test_pulse_off_minus_train_N"] * np.sign(line["velocity_m_s"]) > 0.5  # not the pulses'
+        assert line["test_pulse_off_samples"] > 300
     (shift,) = [line for line in lines if line["kind"] == "plateau_shift"]
     assert 1.0 < shift["delta_Fc_N"] < 1.6
     assert shift["test_rmse_mm"] < 0.6 * shift["unshifted_test_rmse_mm"]

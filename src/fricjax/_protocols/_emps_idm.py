@@ -25,9 +25,10 @@ from typing import Any, NamedTuple
 import equinox as eqx
 import numpy as np
 import scipy.optimize
+from numpy.typing import ArrayLike
 
 from .._data._emps import EMPSRecord
-from .._data._preprocessing import _positive_int, butter_filtfilt, central_difference, decimate
+from .._data._preprocessing import _positive_int, _positive_scalar, butter_filtfilt, central_difference, decimate
 from .._estimation._linear import LstsqResult, covariance, lstsq
 from .._models.physics._static import AbstractStaticFriction, BoPavelescu, Coulomb, CoulombViscous, Threlfall, Tustin
 from .._smoothing import AbstractSmoothing, Exact
@@ -146,6 +147,7 @@ def emps_plateau_forces(
     max_accel: float = 0.05,
     cutoff_hz: float = 20.0,
     parts: int = 4,
+    where: ArrayLike | None = None,
 ) -> list[EMPSPlateau]:
     """The friction force at the trajectory's constant velocities, measured without a model.
 
@@ -154,17 +156,19 @@ def emps_plateau_forces(
     Stribeck-curve experiment measures it. The velocity and acceleration are central differences of the position
     low-passed at `cutoff_hz` (4th-order Butterworth, zero phase, `butter_filtfilt`); a sample belongs to the
     plateau of velocity `v` when its velocity is within `tolerance` [m/s] of `v` and its acceleration below
-    `max_accel` [m/s^2] in magnitude. Comparing two records' plateaus tells whether they hold the same friction
-    (on EMPS they do not: benchmarks/README.md, "why 3 mm on the test file is out of reach").
+    `max_accel` [m/s^2] in magnitude (and `where` allows it). Comparing two records' plateaus tells whether they
+    hold the same friction (on EMPS they do not: benchmarks/README.md, "EMPS: the two records' friction").
 
     **Arguments:** `record` an `EMPSRecord`; `velocities` [m/s] (default: the EMPS trajectory's four);
     `tolerance` [m/s] and `max_accel` [m/s^2] (> 0); `cutoff_hz` [Hz] (> 0, below the Nyquist frequency);
-    `parts` (integer >= 1) stretches of the record for the drift over time.
+    `parts` (integer >= 1) stretches of the record for the drift over time; `where` an optional boolean mask of
+    shape `(T,)`, the samples that may count (e.g. away from the PULSES file's pulses).
 
     **Returns:** one `EMPSPlateau` per velocity, in the given order.
 
-    **Raises:** `ValueError` when a velocity has no sample on the record (name, and the fix: another velocity or a
-    wider `tolerance`).
+    **Raises:** `TypeError` for a record that is not an `EMPSRecord` or a non-numeric setting; `ValueError` for a
+    non-positive setting, non-finite signals or velocities, a mask of the wrong shape, or a velocity with no
+    sample on the record (name, and the fix: another velocity, a wider `tolerance` or a larger `max_accel`).
 
     ```python
     >>> import fricjax as fj
@@ -176,24 +180,36 @@ def emps_plateau_forces(
     if not isinstance(record, EMPSRecord):
         raise TypeError(f"`record` must be an EMPSRecord (from load_emps), got {type(record).__name__}.")
     parts = _positive_int(parts, "parts")
-    for name, value in (("tolerance", tolerance), ("max_accel", max_accel), ("cutoff_hz", cutoff_hz)):
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not 0 < value < np.inf:
-            raise ValueError(f"`{name}` must be a positive number, got {value!r}.")
-    levels = [float(v) for v in np.atleast_1d(np.asarray(velocities, dtype=np.float64))]
-    if not levels or not all(np.isfinite(levels)):
+    tolerance = _positive_scalar(tolerance, "tolerance", "m/s")
+    max_accel = _positive_scalar(max_accel, "max_accel", "m/s^2")
+    cutoff_hz = _positive_scalar(cutoff_hz, "cutoff_hz", "Hz")
+    levels = np.atleast_1d(np.asarray(velocities, dtype=np.float64))
+    if levels.ndim != 1 or levels.size == 0 or not np.all(np.isfinite(levels)):
         raise ValueError(f"`velocities` must be finite plateau velocities in m/s, got {velocities!r}.")
+    for name in ("qm", "force"):
+        if not np.all(np.isfinite(np.asarray(getattr(record, name)))):
+            raise ValueError(f"emps_plateau_forces: `record.{name}` of {record.name} contains NaN or inf.")
+    allowed = np.ones(record.length, dtype=bool)
+    if where is not None:
+        allowed = np.asarray(where)
+        if allowed.dtype != bool or allowed.shape != (record.length,):
+            raise ValueError(
+                f"`where` must be a boolean mask of shape ({record.length},), one entry per sample of {record.name}; "
+                f"got dtype {allowed.dtype}, shape {allowed.shape}."
+            )
     q = butter_filtfilt(record.qm, record.dt, cutoff_hz, 4)
     qd = central_difference(q, record.dt)
     qdd = central_difference(qd, record.dt)
     force = np.asarray(record.force, dtype=np.float64)
     part = np.arange(record.length) * parts // record.length
     out = []
-    for level in levels:
-        on = (np.abs(qd - level) < tolerance) & (np.abs(qdd) < max_accel)
+    for level in (float(v) for v in levels):
+        on = allowed & (np.abs(qd - level) < tolerance) & (np.abs(qdd) < max_accel)
         if not on.any():
             raise ValueError(
                 f"emps_plateau_forces: no sample of {record.name} moves at {level} m/s (within {tolerance} m/s, "
-                f"|acceleration| < {max_accel} m/s^2); give the record's plateau velocities or a wider `tolerance`."
+                f"|acceleration| < {max_accel} m/s^2); give the record's plateau velocities, a wider `tolerance` "
+                "or a larger `max_accel`."
             )
         per_part = tuple(
             float(force[on & (part == k)].mean()) if (on & (part == k)).any() else np.nan for k in range(parts)
