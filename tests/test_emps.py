@@ -397,8 +397,12 @@ def test_plateau_forces_errors():
         emps_plateau_forces(record, (0.1, np.nan))
     with pytest.raises(ValueError, match="`parts` must be >= 1"):
         emps_plateau_forces(record, parts=0)
-    with pytest.raises(ValueError, match="`where` must be a boolean mask"):
+    with pytest.raises(ValueError, match="`where` must be a boolean mask of shape"):
         emps_plateau_forces(record, where=np.ones(10, dtype=bool))
+    with pytest.raises(TypeError, match="`where` must be a boolean mask"):
+        emps_plateau_forces(record, where=np.ones(record.length, dtype=int))
+    with pytest.raises(TypeError, match="`velocities` must be plateau velocities"):
+        emps_plateau_forces(record, ("fast",))  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="EMPSRecord"):
         emps_plateau_forces(np.zeros(10))  # type: ignore[arg-type]
     broken = eqx.tree_at(lambda r: r.force, record, np.where(np.arange(record.length) == 5, np.nan, record.force))

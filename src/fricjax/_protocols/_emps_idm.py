@@ -166,7 +166,8 @@ def emps_plateau_forces(
 
     **Returns:** one `EMPSPlateau` per velocity, in the given order.
 
-    **Raises:** `TypeError` for a record that is not an `EMPSRecord` or a non-numeric setting; `ValueError` for a
+    **Raises:** `TypeError` for a record that is not an `EMPSRecord`, a non-numeric setting or velocity, or a
+    non-boolean `where`; `ValueError` for a
     non-positive setting, non-finite signals or velocities, a mask of the wrong shape, or a velocity with no
     sample on the record (name, and the fix: another velocity, a wider `tolerance` or a larger `max_accel`).
 
@@ -183,7 +184,10 @@ def emps_plateau_forces(
     tolerance = _positive_scalar(tolerance, "tolerance", "m/s")
     max_accel = _positive_scalar(max_accel, "max_accel", "m/s^2")
     cutoff_hz = _positive_scalar(cutoff_hz, "cutoff_hz", "Hz")
-    levels = np.atleast_1d(np.asarray(velocities, dtype=np.float64))
+    try:
+        levels = np.atleast_1d(np.asarray(velocities, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise TypeError(f"`velocities` must be plateau velocities in m/s (numbers), got {velocities!r}.") from None
     if levels.ndim != 1 or levels.size == 0 or not np.all(np.isfinite(levels)):
         raise ValueError(f"`velocities` must be finite plateau velocities in m/s, got {velocities!r}.")
     for name in ("qm", "force"):
@@ -192,10 +196,12 @@ def emps_plateau_forces(
     allowed = np.ones(record.length, dtype=bool)
     if where is not None:
         allowed = np.asarray(where)
-        if allowed.dtype != bool or allowed.shape != (record.length,):
+        if allowed.dtype != bool:
+            raise TypeError(f"`where` must be a boolean mask (e.g. `pulses == 0`), got dtype {allowed.dtype}.")
+        if allowed.shape != (record.length,):
             raise ValueError(
                 f"`where` must be a boolean mask of shape ({record.length},), one entry per sample of {record.name}; "
-                f"got dtype {allowed.dtype}, shape {allowed.shape}."
+                f"got shape {allowed.shape}."
             )
     q = butter_filtfilt(record.qm, record.dt, cutoff_hz, 4)
     qd = central_difference(q, record.dt)
