@@ -220,18 +220,23 @@ def test_ensembles_of_positions_fit_on_training_data_only(record):
 # --- the benchmark part (real data) -------------------------------------------------------------------------------
 
 
-@pytest.mark.slow  # about 75 s
-def test_benchmark_hybrid_smoke(data_dir):
+def run_emps_benchmark(data_dir, *args: str) -> list[dict]:
+    """`benchmarks/emps.py ARGS` in a subprocess on the real data: its JSON lines."""
     env = {**os.environ, "FRICJAX_DATA": str(data_dir), "PYTHONPATH": str(ROOT / "src")}
     out = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "emps.py"), "--hybrid", "--smoke"],
+        [sys.executable, str(ROOT / "benchmarks" / "emps.py"), *args],
         capture_output=True,
         text=True,
         env=env,
         check=True,
         timeout=600,
     )
-    lines = [json.loads(line) for line in out.stdout.splitlines() if line.startswith("{")]
+    return [json.loads(line) for line in out.stdout.splitlines() if line.startswith("{")]
+
+
+@pytest.mark.slow  # about 75 s
+def test_benchmark_hybrid_smoke(data_dir):
+    lines = run_emps_benchmark(data_dir, "--hybrid", "--smoke")
     kinds = {line["kind"] for line in lines}
     assert {"member", "bgbm", "bgbm_choice", "hybrid", "ensemble", "closed_loop", "total"} <= kinds
     for line in lines:
@@ -248,16 +253,7 @@ def test_benchmark_crossfile_diagnosis(data_dir):
     both directions (the change of friction that keeps training-file fits from 3 mm), a law fitted on either file scores
     better on it than on the other, and moving the training fit's Coulomb force by the plateau change helps on
     the test file."""
-    env = {**os.environ, "FRICJAX_DATA": str(data_dir), "PYTHONPATH": str(ROOT / "src")}
-    out = subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "emps.py"), "--crossfile", "--laws", "CoulombViscous"],
-        capture_output=True,
-        text=True,
-        env=env,
-        check=True,
-        timeout=600,
-    )
-    lines = [json.loads(line) for line in out.stdout.splitlines() if line.startswith("{")]
+    lines = run_emps_benchmark(data_dir, "--crossfile", "--laws", "CoulombViscous")
     plateaus = [line for line in lines if line["kind"] == "plateau_force"]
     assert len(plateaus) == 4
     for line in plateaus:

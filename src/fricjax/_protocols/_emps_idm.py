@@ -207,7 +207,7 @@ def emps_plateau_forces(
     qd = central_difference(q, record.dt)
     qdd = central_difference(qd, record.dt)
     force = np.asarray(record.force, dtype=np.float64)
-    part = np.arange(record.length) * parts // record.length
+    in_part = [np.arange(record.length) * parts // record.length == k for k in range(parts)]
     out = []
     for level in (float(v) for v in levels):
         on = allowed & (np.abs(qd - level) < tolerance) & (np.abs(qdd) < max_accel)
@@ -217,9 +217,7 @@ def emps_plateau_forces(
                 f"|acceleration| < {max_accel} m/s^2); give the record's plateau velocities, a wider `tolerance` "
                 "or a larger `max_accel`."
             )
-        per_part = tuple(
-            float(force[on & (part == k)].mean()) if (on & (part == k)).any() else np.nan for k in range(parts)
-        )
+        per_part = tuple(float(force[sel].mean()) if sel.any() else np.nan for sel in (on & p for p in in_part))
         out.append(
             EMPSPlateau(velocity=level, force=float(force[on].mean()), samples=int(on.sum()), force_per_part=per_part)
         )
