@@ -13,7 +13,7 @@ PACKAGE = ROOT / "src" / "fricjax"
 
 # the layers of DESIGN.md, lowest first: a module may import only from its own layer or lower ones
 LAYERS = [
-    {"_xla_flags", "_smoothing", "_constraints", "_inputs", "_metrics"},
+    {"_xla_flags", "_lapack_threads", "_smoothing", "_constraints", "_inputs", "_metrics"},
     {"_models"},
     {"_simulate"},
     {"_systems", "_data"},

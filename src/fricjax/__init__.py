@@ -5,6 +5,9 @@ One flat public namespace: `import fricjax as fj`.
 
 # first, before any JAX computation: sets XLA_FLAGS so that XLA:CPU compiles each scan as one function
 from . import _xla_flags as _xla_flags  # isort: skip
+
+# and the OpenBLAS behind JAX's CPU LAPACK calls on one thread (XLA's pool provides the parallelism)
+from . import _lapack_threads as _lapack_threads  # isort: skip
 from importlib.metadata import PackageNotFoundError as _PackageNotFoundError
 from importlib.metadata import version as _version
 

@@ -1,0 +1,84 @@
+"""The LAPACK setting fricjax makes: the OpenBLAS behind JAX's CPU linear algebra runs on one thread.
+
+On CPU, `jnp.linalg` (QR, SVD, eigh, Cholesky, solves) calls LAPACK through `scipy.linalg.cython_lapack`, which
+in SciPy's wheels is SciPy's own OpenBLAS (`scipy.libs/libscipy_openblas*`; NumPy carries a separate copy). XLA
+makes those calls from the worker threads of its intra-op pool, one per core, and OpenBLAS then starts its own
+threads, one per core, which spin while they wait for work. When XLA runs two thunks at once (independent
+operations of one program), or any other process needs a core, the spinning threads take the cores from the
+threads they wait for. Measured on the 2-core CPU of benchmarks/README.md (jaxlib 0.10.2, SciPy 1.17.1): a scan of
+50 steps, each a QR, an eigh and an SVD of 200 x 200 matrices, takes 0.30 s quiet and 17-33 s with one other busy
+process; with OpenBLAS on one thread 0.20 s and 0.21 s. The same contention stalled a notebook's
+linear-in-parameters fits far past their usual time in CI, and the kernel NARX solver already avoids two LAPACK
+calls at once because they deadlocked (`_estimation/_kernel_narx.py`).
+
+`import fricjax` therefore sets that OpenBLAS to one thread (`scipy_openblas_set_num_threads(1)`), which keeps
+the parallelism with XLA's pool, where it belongs. It affects `scipy.linalg` in the same process too, not NumPy's
+linear algebra. It does nothing when the library is not SciPy's bundled OpenBLAS (a SciPy built on MKL or a
+system BLAS), when `OPENBLAS_NUM_THREADS` is set (the user chose), or when `FRICJAX_KEEP_BLAS_THREADS` is set to a
+non-empty value.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import pathlib
+from collections.abc import Mapping
+
+_SETTERS = ("scipy_openblas_set_num_threads", "openblas_set_num_threads")
+_GETTERS = ("scipy_openblas_get_num_threads", "openblas_get_num_threads")
+
+
+def scipy_openblas_libraries() -> list[pathlib.Path]:
+    """The OpenBLAS shared libraries bundled with the installed SciPy wheel (none for other builds)."""
+    try:
+        import scipy
+    except ImportError:  # pragma: no cover - SciPy is a dependency of JAX
+        return []
+    package = pathlib.Path(scipy.__file__).resolve().parent
+    folders = (package.parent / "scipy.libs", package / ".dylibs", package.parent / "scipy.libs" / "bin")
+    return sorted(path for folder in folders if folder.is_dir() for path in folder.glob("*openblas*"))
+
+
+def _function(library: ctypes.CDLL, names: tuple[str, ...]):
+    for name in names:
+        function = getattr(library, name, None)
+        if function is not None:
+            return function
+    return None
+
+
+def blas_threads() -> dict[str, int]:
+    """Threads of each bundled SciPy OpenBLAS, by library file name (for checks and bug reports)."""
+    counts = {}
+    for path in scipy_openblas_libraries():
+        getter = _function(ctypes.CDLL(str(path)), _GETTERS)
+        if getter is not None:
+            getter.restype = ctypes.c_int
+            counts[path.name] = int(getter())
+    return counts
+
+
+def limit_blas_threads(environ: Mapping[str, str], threads: int = 1) -> list[str]:
+    """Set SciPy's bundled OpenBLAS to `threads` threads unless `environ` opts out; returns the libraries set."""
+    if environ.get("FRICJAX_KEEP_BLAS_THREADS") or environ.get("OPENBLAS_NUM_THREADS"):
+        return []
+    try:
+        import scipy.linalg.cython_lapack  # noqa: F401  (loads the library JAX's LAPACK calls go to)
+    except ImportError:  # pragma: no cover - SciPy is a dependency of JAX
+        return []
+    done = []
+    for path in scipy_openblas_libraries():
+        try:
+            library = ctypes.CDLL(str(path))  # already loaded: the same handle
+        except OSError:  # pragma: no cover - a file that is not a loadable library
+            continue
+        setter = _function(library, _SETTERS)
+        if setter is not None:
+            setter.argtypes = [ctypes.c_int]
+            setter(threads)
+            done.append(path.name)
+    return done
+
+
+limit_blas_threads(os.environ)
