@@ -5,11 +5,15 @@ in SciPy's wheels is SciPy's own OpenBLAS (`scipy.libs/libscipy_openblas*`; NumP
 makes those calls from the worker threads of its intra-op pool, one per core, and OpenBLAS then starts its own
 threads, one per core, which spin while they wait for work. When XLA runs two thunks at once (independent
 operations of one program), or any other process needs a core, the spinning threads take the cores from the
-threads they wait for. Measured on the 2-core CPU of benchmarks/README.md (jaxlib 0.10.2, SciPy 1.17.1): a scan of
-50 steps, each a QR, an eigh and an SVD of 200 x 200 matrices, takes 0.30 s quiet and 17-33 s with one other busy
-process; with OpenBLAS on one thread 0.20 s and 0.21 s. The same contention stalled a notebook's
-linear-in-parameters fits far past their usual time in CI, and the kernel NARX solver already avoids two LAPACK
-calls at once because they deadlocked (`_estimation/_kernel_narx.py`).
+threads they wait for. Measured on the 2-core CPU of benchmarks/README.md (jaxlib 0.10.2, SciPy 1.17.1,
+`benchmarks/lapack_threads.py`, `results/lapack-threads.jsonl`): a scan of 50 steps, each a QR, an eigh and an SVD
+of 200 x 200 matrices, takes 0.21 s quiet either way, but 1.07 s beside one busy process and 1.75 s (worst
+3.0 s) beside another JAX program with OpenBLAS's default threads, against 0.21 s and 0.27 s on one thread;
+beside a notebook running fits it took 0.35-33 s (an unrecorded run). A notebook's linear-in-parameters fits
+once stalled in CI far past their usual time (cause not established), and the kernel NARX solver already avoids
+two LAPACK calls at once because they deadlocked (`_estimation/_kernel_narx.py`). The price: a large
+factorisation alone on a quiet machine loses OpenBLAS's second core (the direct kernel solve of 4 000 samples
+1.01 -> 1.18 s).
 
 `import fricjax` therefore sets that OpenBLAS to one thread (`scipy_openblas_set_num_threads(1)`), which keeps
 the parallelism with XLA's pool, where it belongs. It affects `scipy.linalg` in the same process too, not NumPy's
