@@ -13,9 +13,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
+import statistics
 import subprocess
 import sys
+
+import scipy
+
+from _environment import environment
 
 CHILD = """
 import json, sys, time
@@ -41,7 +45,7 @@ for i in range(repeats):
     tic = time.perf_counter()
     run(a + i, b - i)[0].block_until_ready()
     times.append(time.perf_counter() - tic)
-print(json.dumps(times))
+print(json.dumps({"times": times, "blas_threads": fricjax._lapack_threads.blas_threads()}))
 """
 
 LOADS = {
@@ -71,17 +75,19 @@ def measure(size: int, steps: int, repeats: int, keep_threads: bool, load: str) 
     finally:
         if competitor is not None:
             competitor.kill()
-    times = sorted(json.loads(out.stdout.strip().splitlines()[-1]))
+            competitor.wait()
+    child = json.loads(out.stdout.strip().splitlines()[-1])
+    times = child["times"]
     return {
         "setting": "openblas default threads" if keep_threads else "fricjax: openblas 1 thread",
         "load": load,
         "size": size,
         "steps": steps,
         "repeats": repeats,
-        "median_s": round(times[len(times) // 2], 3),
-        "worst_s": round(times[-1], 3),
-        "cores": os.cpu_count(),
-        "cpu": platform.processor() or platform.machine(),
+        "median_s": round(statistics.median(times), 3),
+        "worst_s": round(max(times), 3),
+        "blas_threads": child["blas_threads"],
+        **environment(scipy=scipy.__version__),
     }
 
 

@@ -16,15 +16,17 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 
 import pytest
 
 NOTEBOOKS = sorted((pathlib.Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
 CELL_TIMEOUT = 900  # s; smoke-size cells take seconds to a few minutes on 2 cores
 STACK_DUMP_EVERY = 300  # s
+# arms the kernel's faulthandler without leaving names in the notebook's namespace (a notebook must import its own)
 ARM_FAULTHANDLER = (
-    "import faulthandler, signal, sys\n"
-    "faulthandler.register(signal.SIGUSR1, file=sys.__stderr__, all_threads=True)  # the test's stack dumps"
+    '__import__("faulthandler").register(__import__("signal").SIGUSR1, file=__import__("sys").__stderr__, '
+    "all_threads=True)  # added by tests/test_notebooks.py: the stack dumps of a stalled cell"
 )
 
 
@@ -45,31 +47,32 @@ def _compact_stacks(gdb_output: str, frames: int = 14) -> str:
     return "\n".join(lines)
 
 
-def _dump_stacks(pid: int | None, cell_source: str, elapsed: int) -> None:
-    sys.stderr.write(
-        f"\n==== notebook cell still running after {elapsed} s (kernel pid {pid}) ====\n{cell_source[:300]}\n"
-    )
+def _dump_stacks(pid: int | None, cell_source: str, elapsed: float) -> None:
+    write = sys.stderr.write
+    write(f"\n==== notebook cell still running after {elapsed:.0f} s (kernel pid {pid}) ====\n{cell_source[:300]}\n")
     if pid is None:
-        sys.stderr.write("(no kernel pid: stacks not dumped)\n")
+        write("(no kernel pid: stacks not dumped)\n")
         return
-    sys.stderr.write("---- Python stacks (faulthandler, written by the kernel to its stderr) ----\n")
+    write("---- Python stacks (faulthandler, written by the kernel to its stderr) ----\n")
     sys.stderr.flush()
     try:
         os.kill(pid, signal.SIGUSR1)
     except OSError as error:
-        sys.stderr.write(f"(SIGUSR1 not delivered: {error})\n")
+        write(f"(SIGUSR1 not delivered: {error})\n")
     gdb = shutil.which("gdb")
     if gdb is None:
-        sys.stderr.write("(gdb not installed: native stacks not dumped)\n")
+        write("(gdb not installed: native stacks not dumped)\n")
         return
-    stacks = subprocess.run(
-        [gdb, "-p", str(pid), "-batch", "-ex", "thread apply all bt"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
-    sys.stderr.write("---- native stacks (gdb) ----\n" + _compact_stacks(stacks.stdout) + "\n")
+    command = [gdb, "-nx", "-batch", "-ex", "set debuginfod enabled off", "-p", str(pid), "-ex", "thread apply all bt"]
+    try:
+        stacks = subprocess.run(command, capture_output=True, text=True, timeout=120, check=False)
+    except (subprocess.TimeoutExpired, OSError) as error:
+        write(f"(gdb failed: {error})\n")
+        return
+    compact = _compact_stacks(stacks.stdout)
+    if "Thread " not in compact:
+        compact = f"(no stacks from gdb, exit {stacks.returncode}: {stacks.stderr[-500:]})"
+    write("---- native stacks (gdb) ----\n" + compact + "\n")
 
 
 class _Watchdog:
@@ -81,19 +84,22 @@ class _Watchdog:
 
     def start(self, pid: int | None, source: str) -> None:
         self.stop()
-        self._stop = threading.Event()
+        stop = self._stop = threading.Event()
 
-        def watch(stop: threading.Event = self._stop) -> None:
-            elapsed = 0
+        def watch() -> None:
+            began = time.monotonic()
             while not stop.wait(STACK_DUMP_EVERY):
-                elapsed += STACK_DUMP_EVERY
-                _dump_stacks(pid, source, elapsed)
+                _dump_stacks(pid, source, time.monotonic() - began)
 
         self._thread = threading.Thread(target=watch, daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
+        """Stop watching; a dump under way (gdb may take up to 2 minutes) finishes first."""
         self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=180)
+            self._thread = None
 
 
 @pytest.mark.slow
@@ -112,7 +118,7 @@ def test_notebook_runs_in_smoke_size(path, data_dir, monkeypatch):
         timeout=CELL_TIMEOUT,
         kernel_name="python3",
         resources={"metadata": {"path": str(path.parent)}},
-        on_cell_start=lambda cell, **_: watchdog.start(_kernel_pid(client), cell.source),
+        on_cell_execute=lambda cell, **_: watchdog.start(_kernel_pid(client), cell.source),
         on_cell_executed=lambda **_: watchdog.stop(),
     )
     try:

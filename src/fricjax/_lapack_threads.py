@@ -1,25 +1,25 @@
 """The LAPACK setting fricjax makes: the OpenBLAS behind JAX's CPU linear algebra runs on one thread.
 
-On CPU, `jnp.linalg` (QR, SVD, eigh, Cholesky, solves) calls LAPACK through `scipy.linalg.cython_lapack`, which
-in SciPy's wheels is SciPy's own OpenBLAS (`scipy.libs/libscipy_openblas*`; NumPy carries a separate copy). XLA
-makes those calls from the worker threads of its intra-op pool, one per core, and OpenBLAS then starts its own
-threads, one per core, which spin while they wait for work. When XLA runs two thunks at once (independent
-operations of one program), or any other process needs a core, the spinning threads take the cores from the
-threads they wait for. Measured on the 2-core CPU of benchmarks/README.md (jaxlib 0.10.2, SciPy 1.17.1,
-`benchmarks/lapack_threads.py`, `results/lapack-threads.jsonl`): a scan of 50 steps, each a QR, an eigh and an SVD
-of 200 x 200 matrices, takes 0.21 s quiet either way, but 1.07 s beside one busy process and 1.75 s (worst
-3.0 s) beside another JAX program with OpenBLAS's default threads, against 0.21 s and 0.27 s on one thread;
-beside a notebook running fits it took 0.35-33 s (an unrecorded run). A notebook's linear-in-parameters fits
-once stalled in CI far past their usual time (cause not established), and the kernel NARX solver already avoids
-two LAPACK calls at once because they deadlocked (`_estimation/_kernel_narx.py`). The price: a large
-factorisation alone on a quiet machine loses OpenBLAS's second core (the direct kernel solve of 4 000 samples
-1.01 -> 1.18 s).
+On CPU, `jnp.linalg` (QR, SVD, eigh, Cholesky, solves) calls LAPACK through `scipy.linalg.cython_lapack`, which in
+SciPy's wheels is SciPy's own OpenBLAS (`scipy.libs/libscipy_openblas*`; NumPy carries a separate copy). XLA makes
+those calls from the worker threads of its intra-op pool, one per core, and OpenBLAS then starts its own threads,
+one per core, which spin while they wait for work. When XLA runs two thunks at once (independent operations of one
+program), or any other process needs a core, the spinning threads take the cores from the threads they wait for.
+Measured on the 2-core CPU of benchmarks/README.md (jaxlib 0.10.2, SciPy 1.17.1, `benchmarks/lapack_threads.py`,
+`results/lapack-threads.jsonl`): a scan of 50 steps, each a QR, an eigh and an SVD of 200 x 200 matrices, takes
+0.198 s quiet (0.214 s with two threads), but 1.07 s beside one busy process and 1.75 s (worst 3.0 s) beside another
+JAX program with OpenBLAS's default threads, against 0.206 s and 0.266 s on one thread; beside a notebook running
+fits it took 0.35-33 s (an unrecorded run). A notebook's linear-in-parameters fits once stalled in CI far past their
+usual time (cause not established), and the kernel NARX solver already avoids two LAPACK calls at once because they
+deadlocked (`_estimation/_kernel_narx.py`). The price: a large factorisation alone on a quiet machine loses
+OpenBLAS's second core (the direct kernel solve of 4 000 samples 1.01 -> 1.18 s, `results/kernel-blas-
+threads.jsonl`).
 
-`import fricjax` therefore sets that OpenBLAS to one thread (`scipy_openblas_set_num_threads(1)`), which keeps
-the parallelism with XLA's pool, where it belongs. It affects `scipy.linalg` in the same process too, not NumPy's
-linear algebra. It does nothing when the library is not SciPy's bundled OpenBLAS (a SciPy built on MKL or a
-system BLAS), when `OPENBLAS_NUM_THREADS` is set (the user chose), or when `FRICJAX_KEEP_BLAS_THREADS` is set to a
-non-empty value.
+`import fricjax` therefore sets that OpenBLAS to one thread (`scipy_openblas_set_num_threads(1)`), which keeps the
+parallelism with XLA's pool, where it belongs. It affects `scipy.linalg` in the same process too, not NumPy's linear
+algebra. It does nothing when the library is not SciPy's bundled OpenBLAS (a SciPy built on MKL or a system BLAS),
+when the user chose a thread count (`OPENBLAS_NUM_THREADS`, `GOTO_NUM_THREADS` or `OMP_NUM_THREADS`, which OpenBLAS
+reads), or when `FRICJAX_KEEP_BLAS_THREADS` is set to a non-empty value.
 """
 
 from __future__ import annotations
@@ -28,7 +28,10 @@ import ctypes
 import os
 import pathlib
 from collections.abc import Mapping
+from typing import Any
 
+# the user's own choice of BLAS threads: OpenBLAS reads these at load, in this order of precedence
+USER_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
 _SETTERS = ("scipy_openblas_set_num_threads", "openblas_set_num_threads")
 _GETTERS = ("scipy_openblas_get_num_threads", "openblas_get_num_threads")
 
@@ -44,45 +47,53 @@ def scipy_openblas_libraries() -> list[pathlib.Path]:
     return sorted(path for folder in folders if folder.is_dir() for path in folder.glob("*openblas*"))
 
 
-def _function(library: ctypes.CDLL, names: tuple[str, ...]):
-    for name in names:
-        function = getattr(library, name, None)
-        if function is not None:
-            return function
-    return None
+def _loaded_functions(names: tuple[str, ...]) -> dict[str, Any]:
+    """The first of `names` found in each bundled OpenBLAS that is already loaded, by library file name (a file
+    not loaded is not opened: loading a second OpenBLAS would start its own threads)."""
+    mode = getattr(os, "RTLD_NOLOAD", 0)
+    found = {}
+    for path in scipy_openblas_libraries():
+        try:
+            library = ctypes.CDLL(str(path), mode=mode)  # the handle of the copy in use
+        except OSError:  # not loaded, or not a loadable library
+            continue
+        for name in names:
+            function = getattr(library, name, None)
+            if function is not None:
+                found[path.name] = function
+                break
+    return found
 
 
 def blas_threads() -> dict[str, int]:
-    """Threads of each bundled SciPy OpenBLAS, by library file name (for checks and bug reports)."""
+    """Threads of each loaded SciPy OpenBLAS, by library file name (for benchmarks and bug reports)."""
     counts = {}
-    for path in scipy_openblas_libraries():
-        getter = _function(ctypes.CDLL(str(path)), _GETTERS)
-        if getter is not None:
-            getter.restype = ctypes.c_int
-            counts[path.name] = int(getter())
+    for name, getter in _loaded_functions(_GETTERS).items():
+        getter.restype = ctypes.c_int
+        counts[name] = int(getter())
     return counts
 
 
 def limit_blas_threads(environ: Mapping[str, str], threads: int = 1) -> list[str]:
-    """Set SciPy's bundled OpenBLAS to `threads` threads unless `environ` opts out; returns the libraries set."""
-    if environ.get("FRICJAX_KEEP_BLAS_THREADS") or environ.get("OPENBLAS_NUM_THREADS"):
+    """Set SciPy's bundled OpenBLAS to `threads` threads unless `environ` opts out (`FRICJAX_KEEP_BLAS_THREADS`,
+    or a thread count of the user's: `USER_THREAD_VARIABLES`); returns the libraries set."""
+    if environ.get("FRICJAX_KEEP_BLAS_THREADS") or any(environ.get(key) for key in USER_THREAD_VARIABLES):
         return []
     try:
         import scipy.linalg.cython_lapack  # noqa: F401  (loads the library JAX's LAPACK calls go to)
     except ImportError:  # pragma: no cover - SciPy is a dependency of JAX
         return []
     done = []
-    for path in scipy_openblas_libraries():
-        try:
-            library = ctypes.CDLL(str(path))  # already loaded: the same handle
-        except OSError:  # pragma: no cover - a file that is not a loadable library
-            continue
-        setter = _function(library, _SETTERS)
-        if setter is not None:
-            setter.argtypes = [ctypes.c_int]
-            setter(threads)
-            done.append(path.name)
+    for name, setter in _loaded_functions(_SETTERS).items():
+        setter.argtypes = [ctypes.c_int]
+        setter(threads)
+        done.append(name)
     return done
 
 
-limit_blas_threads(os.environ)
+def configure() -> None:
+    """Called once by `import fricjax`."""
+    limit_blas_threads(os.environ)
+
+
+configure()
