@@ -7,13 +7,13 @@ one per core, which spin while they wait for work. When XLA runs two thunks at o
 program), or any other process needs a core, the spinning threads take the cores from the threads they wait for.
 Measured on the 2-core CPU of benchmarks/README.md (jaxlib 0.10.2, SciPy 1.17.1, `benchmarks/lapack_threads.py`,
 `results/lapack-threads.jsonl`): a scan of 50 steps, each a QR, an eigh and an SVD of 200 x 200 matrices, takes
-0.198 s quiet (0.214 s with two threads), but 1.07 s beside one busy process and 1.75 s (worst 3.0 s) beside another
-JAX program with OpenBLAS's default threads, against 0.206 s and 0.266 s on one thread; beside a notebook running
+0.196 s quiet (0.209 s with two threads), but 0.77 s beside one busy process and 1.91 s (worst 3.3 s) beside another
+JAX program with OpenBLAS's default threads, against 0.204 s and 0.254 s on one thread; beside a notebook running
 fits it took 0.35-33 s (an unrecorded run). A notebook's linear-in-parameters fits once stalled in CI far past their
 usual time (cause not established), and the kernel NARX solver already avoids two LAPACK calls at once because they
 deadlocked (`_estimation/_kernel_narx.py`). The price: a large factorisation alone on a quiet machine loses
-OpenBLAS's second core (the direct kernel solve of 4 000 samples 1.01 -> 1.18 s, `results/kernel-blas-
-threads.jsonl`).
+OpenBLAS's second core (the direct kernel solve of 4 000 samples 1.04 -> 1.22 s,
+`results/kernel-blas-threads.jsonl`).
 
 `import fricjax` therefore sets that OpenBLAS to one thread (`scipy_openblas_set_num_threads(1)`), which keeps the
 parallelism with XLA's pool, where it belongs. It affects `scipy.linalg` in the same process too, not NumPy's linear
