@@ -433,14 +433,8 @@ def bench_vmap(name: str, run_numba: Callable[[], Any], steps_numba: int, cfg: a
     models = eqx.filter_vmap(make)(jnp.asarray(batch_parameters(name, cfg.batch)))
     motion = make_motion(cfg.batch_steps)
 
-    def run(models: Any, motion: fj.Motion) -> jax.Array:
-        return vmap_simulate(models, motion)
-
-    def run_time_major(models: Any, motion: fj.Motion) -> jax.Array:
-        return vmap_simulate(models, motion, time_major=True)
-
-    compile_s, forces = first_call(lambda: run(models, motion))
-    compile_time_major_s, forces_tm = first_call(lambda: run_time_major(models, motion))
+    compile_s, forces = first_call(lambda: vmap_simulate(models, motion))
+    compile_time_major_s, forces_tm = first_call(lambda: vmap_simulate(models, motion, time_major=True))
     # spot check: the first trajectory of the batch is the nominal model's, in both layouts
     single = np.asarray(fj.simulate(make(nominal), motion))
     spot = float(np.max(np.abs(np.asarray(forces[0]) - single)))
@@ -450,8 +444,8 @@ def bench_vmap(name: str, run_numba: Callable[[], Any], steps_numba: int, cfg: a
     def records(key: str, placed: Any, benchmark: str, extra: dict[str, Any]) -> dict[str, Any]:
         timing = steady(
             {
-                key: lambda: run(placed, motion),
-                "time_major": lambda: run_time_major(placed, motion),
+                key: lambda: vmap_simulate(placed, motion),
+                "time_major": lambda: vmap_simulate(placed, motion, time_major=True),
                 "numba": run_numba,
             },
             cfg.repeats,
