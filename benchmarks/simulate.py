@@ -229,8 +229,8 @@ def maxwell_nlr_numba(dx, k, thresholds, offset):
         total = 0.0
         for j in range(m):
             dbar = min(max((delta[j] + dxi) / thresholds[j], -1.0), 1.0)
-            total += k[j] * thresholds[j] * dbar
             delta[j] = dbar * thresholds[j]
+            total += k[j] * delta[j]
         out[i] = total + offset
     return out
 
@@ -482,8 +482,8 @@ def bench_vmap(name: str, run_numba: Callable[[], Any], steps_numba: int, cfg: a
     if jax.local_device_count() > 1:
         sharded = fj.shard_batch(models)
         devices = len(fj.batch_devices(cfg.batch))
-        run(sharded, motion)  # compile for this placement
-        run_time_major(sharded, motion)
+        vmap_simulate(sharded, motion)  # compile for this placement
+        vmap_simulate(sharded, motion, time_major=True)
         timed = records("vmap_sharded", sharded, "vmap_sharded", {"devices": devices})
         record["sharded"] = {**timed["vmap_sharded"], "time_major": timed["time_major"]}
     return record

@@ -2,16 +2,20 @@
 """Where the Maxwell-slip sweep's time goes: the loop, or the layout of its output (issue 12, vmap target).
 
 `benchmarks/simulate.py` measures `eqx.filter_vmap(fj.simulate)` of Maxwell-slip NLR(7) over 1024 parameter sets
-(4 000 steps) at about 2x a single numba trajectory's throughput, against a target of 3x. This script splits
-that figure, on the same models, record and numba loop, every variant in the same run (round-robin timing):
+(4 000 steps) against a target of 3x a single numba trajectory's throughput. This script splits that figure, on
+the same models, record and numba loop, every variant in the same run (round-robin timing):
 
-- `fricjax (B, T)`: `filter_vmap(fj.simulate)`, the forces as vmap returns them, one row per configuration;
-- `fricjax (T, B)`: the same with `out_axes=1` (time-major: the scan's own stacking, no transposition);
+- `fricjax (B, T)`: `filter_vmap(fj.simulate)`, the forces as vmap returns them, one row per configuration
+  (Maxwell-slip's batch-minor free run: the batch as the minor axis, the rows written one column per step);
+- `fricjax (T, B)`: the same with `out_axes=1` (time-major: now one transposition of the rows);
+- `fricjax (B, T)` / `(T, B), vmap's own batching`: the same model with `batch_minor()` false (the previous
+  version's path: batch-major loop, outputs stacked time-major, so the rows layout pays the transposition);
 - `fricjax loss`: a mean-squared error per configuration inside the vmap (what a sweep or a fit computes);
   `fricjax loss, time-major`: the same error computed outside the vmap from the time-major forces;
 - `hand (T, B)`: a hand-written `lax.scan` of the same equations with the elements and the batch as a
   `(M, B)` carry (batch-minor: the sum over the elements is a vector add), the forces stacked time-major;
-- `hand (B, T)` by a final transposition, by stacking blocks of K steps transposed in the loop body
+- `hand (B, T)` by a final transposition, by writing one column per step into a `(B, T)` buffer (`columns`,
+  what fricjax's batch-minor loop does), by stacking blocks of K steps transposed in the loop body
   (`chunked K`), or by writing `(B, K)` blocks into a `(B, T)` buffer with `dynamic_update_slice` (`blocks K`);
 - `numba`: `maxwell_nlr_numba` of simulate.py, one trajectory (the target's reference).
 
@@ -54,6 +58,33 @@ def hand_time_major(thresholds: jax.Array, k: jax.Array, offset: jax.Array, dx: 
     (M, B) (batch-minor: the sum over the elements is a vector add), the outputs stacked time-major."""
     th = thresholds.T
     return jax.lax.scan(element_step(th, k.T, offset), jnp.zeros_like(th), dx)[1]
+
+
+def hand_columns(thresholds: jax.Array, k: jax.Array, offset: jax.Array, dx: jax.Array) -> jax.Array:
+    """As `hand_time_major`, each step's forces written as one column of a (B, T) buffer carried by the loop."""
+    th = thresholds.T
+    step = element_step(th, k.T, offset)
+
+    def body(t: jax.Array, carry: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
+        delta, out = carry
+        delta, forces = step(delta, dx[t])
+        return delta, jax.lax.dynamic_update_slice(out, forces[:, None], (0, t))
+
+    start = (jnp.zeros_like(th), jnp.zeros((thresholds.shape[0], dx.shape[0]), thresholds.dtype))
+    return jax.lax.fori_loop(0, dx.shape[0], body, start)[1]
+
+
+class OwnBatchingMaxwellSlip(fj.MaxwellSlip):
+    """Maxwell-slip with `batch_minor()` false: `jax.vmap` batches its scan itself (the previous version's path)."""
+
+    def batch_minor(self) -> bool:
+        return False
+
+
+def own_batching(models: fj.MaxwellSlip) -> OwnBatchingMaxwellSlip:
+    """The same batch of models (same leaves) as `OwnBatchingMaxwellSlip`s."""
+    like = OwnBatchingMaxwellSlip.nlr(k=bench.MS_K, thresholds=bench.MS_THRESHOLDS, offset=0.0)
+    return jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(like), jax.tree_util.tree_leaves(models))
 
 
 def hand_chunked(thresholds: jax.Array, k: jax.Array, offset: jax.Array, dx: jax.Array, block: int) -> jax.Array:
@@ -101,12 +132,13 @@ def main() -> int:
 
     motion = bench.make_motion(cfg.steps)
     models = eqx.filter_vmap(bench.make_maxwell)(jnp.asarray(bench.batch_parameters("maxwell_nlr7", cfg.batch)))
+    own = own_batching(models)
     p = fj.unwrap(models)
     x = jnp.asarray(motion.x)
     dx = jnp.diff(x, prepend=x[:1])  # the per-step signal fj.simulate derives (dx_0 = 0)
     arrays = (p.thresholds, p.force_map.k, p.force_map.offset)
     if cfg.host_devices > 1:
-        models, arrays = fj.shard_batch(models), fj.shard_batch(arrays)
+        models, own, arrays = fj.shard_batch(models), fj.shard_batch(own), fj.shard_batch(arrays)
     target = jnp.asarray(np.random.default_rng(1).normal(0.0, 0.1, cfg.steps))  # a measured force [N], say
 
     @eqx.filter_jit
@@ -120,13 +152,17 @@ def main() -> int:
 
     hand_tb = jax.jit(hand_time_major)
     hand_bt = jax.jit(lambda *a: hand_time_major(*a).T)
+    hand_cols = jax.jit(hand_columns)
     variants = {
         "fricjax (B, T)": lambda: bench.vmap_simulate(models, motion),
         "fricjax (T, B)": lambda: bench.vmap_simulate(models, motion, time_major=True),
+        "fricjax (B, T), vmap's own batching": lambda: bench.vmap_simulate(own, motion),
+        "fricjax (T, B), vmap's own batching": lambda: bench.vmap_simulate(own, motion, time_major=True),
         "fricjax loss": lambda: fricjax_loss(models, motion, target),
         "fricjax loss, time-major": lambda: fricjax_loss_time_major(models, motion, target),
         "hand (T, B)": lambda: hand_tb(*arrays, dx),
         "hand (B, T), transposed": lambda: hand_bt(*arrays, dx),
+        "hand (B, T), columns": lambda: hand_cols(*arrays, dx),
     }
     for block in (8, 50):
         chunked = jax.jit(lambda *a, _k=block: hand_chunked(*a, _k))

@@ -46,11 +46,13 @@ def _run(tmp_path: pathlib.Path, devices: int) -> dict[str, np.ndarray]:
 @pytest.mark.slow
 def test_sharded_sweep_and_multistart_equal_one_device(tmp_path):
     """Issue 12: a 4-configuration sweep (one configuration per device), a 6-configuration sweep (spread over
-    the 2 devices that divide it) and 4-start fits with Adam and Levenberg-Marquardt, on 4 forced host devices,
-    equal the same runs on one device (to round-off: the partitioned program may order sums differently)."""
+    the 2 devices that divide it), 4-start fits with Adam and Levenberg-Marquardt and the free runs of 4
+    Maxwell-slip models (the batch-minor loop), on 4 forced host devices, equal the same runs on one device (to
+    round-off: the partitioned program may order sums differently)."""
     single, sharded = _run(tmp_path, 1), _run(tmp_path, 4)
     assert int(single["devices"]) == 1 and int(sharded["devices"]) == 4
     assert int(sharded["sweep_devices"]) == 4 and int(sharded["six_devices"]) == 2  # really sharded
+    assert int(sharded["maxwell_devices"]) == 4
     assert set(single) == set(sharded)
     for key in single:
         if key.endswith("devices"):

@@ -21,6 +21,8 @@ from ._models._base import AbstractModel, feeds_back
 
 # Loop unrolling of the scan: measured by benchmarks/simulate.py on the 2-core CPU (see benchmarks/README.md).
 DEFAULT_UNROLL = 2
+# ... and of the batch-minor free run under vmap (`model.batch_minor()`): 1 measured faster than 2 (Maxwell-slip)
+BATCH_MINOR_UNROLL = 1
 
 
 def simulate(
@@ -127,8 +129,8 @@ def run(
     """
     if measured is None and not return_states and model.tangent_gradients() and _all_inexact(samples, state):
         return _tangent_run(model, samples, state, DEFAULT_UNROLL if unroll is None else unroll)
-    if measured is None and not return_states and model.packed_unroll is not None:
-        return _packed_run(model, samples, state, unroll)
+    if measured is None and not return_states and (model.packed_unroll is not None or model.batch_minor()):
+        return _primal_run(model, samples, state, unroll)
     return _plain_run(model, samples, state, measured, DEFAULT_UNROLL if unroll is None else unroll, return_states)
 
 
@@ -148,15 +150,16 @@ def _plain_run(
     return jax.lax.scan(body, state, (steps, measured), unroll=unroll)
 
 
-def _packed_run(model: AbstractModel, samples: Any, state: Any, unroll: int | None) -> tuple[Any, Any]:
-    """The free run of `run` for a model declaring `packed_unroll`: its parameters packed into one vector that
-    the loop body unpacks.
+def _primal_run(model: AbstractModel, samples: Any, state: Any, unroll: int | None) -> tuple[Any, Any]:
+    """The free run of `run` for a model declaring a faster primal (`packed_unroll`, `batch_minor()`): a custom JVP
+    whose rule is the JVP of the plain scan, so every derivative, of any order, is that of `_plain_run`; only the
+    values outside derivatives take the faster forms (benchmarks/README.md):
 
-    XLA:CPU can build a much faster loop from a body closing over one parameter vector than from one closing
-    over many small parameter arrays (GMS, 4 elements, unroll 1: ~110 against ~510 ns per step;
-    benchmarks/README.md). Differentiated, the packed body is slower (nested derivatives 2.4-3x: its tangents
-    and cotangents are gathered into the vector at every step), so only the primal is packed: a custom JVP whose
-    rule is the JVP of the plain scan, so every derivative, of any order, is that of `_plain_run`.
+    - `packed_unroll`: the parameters packed into one vector that the loop body unpacks. XLA:CPU builds a much
+      faster loop from a body closing over one parameter vector than over many small parameter arrays (GMS,
+      4 elements, unroll 1: ~110 against ~510 ns per step). Differentiated, the packed body is slower (nested
+      derivatives 2.4-3x: tangents and cotangents gathered into the vector at every step), hence primal only.
+    - `batch_minor()`: under `jax.vmap`, `_batch_minor_scan` (a `custom_vmap` rule) instead of vmap's own batching.
     """
     params, static = eqx.partition(model, eqx.is_inexact_array)
     primal_unroll = int(model.packed_unroll or DEFAULT_UNROLL) if unroll is None else unroll
@@ -166,8 +169,9 @@ def _packed_run(model: AbstractModel, samples: Any, state: Any, unroll: int | No
             eqx.combine(theta, static), samples_, state_, None, DEFAULT_UNROLL if unroll is None else unroll, False
         )
 
-    @jax.custom_jvp
-    def packed(theta: Any, samples_: Any, state_: Any) -> tuple[Any, Any]:
+    def primal(theta: Any, samples_: Any, state_: Any) -> tuple[Any, Any]:
+        if model.packed_unroll is None:
+            return plain(theta, samples_, state_)
         flat, unravel = ravel_pytree(theta)
         steps, rebuild = split_time_signals(samples_)
 
@@ -176,11 +180,110 @@ def _packed_run(model: AbstractModel, samples: Any, state: Any, unroll: int | No
 
         return jax.lax.scan(body, state_, steps, unroll=primal_unroll)
 
-    @packed.defjvp
-    def packed_jvp(primals: tuple[Any, ...], tangents: tuple[Any, ...]) -> tuple[Any, Any]:
-        return jax.jvp(plain, primals, tangents)
+    if model.batch_minor():
+        primal = jax.custom_batching.custom_vmap(primal)
 
-    return packed(params, samples, state)
+        @primal.def_vmap
+        def primal_batched(size: int, in_batched: Any, theta: Any, samples_: Any, state_: Any) -> Any:
+            batched_unroll = BATCH_MINOR_UNROLL if unroll is None else unroll
+            out = _batch_minor_scan(static, size, in_batched, (theta, samples_, state_), batched_unroll)
+            return out, jax.tree_util.tree_map(lambda _: True, out)
+
+    @jax.custom_jvp
+    def free_run(theta: Any, samples_: Any, state_: Any) -> tuple[Any, Any]:
+        return primal(theta, samples_, state_)
+
+    @free_run.defjvp
+    def free_run_jvp(primals: tuple[Any, ...], tangents: tuple[Any, ...]) -> tuple[Any, Any]:
+        out, out_tangent = jax.jvp(plain, primals, tangents)
+        if model.batch_minor():  # batched outputs along axis 0, as the custom_vmap rule gives them (see below)
+            out, out_tangent = jax.tree_util.tree_map(_batch_axis_first, (out, out_tangent))
+        return out, out_tangent
+
+    return free_run(params, samples, state)
+
+
+def _batch_axis_first(leaf: Any) -> Any:
+    """The identity, except that under `jax.vmap` the result is batched along axis 0 (vmap's rule for `reshape`
+    moves the batch axis to the front).
+
+    Why: a custom JVP's rule must batch its outputs along the axes its primal function does. When a jitted
+    program is batched, the custom JVP takes the batch axes of its primal (the `custom_vmap` rule's outputs:
+    axis 0), and its rule is batched later, when the program is differentiated; vmap's batching of the plain
+    scan stacks outputs with the batch along axis 1, so `jax.jvp(jax.vmap(fj.simulate))` read a `(T, B)` array
+    as `(B, T)` (tests/test_batch_minor.py; JAX issue 16374 reports a mismatch of the same kind)."""
+    leaf = jnp.asarray(leaf)
+    if leaf.dtype == jax.dtypes.float0:
+        return leaf
+    return jax.lax.squeeze(jax.lax.reshape(leaf, (1, *leaf.shape)), (0,))
+
+
+def _batch_minor_scan(
+    static: Any, size: int, in_batched: tuple[Any, Any, Any], args: tuple[Any, Any, Any], unroll: int
+) -> tuple[Any, Any]:
+    """The free run of a batch of `size` configurations (`args`: parameters, samples, state, each leaf batched
+    along axis 0 where `in_batched` says so) with the batch as the last, minor axis of every array in the loop,
+    and the outputs written straight into `(batch, time, ...)` buffers, one column per step.
+
+    vmap's own batching of the scan puts the batch first: a model's element vector (Maxwell-slip's M
+    deflections) is then a short minor axis, and its outputs are stacked time-major, so that returning them in
+    vmap's `(batch, time)` layout transposes the whole output (32 MB for 1024 x 4 000 samples) after the loop.
+    Batch-minor, each element is one contiguous vector over the batch (the sum over elements a vector add), and
+    a column written per step lands in the rows' cache lines, which stay in cache for the next steps
+    (Maxwell-slip NLR(7), 1024 x 4 000 steps, two devices: ~5.2 -> ~3.0 ns per trajectory-step;
+    benchmarks/README.md). Unbatched parameters and state are broadcast; unbatched scalar signals stay scalars.
+    **Returns:** `(final_state, outputs)`, every leaf batched along axis 0.
+    """
+    theta, samples, state = args
+    theta_batched, samples_batched, state_batched = in_batched
+
+    def minor(leaf: Any, batched: bool) -> Any:  # (B, ...) -> (..., B); an unbatched leaf broadcast to it
+        leaf = jnp.asarray(leaf)
+        return jnp.moveaxis(leaf, 0, -1) if batched else jnp.broadcast_to(leaf[..., None], (*leaf.shape, size))
+
+    theta_m = jax.tree_util.tree_map(minor, theta, theta_batched)
+    state_m = jax.tree_util.tree_map(minor, state, state_batched)
+    leaves, treedef = jax.tree_util.tree_flatten(samples)
+    flags = jax.tree_util.tree_leaves(samples_batched)
+    is_step = [jnp.ndim(leaf) - int(batched) > 0 for leaf, batched in zip(leaves, flags, strict=True)]
+    signals, signal_axes, scalars, scalar_axes = [], [], [], []
+    for leaf, batched, along_time in zip(leaves, flags, is_step, strict=True):
+        leaf = jnp.asarray(leaf)
+        if not along_time:  # a constant of the record (`dt`): a scalar, or (B,) batched
+            scalars.append(leaf)
+            scalar_axes.append(-1 if batched else None)
+            continue
+        if batched:
+            leaf = jnp.moveaxis(leaf, 0, -1)  # (T, ..., B)
+        elif leaf.ndim > 1:  # a per-step vector shared by the batch: broadcast, so the step sees one layout
+            leaf = jnp.broadcast_to(leaf[..., None], (*leaf.shape, size))
+        signals.append(leaf)
+        signal_axes.append(-1 if leaf.ndim > 1 else None)
+
+    def one(th: Any, carry: Any, signal: list[Any], scalar: list[Any]) -> tuple[Any, Any]:
+        sample = jax.tree_util.tree_unflatten(treedef, _join(signal, scalar, is_step))
+        return eqx.combine(th, static).step(carry, sample)
+
+    step = jax.vmap(one, in_axes=(-1, -1, signal_axes, scalar_axes), out_axes=-1)
+    length = signals[0].shape[0]
+    one_step = [jax.ShapeDtypeStruct(leaf.shape[1:], leaf.dtype) for leaf in signals]
+    _, per_step = jax.eval_shape(step, theta_m, state_m, one_step, scalars)  # output leaves (..., B)
+
+    def buffer(leaf: jax.ShapeDtypeStruct) -> jax.Array:  # (B, T, ...)
+        return jnp.zeros((size, length, *leaf.shape[:-1]), leaf.dtype)
+
+    def body(carry: Any, signal: list[Any]) -> tuple[Any, None]:
+        t, state_, out = carry
+        state_, y = step(theta_m, state_, signal, scalars)
+
+        def write(rows: jax.Array, column: jax.Array) -> jax.Array:
+            return jax.lax.dynamic_update_index_in_dim(rows, jnp.moveaxis(column, -1, 0), t, 1)
+
+        return (t + 1, state_, jax.tree_util.tree_map(write, out, y)), None
+
+    start = (jnp.zeros((), jnp.int32), state_m, jax.tree_util.tree_map(buffer, per_step))
+    (_, final, outputs), _ = jax.lax.scan(body, start, signals, unroll=unroll)
+    return jax.tree_util.tree_map(lambda leaf: jnp.moveaxis(leaf, -1, 0), final), outputs
 
 
 def _all_inexact(*trees: Any) -> bool:

@@ -71,6 +71,15 @@ def main(out: str) -> None:
         results[f"{name}_train_loss"] = np.asarray(result.train_loss)
         for i, leaf in enumerate(leaves(result.model)):
             results[f"{name}_leaf_{i}"] = leaf
+    # a batch of Maxwell-slip models (the batch-minor free run under vmap), sharded over the devices
+    scales = np.linspace(0.5, 2.0, 4)
+    maxwell = eqx.filter_vmap(
+        lambda s: fj.MaxwellSlip.nlr(k=s * np.array([3e5, 1e5, 2e4]), thresholds=np.array([1e-6, 3e-6, 9e-6]) / s)
+    )(scales)
+    placed = fj.shard_batch(maxwell)
+    forces = eqx.filter_vmap(lambda m: fj.simulate(m, data.motion))(placed)
+    results["maxwell_devices"] = np.asarray(len(forces.sharding.device_set))
+    results["maxwell_forces"] = np.asarray(forces)
     results["devices"] = np.asarray(devices)
     np.savez(out, **results)
 

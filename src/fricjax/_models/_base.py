@@ -67,6 +67,13 @@ class AbstractModel(eqx.Module):
         round-off; the choice is speed only. False by default; `fj.TangentGradients(model)` switches it on."""
         return False
 
+    def batch_minor(self) -> bool:
+        """Whether `fj.simulate`'s free run, batched by `jax.vmap` and not differentiated, keeps the batch as the
+        last (minor) axis of the loop's arrays and writes its outputs in `(batch, time)` order directly
+        (`fricjax._simulate._batch_minor_scan`) instead of vmap's own batching. Speed only (faster for a state
+        that is a vector of elements, as Maxwell-slip's; benchmarks/README.md); derivatives are unchanged."""
+        return False
+
     @abc.abstractmethod
     def samples(self, inputs: Any) -> Any:
         """The per-step signals of `inputs` (leaves of shape `(T, ...)`, or scalars constant over the record)."""
