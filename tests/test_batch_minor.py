@@ -133,32 +133,60 @@ def test_nested_vmap_and_fir_force_maps_with_history():
 
 
 def test_derivatives_are_the_plain_scans():
-    """Gradients of a loss summed over a batch, per-model gradients under vmap and forward derivatives of the
-    batch equal those of the one-model runs (the custom JVP: the batch-minor loop is never differentiated)."""
+    """Forward derivatives of a batch (first: a jitted program batched before it is differentiated, the case
+    where the derivative rule's batch axes must match the vmap rule's), gradients of a loss summed over a batch
+    and per-model gradients under vmap equal those of the one-model runs (the custom JVP: the batch-minor loop
+    is never differentiated)."""
     mo, target = motion(), jnp.asarray(np.random.default_rng(0).normal(0.0, 0.1, T))
     scales = jnp.array([0.6, 1.0, 1.8])
-
-    def loss(s):
-        return jnp.mean((fj.simulate(nlr(k_scale=s, threshold_scale=1.0 / s), mo) - target) ** 2)
-
-    each = np.array([jax.grad(loss)(s) for s in scales])
-    np.testing.assert_allclose(jax.grad(lambda ss: jnp.sum(jax.vmap(loss)(ss)))(scales), each, rtol=1e-10)
-    np.testing.assert_allclose(jax.vmap(jax.grad(loss))(scales), each, rtol=1e-10)
 
     def forces(s):
         return fj.simulate(nlr(k_scale=s, threshold_scale=1.0 / s), mo)
 
     _, tangent = jax.jvp(jax.vmap(forces), (scales,), (jnp.ones(3),))
     expected = np.stack([np.asarray(jax.jvp(forces, (s,), (1.0,))[1]) for s in scales])
+    assert tangent.shape == (3, T)
     np.testing.assert_allclose(tangent, expected, rtol=1e-10, atol=1e-12 * np.abs(expected).max())
+
+    def loss(s):
+        return jnp.mean((forces(s) - target) ** 2)
+
+    each = np.array([jax.grad(loss)(s) for s in scales])
+    np.testing.assert_allclose(jax.grad(lambda ss: jnp.sum(jax.vmap(loss)(ss)))(scales), each, rtol=1e-10)
+    np.testing.assert_allclose(jax.vmap(jax.grad(loss))(scales), each, rtol=1e-10)
+
+
+def test_outputs_independent_of_the_batched_argument():
+    """A batch over `dt` alone, which Maxwell-slip's forces do not read: the forces are one row repeated, and
+    gradients and forward derivatives through the batch are those of the rows (the vmap rule batches every
+    output; the derivative rule must batch them alike, or JAX combines the two wrongly: once a third of the
+    gradient)."""
+    x = 2e-5 * np.sin(np.linspace(0.0, 20.0, T))
+    dts = jnp.array([1e-3, 2e-3, 5e-4])
+
+    def batch(s):
+        return jax.vmap(lambda dt: fj.simulate(nlr(k_scale=s), fj.Motion(x=x, dt=dt)))(dts)
+
+    def row(s):
+        return fj.simulate(nlr(k_scale=s), fj.Motion(x=x, dt=1e-3))
+
+    np.testing.assert_allclose(batch(1.0), np.stack([row(1.0)] * 3), rtol=0, atol=ATOL)
+    expected = 3 * jax.grad(lambda s: jnp.sum(row(s) ** 2))(1.0)
+    np.testing.assert_allclose(jax.grad(lambda s: jnp.sum(batch(s) ** 2))(1.0), expected, rtol=1e-10)
+    tangent = jax.jvp(batch, (1.0,), (1.0,))[1]
+    assert tangent.shape == (3, T)
+    np.testing.assert_allclose(tangent, np.stack([jax.jvp(row, (1.0,), (1.0,))[1]] * 3), rtol=1e-10, atol=1e-12)
+    assert jax.jacfwd(batch)(1.0).shape == (3, T)
 
 
 class TwoOutputSpringSliders(fj.AbstractFrictionModel):
-    """A batch-minor test model with a tuple state and a vector output: two spring-sliders (stiffness `k` [N/m],
-    slip force `fs` [N]) driven by `dx`, and their forces scaled by `dt` (a record constant)."""
+    """A batch-minor test model with a tuple state, an integer field and a vector output: two spring-sliders
+    (stiffness `k` [N/m], slip force `fs` [N]) driven by `sign * dx`, and their forces scaled by `dt` (a record
+    constant) plus a count of the steps taken (the second state leaf)."""
 
     k: jax.Array
     fs: jax.Array
+    sign: jax.Array  # integer: an array field that is not a differentiable parameter
 
     requires: ClassVar[frozenset[str]] = frozenset({"x", "dt"})
 
@@ -170,14 +198,30 @@ class TwoOutputSpringSliders(fj.AbstractFrictionModel):
 
     def step(self, state, sample):
         force, steps = state
-        force = jnp.clip(force + self.k * sample.dx, -self.fs, self.fs)
-        return (force, steps + 1.0), jnp.stack([force[0], force[1] * sample.dt * 1e3])
+        force = jnp.clip(force + self.k * self.sign * sample.dx, -self.fs, self.fs)
+        return (force, steps + 1.0), jnp.stack([force[0], force[1] * sample.dt * 1e3 + 1e-3 * steps])
 
 
-def test_the_rule_for_any_model_tuple_state_vector_output():
-    """The batching rule is generic: a tuple state and a vector output per step come back as `(B, T, 2)`."""
-    models = [TwoOutputSpringSliders(jnp.array([1e4, 3e4]) * s, jnp.array([0.2, 0.5]) * s) for s in (0.5, 1.0, 2.0)]
+def sliders(s, sign=1):
+    return TwoOutputSpringSliders(jnp.array([1e4, 3e4]) * s, jnp.array([0.2, 0.5]) * s, jnp.asarray(sign))
+
+
+def test_the_rule_for_any_model_tuple_state_integer_field_vector_output():
+    """The batching rule is generic: a tuple state, a batched integer field and a vector output per step come
+    back as `(B, T, 2)`; a batch over one state leaf alone, and its gradient."""
+    models = [sliders(s, sign) for s, sign in ((0.5, 1), (1.0, -1), (2.0, 1))]
     motions = [motion(s, dt) for s, dt in ((1.0, 1e-3), (2.0, 2e-3), (0.7, 1e-3))]
     out = eqx.filter_vmap(lambda m, m_: fj.simulate(m, m_))(stack(models), stack(motions))
     assert out.shape == (3, T, 2)
     np.testing.assert_allclose(out, simulate_each(models, motions), rtol=0, atol=1e-15)
+
+    mo, counts = motion(), jnp.array([0.0, 10.0, 20.0])
+
+    def loss(s, count):
+        return jnp.sum(fj.simulate(sliders(s), mo, state0=(jnp.zeros(2), count)) ** 2)
+
+    out = jax.vmap(lambda c: fj.simulate(sliders(1.0), mo, state0=(jnp.zeros(2), c)))(counts)
+    expected = [fj.simulate(sliders(1.0), mo, state0=(jnp.zeros(2), c)) for c in counts]
+    np.testing.assert_allclose(out, np.stack(expected), rtol=0, atol=1e-15)
+    grad = jax.grad(lambda s: jnp.sum(jax.vmap(lambda c: loss(s, c))(counts)))(1.0)
+    np.testing.assert_allclose(grad, sum(jax.grad(loss)(1.0, c) for c in counts), rtol=1e-10)

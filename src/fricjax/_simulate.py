@@ -7,6 +7,7 @@ ensembles, systems, data generators and protocols call `simulate` or `run`, neve
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -161,7 +162,9 @@ def _primal_run(model: AbstractModel, samples: Any, state: Any, unroll: int | No
       derivatives 2.4-3x: tangents and cotangents gathered into the vector at every step), hence primal only.
     - `batch_minor()`: under `jax.vmap`, `_batch_minor_scan` (a `custom_vmap` rule) instead of vmap's own batching.
     """
-    params, static = eqx.partition(model, eqx.is_inexact_array)
+    # every array of the model is an argument of the custom rules (a batched integer field must reach the vmap
+    # rule as an argument, not as a constant it closes over); only the floating-point arrays are packed
+    params, static = eqx.partition(model, eqx.is_array)
     primal_unroll = int(model.packed_unroll or DEFAULT_UNROLL) if unroll is None else unroll
 
     def plain(theta: Any, samples_: Any, state_: Any) -> tuple[Any, Any]:
@@ -172,11 +175,12 @@ def _primal_run(model: AbstractModel, samples: Any, state: Any, unroll: int | No
     def primal(theta: Any, samples_: Any, state_: Any) -> tuple[Any, Any]:
         if model.packed_unroll is None:
             return plain(theta, samples_, state_)
-        flat, unravel = ravel_pytree(theta)
+        floats, others = eqx.partition(theta, eqx.is_inexact_array)
+        flat, unravel = ravel_pytree(floats)
         steps, rebuild = split_time_signals(samples_)
 
         def body(carry: Any, step_signals: Any) -> tuple[Any, Any]:
-            return eqx.combine(unravel(flat), static).step(carry, rebuild(step_signals))
+            return eqx.combine(unravel(flat), others, static).step(carry, rebuild(step_signals))
 
         return jax.lax.scan(body, state_, steps, unroll=primal_unroll)
 
@@ -196,11 +200,32 @@ def _primal_run(model: AbstractModel, samples: Any, state: Any, unroll: int | No
     @free_run.defjvp
     def free_run_jvp(primals: tuple[Any, ...], tangents: tuple[Any, ...]) -> tuple[Any, Any]:
         out, out_tangent = jax.jvp(plain, primals, tangents)
-        if model.batch_minor():  # batched outputs along axis 0, as the custom_vmap rule gives them (see below)
-            out, out_tangent = jax.tree_util.tree_map(_batch_axis_first, (out, out_tangent))
+        if model.batch_minor():  # batched as the custom_vmap rule batches them: every output, along axis 0
+            flag = _any_nan(primals)
+
+            def like_the_rule(leaf: Any) -> Any:
+                return _batch_axis_first(_depending_on(flag, leaf))
+
+            out, out_tangent = jax.tree_util.tree_map(like_the_rule, (out, out_tangent))
         return out, out_tangent
 
     return free_run(params, samples, state)
+
+
+def _any_nan(tree: Any) -> jax.Array:
+    """Whether any array of `tree` holds a NaN: a flag that depends on every one of them (batched if any is)."""
+    flags = [jnp.any(leaf != leaf) for leaf in jax.tree_util.tree_leaves(tree)]
+    return functools.reduce(jnp.logical_or, flags, jnp.asarray(False))
+
+
+def _depending_on(flag: jax.Array, leaf: Any) -> Any:
+    """`leaf` itself, made to depend on `flag` (a select between two equal values), so that under `jax.vmap` it
+    is batched whenever `flag` is. The custom_vmap rule batches every output of a batched free run, including
+    those that depend on no batched argument (Maxwell-slip's forces do not read `dt`); the plain scan's JVP,
+    batched by vmap, would leave those unbatched, and JAX would combine the two without broadcasting (a vmap
+    over `dt` alone gave a third of the gradient and unbatched forward derivatives)."""
+    leaf = jnp.asarray(leaf)
+    return leaf if leaf.dtype == jax.dtypes.float0 else jnp.where(flag, leaf, leaf)
 
 
 def _batch_axis_first(leaf: Any) -> Any:
@@ -230,7 +255,7 @@ def _batch_minor_scan(
     vmap's `(batch, time)` layout transposes the whole output (32 MB for 1024 x 4 000 samples) after the loop.
     Batch-minor, each element is one contiguous vector over the batch (the sum over elements a vector add), and
     a column written per step lands in the rows' cache lines, which stay in cache for the next steps
-    (Maxwell-slip NLR(7), 1024 x 4 000 steps, two devices: ~5.2 -> ~3.0 ns per trajectory-step;
+    (Maxwell-slip NLR(7), 1024 x 4 000 steps, two devices: 4.8 -> 3.1 ns per trajectory-step;
     benchmarks/README.md). Unbatched parameters and state are broadcast; unbatched scalar signals stay scalars.
     **Returns:** `(final_state, outputs)`, every leaf batched along axis 0.
     """

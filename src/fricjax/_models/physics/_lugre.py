@@ -113,8 +113,8 @@ class LuGre(AbstractFrictionModel):
         return {"offset": level, "z0": level / float(np.max(np.asarray(p.sigma0)))}  # N, m (pre-sliding range)
 
     def batch_minor(self) -> bool:
-        """Under vmap, the batch-minor free run, its rows written in the loop (1024 models, two devices: 3.7-3.8x
-        -> 4.2-5.3x a numba trajectory; benchmarks/README.md)."""
+        """Under vmap, the batch-minor free run, its rows written in the loop (1024 models sharded over two
+        devices: 5.4-5.5x a numba trajectory's throughput; benchmarks/README.md)."""
         return True
 
     def init_state(self) -> LuGreState:

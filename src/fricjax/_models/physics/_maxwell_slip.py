@@ -170,8 +170,8 @@ class MaxwellSlip(AbstractFrictionModel):
 
     def batch_minor(self) -> bool:
         """Under vmap, the batch-minor free run for the maps without history (LR / NLR: 1024 NLR(7) models,
-        two devices, ~5 -> ~3.5 ns per trajectory-step); the FIR maps' history shift moves the batch axis inside
-        the step (DNLRX(7, 2, 2): 16.5 -> 20.5 ns), so they keep vmap's own batching (benchmarks/README.md)."""
+        two devices, 4.8 -> 3.1 ns per trajectory-step, benchmarks/vmap_layout.py); the FIR maps' history shift
+        moves the batch axis inside the step (slower in a probe), so they keep vmap's own batching."""
         return self.force_map.dbar_lags == 0 and self.force_map.x_lags == 0
 
     @property
