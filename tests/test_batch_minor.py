@@ -6,6 +6,7 @@ differentiated)."""
 
 from __future__ import annotations
 
+import functools
 from typing import ClassVar
 
 import jax
@@ -177,6 +178,26 @@ def test_outputs_independent_of_the_batched_argument():
     assert tangent.shape == (3, T)
     np.testing.assert_allclose(tangent, np.stack([jax.jvp(row, (1.0,), (1.0,))[1]] * 3), rtol=1e-10, atol=1e-12)
     assert jax.jacfwd(batch)(1.0).shape == (3, T)
+
+    # nested: an outer vmap over `dt` alone around an inner one over the stiffnesses (the outer batches the inner
+    # rule's own operations), and the other nesting
+    ks = jnp.array([0.7, 1.4])
+
+    def grid(s, outer_dt=True):
+        def one(dt, k):
+            return fj.simulate(nlr(k_scale=s * k), fj.Motion(x=x, dt=dt))
+
+        if outer_dt:
+            return jax.vmap(lambda dt: jax.vmap(lambda k: one(dt, k))(ks))(dts)
+        return jax.vmap(lambda k: jax.vmap(lambda dt: one(dt, k))(dts))(ks)
+
+    rows = [lambda s, k=k: fj.simulate(nlr(k_scale=s * k), fj.Motion(x=x, dt=1e-3)) for k in ks]
+    expected = 3 * sum(jax.grad(lambda s, r=r: jnp.sum(r(s) ** 2))(1.0) for r in rows)
+    for outer_dt, shape in ((True, (3, 2, T)), (False, (2, 3, T))):
+        nested = functools.partial(grid, outer_dt=outer_dt)
+        gradient = jax.grad(lambda s, f=nested: jnp.sum(f(s) ** 2))(1.0)
+        np.testing.assert_allclose(gradient, expected, rtol=1e-10, err_msg=f"outer vmap over dt: {outer_dt}")
+        assert jax.jvp(nested, (1.0,), (1.0,))[1].shape == shape
 
 
 class TwoOutputSpringSliders(fj.AbstractFrictionModel):

@@ -193,21 +193,23 @@ def _primal_run(model: AbstractModel, samples: Any, state: Any, unroll: int | No
             out = _batch_minor_scan(static, size, in_batched, (theta, samples_, state_), batched_unroll)
             return out, jax.tree_util.tree_map(lambda _: True, out)
 
+    def batched_alike(args: Any, outputs: Any) -> Any:
+        """Under every vmap, the same batch axes for the primal's and the derivative rule's outputs (JAX takes
+        a custom JVP's output axes from one and combines them with the other's): when the model is batch-minor,
+        every output batched if any argument is, along axis 0 (as the custom_vmap rule batches them)."""
+        if not model.batch_minor():
+            return outputs
+        flag = _any_nan(args)
+        return jax.tree_util.tree_map(lambda leaf: _batch_axis_first(_depending_on(flag, leaf)), outputs)
+
     @jax.custom_jvp
     def free_run(theta: Any, samples_: Any, state_: Any) -> tuple[Any, Any]:
-        return primal(theta, samples_, state_)
+        return batched_alike((theta, samples_, state_), primal(theta, samples_, state_))
 
     @free_run.defjvp
     def free_run_jvp(primals: tuple[Any, ...], tangents: tuple[Any, ...]) -> tuple[Any, Any]:
         out, out_tangent = jax.jvp(plain, primals, tangents)
-        if model.batch_minor():  # batched as the custom_vmap rule batches them: every output, along axis 0
-            flag = _any_nan(primals)
-
-            def like_the_rule(leaf: Any) -> Any:
-                return _batch_axis_first(_depending_on(flag, leaf))
-
-            out, out_tangent = jax.tree_util.tree_map(like_the_rule, (out, out_tangent))
-        return out, out_tangent
+        return batched_alike(primals, (out, out_tangent))
 
     return free_run(params, samples, state)
 
@@ -219,11 +221,13 @@ def _any_nan(tree: Any) -> jax.Array:
 
 
 def _depending_on(flag: jax.Array, leaf: Any) -> Any:
-    """`leaf` itself, made to depend on `flag` (a select between two equal values), so that under `jax.vmap` it
-    is batched whenever `flag` is. The custom_vmap rule batches every output of a batched free run, including
-    those that depend on no batched argument (Maxwell-slip's forces do not read `dt`); the plain scan's JVP,
-    batched by vmap, would leave those unbatched, and JAX would combine the two without broadcasting (a vmap
-    over `dt` alone gave a third of the gradient and unbatched forward derivatives)."""
+    """`leaf` itself, made to depend on `flag` (a select between two equal values, which XLA removes), so that
+    under `jax.vmap` it is batched whenever `flag` is. The custom_vmap rule batches every output of a batched
+    free run, including those that depend on no batched argument (Maxwell-slip's forces do not read `dt`); the
+    plain scan's JVP, batched by vmap, would leave those unbatched, and JAX would combine the two without
+    broadcasting (a vmap over `dt` alone gave a third of the gradient). The primal's outputs get the same
+    treatment, for the vmaps around an inner one (an outer vmap over `dt` batches the inner rule's operations
+    themselves, which leave the forces unbatched)."""
     leaf = jnp.asarray(leaf)
     return leaf if leaf.dtype == jax.dtypes.float0 else jnp.where(flag, leaf, leaf)
 
