@@ -166,6 +166,7 @@ def _primal_run(model: AbstractModel, samples: Any, state: Any, unroll: int | No
     # rule as an argument, not as a constant it closes over); only the floating-point arrays are packed
     params, static = eqx.partition(model, eqx.is_array)
     primal_unroll = int(model.packed_unroll or DEFAULT_UNROLL) if unroll is None else unroll
+    is_step = [signal is not None for signal in split_time_signals(samples)[0]]  # decided on one configuration
 
     def plain(theta: Any, samples_: Any, state_: Any) -> tuple[Any, Any]:
         return _plain_run(
@@ -190,7 +191,7 @@ def _primal_run(model: AbstractModel, samples: Any, state: Any, unroll: int | No
         @primal.def_vmap
         def primal_batched(size: int, in_batched: Any, theta: Any, samples_: Any, state_: Any) -> Any:
             batched_unroll = BATCH_MINOR_UNROLL if unroll is None else unroll
-            out = _batch_minor_scan(static, size, in_batched, (theta, samples_, state_), batched_unroll)
+            out = _batch_minor_scan(static, size, in_batched, (theta, samples_, state_), is_step, batched_unroll)
             return out, jax.tree_util.tree_map(lambda _: True, out)
 
     def batched_alike(args: Any, outputs: Any) -> Any:
@@ -200,7 +201,7 @@ def _primal_run(model: AbstractModel, samples: Any, state: Any, unroll: int | No
         if not model.batch_minor():
             return outputs
         flag = _any_nan(args)
-        return jax.tree_util.tree_map(lambda leaf: _batch_axis_first(_depending_on(flag, leaf)), outputs)
+        return jax.tree_util.tree_map(lambda leaf: _batched_like_the_rule(flag, leaf), outputs)
 
     @jax.custom_jvp
     def free_run(theta: Any, samples_: Any, state_: Any) -> tuple[Any, Any]:
@@ -220,39 +221,38 @@ def _any_nan(tree: Any) -> jax.Array:
     return functools.reduce(jnp.logical_or, flags, jnp.asarray(False))
 
 
-def _depending_on(flag: jax.Array, leaf: Any) -> Any:
-    """`leaf` itself, made to depend on `flag` (a select between two equal values, which XLA removes), so that
-    under `jax.vmap` it is batched whenever `flag` is. The custom_vmap rule batches every output of a batched
-    free run, including those that depend on no batched argument (Maxwell-slip's forces do not read `dt`); the
-    plain scan's JVP, batched by vmap, would leave those unbatched, and JAX would combine the two without
-    broadcasting (a vmap over `dt` alone gave a third of the gradient). The primal's outputs get the same
-    treatment, for the vmaps around an inner one (an outer vmap over `dt` batches the inner rule's operations
-    themselves, which leave the forces unbatched)."""
-    leaf = jnp.asarray(leaf)
-    return leaf if leaf.dtype == jax.dtypes.float0 else jnp.where(flag, leaf, leaf)
+def _batched_like_the_rule(flag: jax.Array, leaf: Any) -> Any:
+    """`leaf` itself, except that under `jax.vmap` it is batched whenever `flag` is, along axis 0: the batch axes
+    the custom_vmap rule gives every output of a batched free run.
 
-
-def _batch_axis_first(leaf: Any) -> Any:
-    """The identity, except that under `jax.vmap` the result is batched along axis 0 (vmap's rule for `reshape`
-    moves the batch axis to the front).
-
-    Why: a custom JVP's rule must batch its outputs along the axes its primal function does. When a jitted
-    program is batched, the custom JVP takes the batch axes of its primal (the `custom_vmap` rule's outputs:
-    axis 0), and its rule is batched later, when the program is differentiated; vmap's batching of the plain
-    scan stacks outputs with the batch along axis 1, so `jax.jvp(jax.vmap(fj.simulate))` read a `(T, B)` array
-    as `(B, T)` (tests/test_batch_minor.py; JAX issue 16374 reports a mismatch of the same kind)."""
+    JAX batches a jitted custom JVP with the output batch axes of its primal and batches its derivative rule later,
+    when the program is differentiated, and combines the two without reconciling them, so both must batch every
+    output alike. Two differences are removed here: an output that reads no batched argument (Maxwell-slip's
+    forces do not read `dt`) is batched by the rule but not by vmap's batching of the plain scan, nor by an outer
+    vmap around the rule's own operations; it is made to depend on `flag` (a select between two equal values,
+    which XLA removes). And vmap stacks the plain scan's outputs with the batch along axis 1: a reshape, whose vmap
+    rule moves the batch axis to the front, puts it first. Without them a vmap over `dt` alone gave a third of the
+    gradient, and `jax.jvp(jax.vmap(fj.simulate))` read a `(T, B)` array as `(B, T)` (tests/test_batch_minor.py;
+    JAX issue 16374 reports a mismatch of the same kind)."""
     leaf = jnp.asarray(leaf)
     if leaf.dtype == jax.dtypes.float0:
         return leaf
+    leaf = jnp.where(flag, leaf, leaf)
     return jax.lax.squeeze(jax.lax.reshape(leaf, (1, *leaf.shape)), (0,))
 
 
 def _batch_minor_scan(
-    static: Any, size: int, in_batched: tuple[Any, Any, Any], args: tuple[Any, Any, Any], unroll: int
+    static: Any,
+    size: int,
+    in_batched: tuple[Any, Any, Any],
+    args: tuple[Any, Any, Any],
+    is_step: list[bool],
+    unroll: int,
 ) -> tuple[Any, Any]:
     """The free run of a batch of `size` configurations (`args`: parameters, samples, state, each leaf batched
-    along axis 0 where `in_batched` says so) with the batch as the last, minor axis of every array in the loop,
-    and the outputs written straight into `(batch, time, ...)` buffers, one column per step.
+    along axis 0 where `in_batched` says so; `is_step`: which sample leaves are signals along time) with the batch
+    as the last, minor axis of every array in the loop, and the outputs written straight into `(batch, time, ...)`
+    buffers, one column per step.
 
     vmap's own batching of the scan puts the batch first: a model's element vector (Maxwell-slip's M
     deflections) is then a short minor axis, and its outputs are stacked time-major, so that returning them in
@@ -274,7 +274,6 @@ def _batch_minor_scan(
     state_m = jax.tree_util.tree_map(minor, state, state_batched)
     leaves, treedef = jax.tree_util.tree_flatten(samples)
     flags = jax.tree_util.tree_leaves(samples_batched)
-    is_step = [jnp.ndim(leaf) - int(batched) > 0 for leaf, batched in zip(leaves, flags, strict=True)]
     signals, signal_axes, scalars, scalar_axes = [], [], [], []
     for leaf, batched, along_time in zip(leaves, flags, is_step, strict=True):
         leaf = jnp.asarray(leaf)
@@ -306,7 +305,9 @@ def _batch_minor_scan(
         state_, y = step(theta_m, state_, signal, scalars)
 
         def write(rows: jax.Array, column: jax.Array) -> jax.Array:
-            return jax.lax.dynamic_update_index_in_dim(rows, jnp.moveaxis(column, -1, 0), t, 1)
+            return jax.lax.dynamic_update_index_in_dim(  # t counts from 0: no wrapping of negative indices
+                rows, jnp.moveaxis(column, -1, 0), t, 1, allow_negative_indices=False
+            )
 
         return (t + 1, state_, jax.tree_util.tree_map(write, out, y)), None
 
