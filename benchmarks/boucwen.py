@@ -174,7 +174,7 @@ def black_box_narx(
         "lags": lags,
         "width": width,
         "steps": list(steps),
-        "fit_result": noe.result,
+        "fit_result": noe.code,
         "parameters": int(
             sum(np.size(leaf) for leaf in jax.tree_util.tree_leaves(eqx.filter(noe.model, eqx.is_inexact_array)))
         ),
@@ -212,7 +212,7 @@ def recurrent_network(
         "fit_s": time.perf_counter() - t0,
         "elements": elements,
         "steps": steps,
-        "fit_result": noe.result,
+        "fit_result": noe.code,
     }
 
 
@@ -308,7 +308,7 @@ def main() -> None:
             steps=steps,
             substeps=substeps,
             valid_rmse_m=valid_rmse,
-            fit_result=result.result,
+            fit_result=result.code,
             start=GREY_START,
             parameters={name: float(getattr(fitted, name)) for name in GREY_START},
         )
@@ -349,7 +349,7 @@ def main() -> None:
                 steps=oscillator_steps,
                 substeps=oscillator_substeps,
                 valid_rmse_m=valid_rmse,
-                fit_result=result.result,
+                fit_result=result.code,
                 m_c_k=[float(fitted.m), float(fitted.c), float(fitted.k)],
             )
         )

@@ -139,7 +139,7 @@ def bench(name: str, steps: int, nm_evals: int) -> dict[str, Any]:
         "fricjax_time_s": fj_time,
         "fricjax_first_call_s": first,
         "fricjax_evaluations": result.evaluations,
-        "fricjax_result": result.result,
+        "fricjax_result": result.code,
         "fricjax_param_rel_errors": parameter_errors(result.model, truth),
         "nm_loss": nm_loss,
         "nm_time_s": nm_time,

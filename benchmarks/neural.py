@@ -151,12 +151,12 @@ def main() -> None:
         "train_nmse_percent_teacher": round(held_out_nmse(teacher.model, train, 0), 4),
         "train_nmse_percent": round(held_out_nmse(noe.model, train, 0), 4),
         "held_out_nmse_percent": round(held_out_nmse(noe.model, full, args.samples), 4),
-        "result": noe.result,
+        "result": noe.code,
         **env,
     }
     print(json.dumps(line), flush=True)
 
-    from fricjax._protocols import _compare as C
+    from fricjax import compare as C
 
     spec = C.default_models(C.FitSettings())["gsnn"]
     split = C.Split(full, int(0.8 * args.samples), args.samples)  # validation: the last 20 % of the training part
@@ -171,7 +171,7 @@ def main() -> None:
         "fit_s": round(fit_s, 2),
         "train_nmse_percent": round(held_out_nmse(fj.exact(result.model), train, 0), 4),
         "held_out_nmse_percent": round(held_out_nmse(fj.exact(result.model), full, args.samples), 4),
-        "result": result.result,
+        "result": result.code,
         **env,
     }
     print(json.dumps(line), flush=True)

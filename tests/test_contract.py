@@ -154,7 +154,7 @@ def test_narx_fit_one_step(narx):
     for force, expected in ((noisy, lstsq), (clean, THETA)):
         data = fj.FrictionData(motion, force)
         result = fj.fit(start, data, loss=fj.OneStepLoss(), solver=fj.levenberg_marquardt(), steps=50)  # ~23 used
-        assert result.result == "successful", result.message
+        assert result.code == "successful", result.message
         np.testing.assert_allclose(result.model.theta, expected, rtol=1e-8, atol=1e-10)
 
 
@@ -165,7 +165,7 @@ def test_narx_fit_simulation(narx):
     start = PolyNARX(jnp.asarray(THETA * np.array([1.05, 0.95, 1.05, 0.95, 1.05, 0.95])))
     data = fj.FrictionData(motion, clean)
     result = fj.fit(start, data, loss=fj.SimulationLoss(), solver=fj.levenberg_marquardt(), steps=50)
-    assert result.result == "successful", result.message
+    assert result.code == "successful", result.message
     np.testing.assert_allclose(result.model.theta, THETA, rtol=1e-6, atol=1e-8)
     assert result.train_loss < 1e-12
 

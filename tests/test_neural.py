@@ -184,7 +184,7 @@ def test_rnn_readout_least_squares_is_the_whole_fit():
     data = neural_record()
     model = fj.RecurrentNetwork.init(data, 6, key=jax.random.PRNGKey(1), delays=(0, 4, 9))
     result = fj.fit(model, data, train=("theta", "theta0"), separable=("theta", "theta0"), steps=1)
-    assert result.result == "successful"
+    assert result.code == "successful"
     # NumPy: the element states do not depend on the readout; regress the force on [x_i(t), 1]
     p = fj.unwrap(model)
     basis = []
@@ -340,7 +340,7 @@ def test_output_layer_is_linear_and_solved_by_least_squares():
     model = fj.GSNN.init(regressors, 3, key=jax.random.PRNGKey(2), linear=True)
     layer = ("d", "d0", "theta")
     result = fj.fit(model, data, train=layer, separable=layer, steps=1)
-    assert result.result == "successful"
+    assert result.code == "successful"
     basis = []
     p = fj.unwrap(model)
     for vector in np.eye(p.d.size + 1 + p.theta.size):

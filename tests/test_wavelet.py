@@ -295,7 +295,7 @@ def test_output_error_refinement_improves_the_free_run(record):
     start = fj.identify_wavelet_narx(data, signals=SIGNALS, input_lags=N_U, output_lags=N_Y, units=6).model
     before = float(fj.nmse(noisy, fj.simulate(start, motion)))
     fitted = fj.fit(start, data, loss=fj.SimulationLoss(), solver=optax.adam(3e-3), steps=150)
-    assert fitted.result in ("max_steps", "successful"), fitted.message
+    assert fitted.code in ("max_steps", "successful"), fitted.message
     assert float(fj.nmse(noisy, fj.simulate(fitted.model, motion))) < 0.9 * before
 
 

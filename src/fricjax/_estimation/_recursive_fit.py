@@ -22,7 +22,7 @@ import numpy as np
 from .._data._record import FrictionData
 from .._simulate import simulate
 from .._systems._recursive import RecursiveLeastSquares, RegressionData
-from ._fit import _where
+from ._problem import _where
 
 
 class RecursiveFitResult(NamedTuple):

@@ -10,6 +10,7 @@ numbers (`optax.inject_hyperparams`). This is the design card's "vmap-ed hyperpa
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -21,8 +22,12 @@ import numpy as np
 import optax
 
 from .._constraints import trainable_filter
+from .._validation import nonnegative_int, positive_int
+from ._loop import Search, run_stage
 from ._losses import AbstractLoss, SimulationLoss
+from ._problem import Problem
 from ._sharding import shard_batch
+from ._solvers import OptaxSolver
 
 
 def stack_models(models: Sequence[Any]) -> Any:
@@ -54,8 +59,9 @@ def stack_models(models: Sequence[Any]) -> Any:
 @dataclasses.dataclass(frozen=True)
 class SweepResult:
     """The outcome of `fj.sweep`: `models` (stacked, leading axis B: index with `result.model(i)`),
-    `train_loss` and `val_loss` (B,) of the returned models, `history` (`step`, `train_loss` of shape (checks, B)),
-    `diverged` (B,) bools (a configuration whose loss became non-finite keeps its last finite parameters), and
+    `train_loss` and `val_loss` (B,) of the returned models, `history` (`step`, `train_loss` of shape (checks, B):
+    the loss after each check), `diverged` (B,) bools (a configuration whose loss became non-finite keeps its last
+    finite parameters), and
     `wall_time` [s] (compilation included)."""
 
     models: Any
@@ -120,44 +126,41 @@ def sweep(
     loss = SimulationLoss() if loss is None else loss
     if not isinstance(loss, AbstractLoss):
         raise TypeError(f"sweep: `loss` must be a fricjax loss (fj.SimulationLoss(), ...), got {type(loss).__name__}.")
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
-        raise ValueError(f"sweep: `steps` must be a positive integer, got {steps!r}.")
+    steps = positive_int(steps, "steps", "sweep")
+    checks = positive_int(checks, "checks", "sweep")
+    validation_burn_in = nonnegative_int(validation_burn_in, "validation_burn_in", "sweep")
     batch = stack_models(models) if isinstance(models, (list, tuple)) else models
     sizes = {np.shape(leaf)[0] for leaf in jax.tree_util.tree_leaves(batch) if eqx.is_array(leaf) and np.ndim(leaf)}
     if len(sizes) != 1:
         raise ValueError("sweep: `models` must be a list of models or a stack of them (one leading batch axis).")
     count = sizes.pop()
-    rates = jnp.broadcast_to(jnp.asarray(learning_rate, dtype=float), (count,))
-    if rates.shape != (count,) or not bool(jnp.all(rates > 0)):
-        raise ValueError(f"sweep: `learning_rate` must be positive, one number or one per model ({count}).")
+    rates = np.broadcast_to(np.asarray(learning_rate, dtype=float), (count,))
+    if rates.shape != (count,) or not bool(np.all(np.isfinite(rates) & (rates > 0))):
+        raise ValueError(f"sweep: `learning_rate` must be positive and finite, one number or one per model ({count}).")
 
     one = jax.tree_util.tree_map(lambda leaf: leaf[0] if eqx.is_array(leaf) else leaf, batch)
     params, static = eqx.partition(batch, trainable_filter(one))
     extra0 = loss.init_extra(one, data)
-    opt_state = _init_states(params, rates, optimiser)
+    extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + jnp.shape(e)), extra0)
+    problem = Problem(loss, None, None, None, None, data, None, loss)
+    ys = (params, extras)
+    states = _init_states(ys, jnp.asarray(rates), optimiser)
     # the configurations spread over every local device (as many as divide the batch; identity on one device)
-    params, static, opt_state = shard_batch((params, static, opt_state))
-    chunk = max(1, steps // max(1, checks))
+    ys, static, states = shard_batch((ys, static, states))
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=steps, desc=f"sweep x{count}", leave=False)
-    done, history_steps, history_loss = 0, [], []
-    diverged = np.zeros(count, dtype=bool)
-    while done < steps:
-        n = min(chunk, steps - done)
-        params, opt_state, values = _train_chunk(params, static, opt_state, loss, extra0, data, optimiser, n)
-        done += n
-        values = np.asarray(values)
-        diverged |= ~np.isfinite(values).all(axis=0)
-        history_steps.append(done)
-        history_loss.append(values[-1])
-        if bar is not None:
-            bar.update(n)
-    if bar is not None:
-        bar.close()
-    trained = eqx.combine(params, static)
+    # the one optimisation loop: each configuration's own rate sits in its optimiser state (inject_hyperparams)
+    solver = _injected_solver(optimiser)
+    search = Search(ys, False, start_time, bar)
+    run_stage(
+        solver, problem, search, static, budget=steps, check_every=max(1, steps // checks), states=states,
+        batched_args=True,
+    )  # fmt: skip
+    search.close()
+    trained = eqx.combine(search.ys[0], static)
     train_loss = np.asarray(_batch_loss(trained, loss, extra0, data))
     val_loss = np.full(count, np.nan)
     if validation is not None:
@@ -166,8 +169,8 @@ def sweep(
         models=trained,
         train_loss=train_loss,
         val_loss=val_loss,
-        history={"step": np.asarray(history_steps), "train_loss": np.asarray(history_loss)},
-        diverged=diverged,
+        history={"step": np.asarray(search.history["step"]), "train_loss": np.asarray(search.history["train_loss"])},
+        diverged=search.diverged,
         wall_time=time.perf_counter() - start_time,
     )
 
@@ -176,40 +179,17 @@ def sweep(
 # sweep of the same shapes reuses the compilation.
 
 
-@eqx.filter_jit
-def _init_states(params: Any, rates: Any, optimiser: Any) -> Any:
-    make = optax.inject_hyperparams(optimiser)
-    return jax.vmap(lambda p, lr: make(learning_rate=lr).init(p))(params, rates)
+@functools.lru_cache(maxsize=16)
+def _injected_solver(optimiser: Any) -> OptaxSolver:
+    """The solver of a sweep with `optimiser`, one object per factory: a second sweep reuses the compiled loop. Its
+    rate 1.0 is a placeholder: each configuration's rate is a hyperparameter in its state (`_init_states`)."""
+    return OptaxSolver(optax.inject_hyperparams(optimiser)(learning_rate=1.0))
 
 
 @eqx.filter_jit
-def _train_chunk(
-    params: Any, static: Any, opt_state: Any, loss: AbstractLoss, extra0: Any, data: Any, optimiser: Any, n: int
-) -> tuple[Any, Any, Any]:
-    """`n` optimiser steps of every configuration (vmap over the batch; `static` holds the fixed arrays, masks
-    and normalisations, batched like the parameters)."""
+def _init_states(ys: Any, rates: Any, optimiser: Any) -> Any:
     make = optax.inject_hyperparams(optimiser)
-
-    def value(p: Any, fixed: Any) -> Any:
-        return loss(eqx.combine(p, fixed), extra0, data)
-
-    def update(p: Any, fixed: Any, state: Any) -> tuple[Any, Any, Any]:
-        current, grads = jax.value_and_grad(value)(p, fixed)
-        updates, new_state = make(learning_rate=1.0).update(grads, state, p)  # the state's own rate is used
-        new = optax.apply_updates(p, updates)
-        ok = jnp.isfinite(current) & jnp.all(
-            jnp.asarray([jnp.all(jnp.isfinite(g)) for g in jax.tree_util.tree_leaves(grads)])
-        )
-        keep = lambda a, b: jnp.where(ok, a, b)  # noqa: E731 - a non-finite step keeps the last good parameters
-        return jax.tree_util.tree_map(keep, new, p), jax.tree_util.tree_map(keep, new_state, state), current
-
-    def body(carry: Any, _: Any) -> tuple[Any, Any]:
-        q, s = carry
-        q, s, current = jax.vmap(update)(q, static, s)
-        return (q, s), current
-
-    (params, opt_state), values = jax.lax.scan(body, (params, opt_state), None, length=n)
-    return params, opt_state, values
+    return jax.vmap(lambda y, lr: make(learning_rate=lr).init(y))(ys, rates)
 
 
 @eqx.filter_jit

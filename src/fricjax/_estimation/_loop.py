@@ -1,0 +1,220 @@
+"""The one optimisation loop: every fit (`fj.fit`, `fj.sweep`, multi-start, the protocols' refinements) steps its
+solver here.
+
+Two levels, as in optimistix's `iterative_solve` with diffrax's progress meter:
+
+- `run_steps` (jit-compiled): up to `n` steps of a solver for a batch of starts (`vmap`), each start stopping at its
+  solver's convergence test (`terminate`) or at its first non-finite step, whose parameters are discarded (the last
+  good ones are kept). `n` is traced, so checks of any length share one compilation.
+- `Search` and `run_stage` (host): between chunks of steps the loop scores every start (training and validation
+  loss), keeps each start's best parameters so far, records the history, advances the progress bar and applies the
+  stopping rules (divergence of every start, the solver's convergence, a relative `tolerance` on the loss,
+  `patience` on the validation loss).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._solution import RESULTS
+from ._solvers import AbstractSolver, tree_finite
+
+
+def _in_axes(batched_args: bool) -> tuple[int, int, int | None]:
+    return 0, 0, (0 if batched_args else None)
+
+
+@eqx.filter_jit
+def run_steps(
+    solver: AbstractSolver, problem: Any, ys: Any, states: Any, args: Any, n: jax.Array, batched_args: bool = False
+) -> tuple[Any, Any, jax.Array, jax.Array, Any, jax.Array]:
+    """Up to `n` steps of `solver` for every start (`ys` batched along axis 0, `args` too with `batched_args`), from
+    solver states `states` (None: `solver.init` of each start). Returns `(ys, states, steps, done, result, bad)`: the
+    states' array part, the steps each start took, whether its solver's convergence test ended it, the solver's
+    verdict (`fj.RESULTS`), and whether it met a non-finite step (its parameters are then the last finite ones)."""
+
+    def one(y: Any, state: Any, a: Any) -> Any:
+        state = solver.init(problem, y, a) if state is None else state
+        # as optimistix's loop: only the arrays of the state are carried (a solver may keep jaxprs in its state)
+        dynamic, static = eqx.partition(state, eqx.is_array)
+        done, result = solver.terminate(problem, y, a, state)
+
+        def cond(carry: Any) -> jax.Array:
+            i, _, _, done, _, bad = carry
+            return (i < n) & jnp.invert(done) & jnp.invert(bad)
+
+        def body(carry: Any) -> Any:
+            i, y, dynamic, _, _, _ = carry
+            new_y, new_state, ok = solver.step(problem, y, a, eqx.combine(dynamic, static))
+            ok = ok & tree_finite(new_y)
+            done, result = solver.terminate(problem, y, a, new_state)
+            new_dynamic = eqx.filter(new_state, eqx.is_array)
+            keep = lambda new, old: _where_tree(ok, new, old)  # noqa: E731
+            return i + 1, keep(new_y, y), keep(new_dynamic, dynamic), done & ok, result, jnp.invert(ok)
+
+        carry = (jnp.asarray(0), y, dynamic, done, result, jnp.asarray(False))
+        return jax.lax.while_loop(cond, body, carry)
+
+    in_axes = (0, None if states is None else 0, 0 if batched_args else None)
+    steps, ys, states, done, result, bad = jax.vmap(one, in_axes=in_axes)(ys, states, args)
+    return ys, states, steps, done, result, bad
+
+
+@eqx.filter_jit
+def batched_losses(problem: Any, ys: Any, args: Any, batched_args: bool = False) -> tuple[jax.Array, jax.Array]:
+    """Training and validation loss of every start (validation NaN when the problem has none)."""
+
+    def both(y: Any, a: Any) -> tuple[jax.Array, jax.Array]:
+        return problem.objective(y, a), problem.val_objective(y, a)
+
+    return jax.vmap(both, in_axes=(0, 0 if batched_args else None))(ys, args)
+
+
+def _where_tree(condition: jax.Array, new: Any, old: Any) -> Any:
+    """`where(condition, new, old)` leaf by leaf; a condition of shape (B,) selects along the leading batch axis."""
+
+    def select(a: Any, b: Any) -> Any:
+        if not eqx.is_array(a):
+            return a
+        return jnp.where(condition.reshape(condition.shape + (1,) * (jnp.ndim(a) - condition.ndim)), a, b)
+
+    return jax.tree_util.tree_map(select, new, old)
+
+
+def where_tree(condition: Any, new: Any, old: Any) -> Any:
+    return _where_tree(jnp.asarray(condition), new, old)
+
+
+class Search:
+    """The bookkeeping of a fit over a batch of starts: current and best parameters, scores (validation loss, else
+    training loss), which starts diverged, stalls for early stopping, the history and the progress bar."""
+
+    def __init__(self, ys: Any, by_validation: bool, start_time: float, bar: Any):
+        leaves = jax.tree_util.tree_leaves(ys)
+        count = leaves[0].shape[0] if leaves else 1
+        self.ys = self.best_ys = ys
+        self.best_scores = np.full(count, np.inf)
+        self.diverged = np.zeros(count, dtype=bool)
+        self.by_validation, self.start_time, self.bar = by_validation, start_time, bar
+        self.step_count = self.stall = 0
+        self.history: dict[str, list[Any]] = {"step": [], "train_loss": [], "val_loss": [], "eps": [], "time": []}
+
+    def _scores(self, train: Any, val: Any) -> np.ndarray:
+        scores = np.asarray(val if self.by_validation else train)
+        return np.where(np.isfinite(scores) & ~self.diverged, scores, np.inf)
+
+    def restart(self, train: Any, val: Any) -> None:
+        """A new continuation stage: its best-so-far (and its patience) start from the current parameters."""
+        self.best_ys, self.best_scores = self.ys, self._scores(train, val)
+        self.stall = 0
+
+    def observe(self, ys: Any, steps: int, bad: np.ndarray, train: Any, val: Any, eps: Any) -> None:
+        """After `steps` more solver steps: keep the best parameters of each start, record, update the bar."""
+        train, val = np.asarray(train), np.asarray(val)
+        self.ys = ys
+        self.step_count += steps
+        self.diverged |= bad
+        scores = self._scores(train, val)
+        improved = scores < self.best_scores
+        self.best_ys = where_tree(improved, ys, self.best_ys)
+        self.best_scores = np.where(improved, scores, self.best_scores)
+        self.stall = 0 if improved.any() else self.stall + 1
+        history = self.history
+        history["time"].append(time.perf_counter() - self.start_time)
+        history["step"].append(self.step_count)
+        history["train_loss"].append(train)
+        history["val_loss"].append(val)
+        history["eps"].append(np.nan if eps is None else float(eps))
+        if self.bar is not None:
+            self.bar.update(steps)
+            self.bar.set_postfix(loss=f"{np.nanmin(train):.3g}", val=f"{np.nanmin(val):.3g}")
+
+    def converged(self, tolerance: float) -> bool:
+        """Whether the best start's training loss fell by less than `tolerance` (relative) over the last check, with
+        at least one step taken in it."""
+        losses, steps = self.history["train_loss"], self.history["step"]
+        if len(losses) < 2 or steps[-1] == steps[-2]:
+            return False
+        previous, last = np.nanmin(losses[-2]), np.nanmin(losses[-1])
+        return bool(np.isfinite(last) and previous - last <= tolerance * abs(previous))
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+@dataclasses.dataclass
+class StageOutcome:
+    """How a stage of steps ended: `stop` is a `RESULTS` name that ends the whole fit (`diverged`,
+    `early_stopped`) or None; `converged` is the tolerance rule's sentence where it ended the stage; `results`
+    (per start, `fj.RESULTS` names) and `states` are the solver's verdicts and states after the last chunk."""
+
+    stop: str | None = None
+    message: str = ""
+    converged: str = ""
+    results: list[str] = dataclasses.field(default_factory=list)
+    states: Any = None
+
+
+def run_stage(
+    solver: AbstractSolver,
+    problem: Any,
+    search: Search,
+    args: Any,
+    *,
+    budget: int,
+    check_every: int,
+    tolerance: float | None = None,
+    patience: int | None = None,
+    eps: Any = None,
+    states: Any = None,
+    batched_args: bool = False,
+) -> StageOutcome:
+    """`budget` solver steps from `search.ys`, in chunks of `check_every` with the host-side checks between them.
+    `states` are initial solver states (default: `solver.init` of every start, inside the loop's program)."""
+    outcome = StageOutcome()
+    done = 0
+    while done < budget:
+        n = min(check_every, budget - done)
+        if done and solver.restarts_at_checks:
+            states = None
+        ys, states, steps, finished, result, bad = run_steps(
+            solver, problem, search.ys, states, args, jnp.asarray(n), batched_args
+        )
+        ys = problem.project(ys)  # bounds (elementwise); a no-op for solvers that project at every step
+        train, val = map(np.asarray, batched_losses(problem, ys, args, batched_args))
+        done += n
+        search.observe(ys, int(np.max(np.asarray(steps))), np.asarray(bad) | ~np.isfinite(train), train, val, eps)
+        finished = np.asarray(finished)
+        outcome.states = states
+        outcome.results = [
+            "successful" if f and ok else ("max_steps" if ok else "solver_failed")
+            for f, ok in zip(finished, np.asarray(result == RESULTS.successful).reshape(-1), strict=True)
+        ]
+        if search.diverged.all():
+            outcome.stop = "diverged"
+            outcome.message = (
+                "the loss or the parameters became non-finite for every start; the last good parameters were kept "
+                "(lower the learning rate, check the data scale, or start closer)"
+            )
+            break
+        if finished.all():
+            break  # every start's solver met its own convergence test (or failed)
+        if tolerance is not None and search.converged(tolerance):
+            outcome.converged = (
+                f"converged: the loss fell by less than {tolerance:g} (relative) over the last {n} steps "
+                f"(step {search.step_count})"
+            )
+            break  # this stage has converged (a next continuation stage, if any, still runs)
+        if patience is not None and search.by_validation and search.stall >= patience:
+            outcome.stop = "early_stopped"
+            outcome.message = f"validation loss did not improve for {patience} evaluations (step {search.step_count})"
+            break
+    return outcome

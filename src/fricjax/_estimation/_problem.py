@@ -1,0 +1,287 @@
+"""The fit problem: which parameters a fit moves, the separable (linear) ones it solves by least squares, and the
+`Problem` every solver steps on (objective, residuals, bounds, validation score); Gauss-Newton standard deviations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.flatten_util
+import jax.numpy as jnp
+import numpy as np
+
+from .._constraints import AbstractUnwrappable, Fixed, trainable_filter, unwrap
+from .._data._record import FrictionData
+from .._simulate import run, simulate
+from ._linear import lstsq, parameter_std
+from ._losses import AbstractLoss, SimulationLoss
+from ._strategies import submodels, where_from_path
+
+# ----------------------------------------------------------------------------------------------------------------
+# parameter selection
+# ----------------------------------------------------------------------------------------------------------------
+
+
+Selector = str | Callable[[Any], Any] | Sequence[str]
+
+
+def _where(selector: Any, model: Any, argument: str) -> list[tuple[str, Callable[[Any], Any]]]:
+    """`(label, where)` pairs for a selector: a dotted path, a `where` callable, or a sequence of paths /
+    callables. Each is checked against `model`: it must address nodes holding arrays."""
+    if selector is None:
+        return []
+    items = [selector] if isinstance(selector, str) or callable(selector) else list(selector)
+    out = []
+    for item in items:
+        if callable(item):
+            label, where = getattr(item, "__name__", "where"), item
+        elif isinstance(item, str):
+            label, where = item, where_from_path(item)
+        else:
+            raise TypeError(
+                f"fit: `{argument}` takes dotted field paths ('stribeck.Fc', 'mlp.layers.0') or callables "
+                f"(lambda m: m.sigma2), got {type(item).__name__}."
+            )
+        try:
+            nodes = where(model)
+        except (AttributeError, IndexError, KeyError, TypeError) as err:
+            fields = [f.name for f in dataclasses.fields(model)] if dataclasses.is_dataclass(model) else []
+            raise ValueError(
+                f"fit: {label!r} in `{argument}` is not a field path of {type(model).__name__} ({err}); fields: "
+                + ", ".join(fields)
+                + ". Use dotted names such as 'sigma1', 'stribeck.Fc' or 'layers.0.weight', or a callable."
+            ) from None
+        if not jax.tree_util.tree_leaves(nodes):
+            raise ValueError(f"fit: {label!r} in `{argument}` of {type(model).__name__} holds no array to select.")
+        out.append((label, where))
+    return out
+
+
+def _set_spec(spec: Any, model: Any, selector: Any, value: bool, argument: str) -> Any:
+    for _, where in _where(selector, model, argument):
+        spec = eqx.tree_at(where, spec, replace_fn=lambda sub: jax.tree_util.tree_map(lambda _: value, sub))
+    return spec
+
+
+def physical_spec(model: Any, spec: Any) -> Any:
+    """The trainable spec mapped onto `unwrap(model)` (a wrapper becomes one leaf: trained if any raw leaf is)."""
+
+    def is_wrapper(node: Any) -> bool:
+        return isinstance(node, AbstractUnwrappable)
+
+    def convert(spec_node: Any) -> Any:
+        if isinstance(spec_node, Fixed):
+            return False
+        if is_wrapper(spec_node):
+            return any(bool(leaf) for leaf in jax.tree_util.tree_leaves(spec_node))
+        return spec_node
+
+    return jax.tree_util.tree_map(convert, spec, is_leaf=is_wrapper)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# separable least squares
+# ----------------------------------------------------------------------------------------------------------------
+
+
+def _simulate_force(model: Any, data: FrictionData) -> jax.Array:
+    model = unwrap(model)
+    _, force = run(model, model.samples(data.motion), model.init_state())
+    return force
+
+
+def solve_linear(
+    model: Any, linear_spec: Any, data: FrictionData, burn_in: int = 0, *, nonnegative: Sequence[bool] | None = None
+) -> Any:
+    """Set the parameters selected by `linear_spec` (which enter the simulated force linearly) to their least-
+    squares values for `data`, by a differentiable column-scaled solve (`fj.lstsq`, tiny ridge).
+
+    The force is `f(theta) = f(0) + J theta` exactly, with `J` from one forward-mode pass (`jacfwd`).
+    `nonnegative`: one flag per selected scalar (in tree order) that must stay >= 0 (damping coefficients);
+    `fit` derives it from the models' `nonnegative_fields`.
+    """
+    linear, rest = eqx.partition(model, linear_spec)
+    flat, unravel = jax.flatten_util.ravel_pytree(linear)
+
+    def predict(theta: jax.Array) -> jax.Array:
+        return _simulate_force(eqx.combine(unravel(theta), rest), data)[burn_in:]
+
+    zero = jnp.zeros_like(flat)
+    f0 = predict(zero)
+    J = jax.jacfwd(predict)(zero)
+    target = data.force[burn_in:] - f0
+    bound = None if nonnegative is None or not any(nonnegative) else np.asarray(nonnegative, dtype=bool)
+    theta = lstsq(J, target, ridge=1e-12, nonnegative=bound).x  # the one least-squares kernel, differentiable
+    return eqx.combine(unravel(theta), rest)
+
+
+def _check_linear(model: Any, linear_spec: Any, data: FrictionData, paths: Sequence[str]) -> None:
+    linear, rest = eqx.partition(model, linear_spec)
+    flat, unravel = jax.flatten_util.ravel_pytree(linear)
+    probe = data.slice(0, min(data.length, 400))
+    rng = np.random.default_rng(1)
+    theta = jnp.asarray(rng.normal(size=flat.shape) * (np.abs(np.asarray(flat)) + 1.0), flat.dtype)
+
+    def f(t: jax.Array) -> np.ndarray:
+        return np.asarray(simulate(eqx.combine(unravel(t), rest), probe.motion))
+
+    f0, f1, f2 = f(jnp.zeros_like(flat)), f(theta), f(2 * theta)
+    curvature = np.max(np.abs(f2 - 2 * f1 + f0))
+    if not curvature <= 1e-6 * (np.max(np.abs(f2)) + np.max(np.abs(f0)) + 1e-300):
+        raise ValueError(
+            f"fit: the `separable` fields {list(paths)} do not enter the simulated force linearly for "
+            f"{type(model).__name__}; list only offsets, FIR coefficients or output weights."
+        )
+
+
+def parameter_specs(model: Any, train: Any, freeze: Any, separable: Sequence[str], loss: Any, data: Any) -> Any:
+    """Which leaves the optimiser moves (`spec`) and which are solved by least squares (`linear_spec`)."""
+    spec = trainable_filter(model)
+    if train is not None:
+        selected = _set_spec(jax.tree_util.tree_map(lambda _: False, spec), model, train, True, "train")
+        spec = jax.tree_util.tree_map(lambda a, b: bool(a) and bool(b), spec, selected)
+    spec = _set_spec(spec, model, freeze, False, "freeze")
+    linear_spec = None
+    if separable:
+        if not isinstance(loss, SimulationLoss):
+            raise ValueError("fit: `separable` needs a SimulationLoss (the linear solve is on the simulated force).")
+        for path, where in _where(separable, model, "separable"):
+            node = where(model)
+            if isinstance(node, AbstractUnwrappable) or not eqx.is_inexact_array(node):
+                raise ValueError(
+                    f"fit: separable field {path!r} is reparametrised or not a real array; only real fields "
+                    "(offsets, FIR coefficients, sigma1 / sigma2, Fv) can be solved linearly."
+                )
+        linear_spec = _set_spec(jax.tree_util.tree_map(lambda _: False, spec), model, separable, True, "separable")
+        spec = _set_spec(spec, model, separable, False, "separable")
+        _check_linear(model, linear_spec, data, separable)
+    if not any(jax.tree_util.tree_leaves(spec)) and linear_spec is None:
+        raise ValueError("fit: nothing to train: every parameter is frozen.")
+    return spec, linear_spec
+
+
+def nonnegative_mask(model: Any) -> Any:
+    """A tree shaped like `model`: True at the real-stored fields their class declares physically >= 0."""
+    mask = jax.tree_util.tree_map(lambda _: False, model)
+    for path in _nonnegative_paths(model):
+        mask = eqx.tree_at(where_from_path(path), mask, True)
+    return mask
+
+
+def _nonnegative_paths(model: Any) -> list[str]:
+    return [
+        prefix + field.name
+        for prefix, node in submodels(model)
+        for field in dataclasses.fields(node)
+        if field.name in getattr(type(node), "nonnegative_fields", ())
+        and eqx.is_inexact_array(getattr(node, field.name, None))
+    ]
+
+
+def nonnegative_flags(model: Any, linear_spec: Any, separable: Sequence[str]) -> tuple[bool, ...] | None:
+    """One flag per scalar solved by separable least squares (tree order): True for fields their model class
+    declares physically >= 0 (`nonnegative_fields`: LuGre `sigma1` / `sigma2`, GMS `sigma2`, static `Fv`)."""
+    if linear_spec is None:
+        return None
+    marker = jax.tree_util.tree_map(lambda a: jnp.zeros_like(a) if eqx.is_inexact_array(a) else a, model)
+    for path in separable:
+        *parents, name = path.split(".")
+        owner = where_from_path(".".join(parents))(model) if parents else model
+        if name in getattr(type(owner), "nonnegative_fields", ()):
+            marker = eqx.tree_at(where_from_path(path), marker, replace_fn=jnp.ones_like)
+    flat, _ = jax.flatten_util.ravel_pytree(eqx.partition(marker, linear_spec)[0])
+    return tuple(bool(flag) for flag in np.asarray(flat) > 0.5)
+
+
+class Problem(eqx.Module):
+    """What a solver steps on: everything an evaluation needs besides the iterate, as one pytree (jitted drivers
+    take it as an argument, arrays traced and the rest static, so a second fit of the same shapes reuses the
+    compilation).
+
+    The iterate is `y = (params, extra)`: the trained parameters (divided by `scales` where given) and the loss's
+    extra decision variables (multiple-shooting states); `args` is the rest of the model (`eqx.partition`'s static
+    half: frozen arrays, smoothing widths, structure). `nonnegative` (a tree of Python bools, or None) marks the
+    parameters `project` keeps >= 0.
+    """
+
+    loss: AbstractLoss
+    linear_spec: Any
+    linear_nonnegative: tuple[bool, ...] | None = eqx.field(static=True)
+    nonnegative: Any  # a tree of Python bools shaped like the trained parameters (static under jit)
+    scales: Any
+    data: FrictionData
+    validation: FrictionData | None
+    val_loss: AbstractLoss
+
+    def project(self, y: Any) -> Any:
+        """The iterate with the physically non-negative parameters (damping coefficients) clipped at 0 (elementwise:
+        batched iterates too)."""
+        if self.nonnegative is None:
+            return y
+        params, extra = y
+        clipped = jax.tree_util.tree_map(lambda p, m: jnp.maximum(p, 0.0) if m else p, params, self.nonnegative)
+        return clipped, extra
+
+    def materialise(self, params: Any, static: Any) -> Any:
+        if self.scales is not None:
+            params = jax.tree_util.tree_map(lambda u, c: u * c, params, self.scales)
+        m = eqx.combine(params, static)
+        if self.linear_spec is None:
+            return m
+        burn_in = getattr(self.loss, "burn_in", 0)
+        return solve_linear(m, self.linear_spec, self.data, burn_in, nonnegative=self.linear_nonnegative)
+
+    def objective(self, state: Any, static: Any) -> jax.Array:
+        params, extra = state
+        return self.loss(self.materialise(params, static), extra, self.data)
+
+    def residuals(self, state: Any, static: Any) -> jax.Array:
+        params, extra = state
+        return self.loss.residuals(self.materialise(params, static), extra, self.data)
+
+    def val_objective(self, state: Any, static: Any) -> jax.Array:
+        if self.validation is None:
+            return jnp.asarray(jnp.nan)
+        return self.val_loss(self.materialise(state[0], static), None, self.validation)
+
+
+@eqx.filter_jit
+def evaluate(loss: AbstractLoss, model: Any, extra: Any, data: FrictionData) -> jax.Array:
+    return loss(model, extra, data)
+
+
+def gauss_newton_std(
+    model: Any, spec: Any, linear_spec: Any, loss: AbstractLoss, extra: Any, data: FrictionData
+) -> Any:
+    """Standard deviations of the trained physical parameters: sqrt(diag(s^2 (J^T J)^+)), s^2 = |r|^2 / (N - p),
+    with r the unnormalised residuals and J their Jacobian w.r.t. the physical (unwrapped) parameters."""
+    if linear_spec is not None:
+        spec = jax.tree_util.tree_map(lambda a, b: bool(a) or bool(b), spec, linear_spec)
+    physical = unwrap(model)
+    phys_spec = physical_spec(model, spec)
+    params, rest = eqx.partition(physical, phys_spec)
+    if not jax.tree_util.tree_leaves(params):
+        return None
+    return _std_from_jacobian(params, rest, loss, extra, data)
+
+
+@eqx.filter_jit
+def _std_from_jacobian(params: Any, rest: Any, loss: AbstractLoss, extra: Any, data: FrictionData) -> Any:
+    flat, unravel = jax.flatten_util.ravel_pytree(params)
+    scale = jnp.std(data.force) if getattr(loss, "normalise", False) else 1.0
+
+    def residuals(theta: jax.Array) -> jax.Array:
+        return loss.residuals(eqx.combine(unravel(theta), rest), extra, data) * scale
+
+    r = residuals(flat)
+    J = jax.jacfwd(residuals)(flat) if flat.size <= 64 else jax.jacrev(residuals)(flat)
+    # the cut-off of the former pinv of the Gram matrix (the figures in the docs were computed with it)
+    std_flat = parameter_std(
+        J, r, max(int(r.size) - int(flat.size), 1), rcond=float(np.sqrt(10 * flat.size * np.finfo(J.dtype).eps))
+    )
+    nan_rest = jax.tree_util.tree_map(lambda a: jnp.full_like(a, jnp.nan) if eqx.is_inexact_array(a) else a, rest)
+    return eqx.combine(unravel(std_flat), nan_rest)

@@ -1,0 +1,187 @@
+"""`Solution`: what every fit returns, and `RESULTS`, the one enumeration of why a fit stopped.
+
+In the optimistix style (`optx.Solution`, `optx.RESULTS`): one result type, one `eqx.Enumeration` whose entries carry
+the sentence that explains them, and `throw=True` on the driver to raise instead of returning a failure.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import equinox as eqx
+import numpy as np
+
+from .._constraints import parameter_arrays, unwrap
+from .._smoothing import exact
+
+
+class RESULTS(eqx.Enumeration):
+    """Why a fit stopped. `successful`, `max_steps` and `early_stopped` return a usable model (`Solution.success`);
+    `diverged` and `solver_failed` return the best model seen before the failure (never worse than the start)."""
+
+    successful = (
+        "a convergence test held (the optimistix solver's own, or the loss fell by less than `tolerance` over one "
+        "check), or the parameters are linear and were solved by least squares"
+    )
+    max_steps = (
+        "the step budget ran out before a convergence test held: the best model seen is returned, but it may not be "
+        "converged (the message says whether the loss was still falling)"
+    )
+    early_stopped = "the validation loss stopped improving (patience exhausted); the best model was kept"
+    diverged = "a loss or parameter became non-finite; the last good model was kept"
+    solver_failed = "the optimistix solver reported a failure; the best model seen was kept"
+
+
+RESULT_NAMES = ("successful", "max_steps", "early_stopped", "diverged", "solver_failed")
+#: `{name: sentence}` of every result code (the command line's legend; `RESULTS` is the enumeration).
+RESULT_CODES = {name: RESULTS[getattr(RESULTS, name)] for name in RESULT_NAMES}
+_USABLE = ("successful", "max_steps", "early_stopped")
+
+
+def result_name(result: Any) -> str:
+    """The name of a (concrete, unbatched) `RESULTS` item: `"successful"`, `"max_steps"`, ..."""
+    for name in RESULT_NAMES:
+        if bool(result == getattr(RESULTS, name)):
+            return name
+    raise ValueError(f"not a fricjax result code: {result!r}")
+
+
+def as_result(code: Any) -> Any:
+    """A `RESULTS` item from an item or its name (`"successful"`, or a legacy `"solver_failed:<detail>"`)."""
+    if isinstance(code, RESULTS):
+        return code
+    if isinstance(code, str) and code.split(":")[0] in RESULT_NAMES:
+        return getattr(RESULTS, code.split(":")[0])
+    raise ValueError(f"result must be a fj.RESULTS item or one of {', '.join(RESULT_NAMES)}; got {code!r}.")
+
+
+class FitFailed(RuntimeError):
+    """Raised by a fit with `throw=True` that diverged or whose solver failed; `.solution` holds what it found."""
+
+    def __init__(self, solution: Solution):
+        super().__init__(f"fit: {solution.code}: {solution.message}")
+        self.solution = solution
+
+
+# Units of the literature symbols (DESIGN.md names), by the last component of a parameter's path.
+PARAMETER_UNITS = {
+    "Fc": "N",
+    "Fs": "N",
+    "vs": "m/s",
+    "delta": "-",
+    "Fv": "N s/m",
+    "sigma0": "N/m",
+    "sigma1": "N s/m",
+    "sigma2": "N s/m",
+    "offset": "N",
+    "z0": "m",
+    "k": "N/m",
+    "alpha": "-",
+    "C": "1/s",
+    "thresholds": "m",
+    "rate": "N/s",
+    "tau": "s",
+    "Fc_pos": "N",
+    "Fc_neg": "N",
+    "Fs_pos": "N",
+    "Fs_neg": "N",
+    "Fv_pos": "N s/m",
+    "Fv_neg": "N s/m",
+    "mass": "kg",
+    "M": "kg",
+}
+
+
+def parameter_unit(path: str) -> str:
+    """The unit of a parameter path (`"stribeck.Fc"` -> `"N"`), `""` where fricjax does not know it."""
+    return PARAMETER_UNITS.get(path.split(".")[-1], "")
+
+
+@dataclasses.dataclass(frozen=True)
+class Solution:
+    """What a fit returns (`fj.fit`; `FitResult` is the same class under its former name).
+
+    - `model`: the fitted model (smoothing as at the end of the fit); `exact_model` is `fj.exact(model)`.
+    - `result`: a `fj.RESULTS` item (`code` is its name: `successful`, `max_steps`, `early_stopped`, `diverged`,
+      `solver_failed`); `message`: one sentence saying why the fit stopped and which stage produced the model.
+    - `history`: dict of NumPy arrays `step`, `train_loss`, `val_loss` (NaN without validation), `eps`, and
+      `time` (seconds since the call started, compilation included).
+    - `train_loss`, `val_loss`: final losses of the returned model (validation in free-run simulation);
+      `exact_val_loss`: the same with the exact model (NaN without validation data).
+    - `evaluations`: solver steps per start; `wall_time` [s]; `num_starts`; `best_start`.
+    - `std`: pytree shaped like `fj.unwrap(model)`, the Gauss-Newton standard deviations of the trained
+      physical parameters (residual variance x (J^T J)^-1), NaN for frozen ones; `None` if not computed.
+    - `extra`: the loss's extra decision variables (multiple-shooting states).
+    """
+
+    model: Any
+    result: Any
+    message: str
+    history: dict[str, np.ndarray]
+    train_loss: float
+    val_loss: float
+    exact_val_loss: float
+    evaluations: int
+    wall_time: float
+    num_starts: int
+    best_start: int
+    std: Any = None
+    extra: Any = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "result", as_result(self.result))  # a name is accepted (thin compatibility)
+
+    @property
+    def code(self) -> str:
+        """The result code's name: `"successful"`, `"max_steps"`, `"early_stopped"`, `"diverged"`, ..."""
+        return result_name(self.result)
+
+    @property
+    def success(self) -> bool:
+        """True unless the fit diverged or the solver failed."""
+        return self.code in _USABLE
+
+    @property
+    def exact_model(self) -> Any:
+        return exact(self.model)
+
+    def parameters(self) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
+        """`{path: (value, std)}` of the physical parameters of the fitted model (std `None` if unknown)."""
+        values = parameter_arrays(unwrap(exact(self.model)))  # exact(): smoothing widths are settings, not parameters
+        stds = parameter_arrays(exact(self.std)) if self.std is not None else {}
+        return {path: (value, stds.get(path)) for path, value in values.items()}
+
+    def parameter_table(self) -> list[dict[str, Any]]:
+        """One row per physical parameter: `path`, `value`, `std` (NaN where unknown) and `unit` (SI; `""` where the
+        name is not a literature symbol fricjax knows)."""
+        rows = []
+        for path, (value, std) in self.parameters().items():
+            value = np.asarray(value)
+            std = np.full(value.shape, np.nan) if std is None else np.asarray(std)
+            rows.append({"path": path, "value": value, "std": std, "unit": parameter_unit(path)})
+        return rows
+
+    def summary(self, max_parameters: int = 20) -> str:
+        """A short human-readable report: result, losses, and at most `max_parameters` parameter lines (arrays of
+        more than 8 entries are summarised by shape and range)."""
+        lines = [
+            f"fit: {self.code} after {self.evaluations} steps in {self.wall_time:.2f} s: {self.message}",
+            f"train loss {self.train_loss:.4g}, validation loss {self.val_loss:.4g} (exact {self.exact_val_loss:.4g})",
+        ]
+        rows = self.parameter_table()
+        for row in rows[:max_parameters]:
+            path, value, std, unit = row["path"], row["value"], row["std"], row["unit"]
+            if value.size > 8:
+                lines.append(f"  {path}: shape {value.shape}, range [{value.min():.4g}, {value.max():.4g}]")
+                continue
+            text = np.array2string(value, formatter={"float_kind": lambda x: f"{x:.6g}"})
+            if np.all(np.isfinite(std)):
+                text += " ± " + np.array2string(std, formatter={"float_kind": lambda x: f"{x:.3g}"})
+            lines.append(f"  {path} = {text}" + (f" [{unit}]" if unit else ""))
+        if len(rows) > max_parameters:
+            lines.append(f"  ... and {len(rows) - max_parameters} more parameter arrays (Solution.parameters())")
+        return "\n".join(lines)
+
+
+FitResult = Solution
