@@ -1,0 +1,170 @@
+"""The one optimisation loop: solvers x problems, `Solution` and its result codes, `throw=`, user-written solvers and
+solver wrappers, and the arguments a fit refuses (one line naming the argument)."""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import optimistix as optx
+import pytest
+
+import fricjax as fj
+
+MOTION = fj.Motion.from_position(1e-3 * np.sin(np.linspace(0, 12, 300)), dt=1e-3)
+TRUTH = fj.CoulombViscous(Fc=1.0, Fv=30.0, offset=0.1, smoothing=fj.Smooth(1e-4))
+DATA = fj.FrictionData(MOTION, fj.simulate(TRUTH, MOTION))
+START = fj.CoulombViscous(Fc=0.6, Fv=12.0, offset=0.0, smoothing=fj.Smooth(1e-4))
+
+
+class GradientDescent(fj.AbstractSolver):
+    """A solver written against the interface: plain gradient descent with a fixed rate, converged when the gradient
+    norm falls below `gtol`."""
+
+    rate: float
+    gtol: float = 1e-9
+
+    def init(self, problem, y, args):
+        return jnp.asarray(jnp.inf)  # the last gradient norm
+
+    def step(self, problem, y, args, state):
+        value, grads = jax.value_and_grad(problem.objective)(y, args)
+        new_y = jax.tree_util.tree_map(lambda p, g: p - self.rate * g, y, grads)
+        norm = jnp.sqrt(sum(jnp.sum(g**2) for g in jax.tree_util.tree_leaves(grads)))
+        return problem.project(new_y), norm, jnp.isfinite(value)
+
+    def terminate(self, problem, y, args, state):
+        return state < self.gtol, fj.RESULTS.successful
+
+
+class StopBelow(fj.AbstractSolver):
+    """A wrapper of any solver (docs/concepts.md): stop as converged once the loss is below `target`."""
+
+    inner: fj.AbstractSolver
+    target: float
+
+    def init(self, problem, y, args):
+        return self.inner.init(problem, y, args)
+
+    def step(self, problem, y, args, state):
+        return self.inner.step(problem, y, args, state)
+
+    def terminate(self, problem, y, args, state):
+        done, result = self.inner.terminate(problem, y, args, state)
+        return done | (problem.objective(y, args) < self.target), result
+
+
+SOLVERS = {
+    "adam": (optax.adam(3e-2), 600, {"max_steps"}),
+    "lm": (fj.levenberg_marquardt(), 40, {"successful"}),
+    "bfgs": (optx.BFGS(rtol=1e-10, atol=1e-12), 200, {"successful"}),
+    "gradient-descent": (GradientDescent(rate=0.3, gtol=1e-7), 3000, {"successful", "max_steps"}),
+}
+
+
+@pytest.mark.parametrize("name", list(SOLVERS))
+@pytest.mark.parametrize("starts", [1, 3])
+def test_solvers_cross_starts(name, starts):
+    """Every solver through the one loop, with one start and a vmapped batch of three: the fit improves on the start,
+    reports a code from fj.RESULTS, and a batch is never worse than its first start alone."""
+    solver, steps, codes = SOLVERS[name]
+    result = fj.fit(
+        START,
+        DATA,
+        solver=solver,
+        steps=steps,
+        scaling=fj.ParameterScaling(),
+        multistart=starts if starts > 1 else None,
+    )
+    assert isinstance(result, fj.Solution) and isinstance(result.result, fj.RESULTS)
+    assert result.code in codes, (result.code, result.message)
+    assert bool(result.result == getattr(fj.RESULTS, result.code))
+    start_loss = float(fj.SimulationLoss()(START, None, DATA))
+    assert result.train_loss < 1e-2 * start_loss, result.summary()
+    assert result.num_starts == starts and 0 <= result.best_start < starts
+    assert result.evaluations > 0 and len(result.history["step"]) >= 1
+
+
+def test_wrapper_stops_at_its_target():
+    target = 1e-3
+    result = fj.fit(START, DATA, solver=StopBelow(fj.OptaxSolver(optax.adam(3e-2)), target), steps=2000, eval_every=50)
+    assert result.code == "successful", result.message
+    assert result.evaluations < 2000  # it stopped before the budget
+    assert float(fj.SimulationLoss()(result.model, None, DATA)) < 2 * target
+
+
+def test_throw_raises_with_the_solution():
+    with pytest.raises(fj.FitFailed, match="diverged") as info:
+        fj.fit(START, DATA, solver=optax.sgd(1e6), steps=20, eval_every=5, throw=True)
+    solution = info.value.solution
+    assert solution.code == "diverged" and not solution.success
+    assert np.isfinite(solution.train_loss)
+    # without throw the same fit returns its failure
+    assert fj.fit(START, DATA, solver=optax.sgd(1e6), steps=20, eval_every=5).code == "diverged"
+
+
+def test_lm_with_a_tolerance_reports_steps_it_took():
+    """The tolerance rule ends a fit as converged only over a check in which steps were taken."""
+    noisy = fj.FrictionData(MOTION, np.asarray(DATA.force) + 0.05 * np.random.default_rng(0).standard_normal(300))
+    result = fj.fit(START, noisy, solver=fj.levenberg_marquardt(), steps=40, tolerance=1e-2)
+    assert result.code == "successful" and result.evaluations > 0, result.message
+    steps = result.history["step"]
+    assert len(steps) >= 2 and steps[-1] > steps[-2]
+
+
+def test_solution_parameter_table_has_units_and_std():
+    result = fj.fit(START, DATA, solver=fj.levenberg_marquardt(), steps=40, compute_std=True)
+    table = {row["path"]: row for row in result.parameter_table()}
+    assert table["Fc"]["unit"] == "N" and table["Fv"]["unit"] == "N s/m" and table["offset"]["unit"] == "N"
+    assert np.isfinite(table["Fc"]["std"]).all()
+    assert "[N s/m]" in result.summary()
+
+
+def test_result_codes_are_one_enumeration():
+    assert set(fj.RESULT_CODES) == {"successful", "max_steps", "early_stopped", "diverged", "solver_failed"}
+    for name, sentence in fj.RESULT_CODES.items():
+        assert sentence == fj.RESULTS[getattr(fj.RESULTS, name)] and sentence
+
+
+@pytest.mark.parametrize(
+    "kwargs, argument",
+    [
+        ({"eval_every": -5}, "eval_every"),
+        ({"eval_every": 0}, "eval_every"),
+        ({"steps": True}, "steps"),
+        ({"steps": 0}, "steps"),
+        ({"steps": 2.5}, "steps"),
+        ({"tolerance": -1}, "tolerance"),
+        ({"tolerance": math.nan}, "tolerance"),
+        ({"tolerance": math.inf}, "tolerance"),
+        ({"patience": 0}, "patience"),
+        ({"seed": 1.5}, "seed"),
+        ({"multistart": True}, "multistart"),
+        ({"multistart": 0}, "multistart"),
+    ],
+)
+def test_hostile_fit_arguments_one_line_naming_the_argument(kwargs, argument):
+    with pytest.raises((ValueError, TypeError)) as info:
+        fj.fit(START, DATA, steps=kwargs.pop("steps", 5), **kwargs)
+    message = str(info.value)
+    assert f"`{argument}`" in message and "\n" not in message, message
+
+
+def test_seeds_of_any_size():
+    results = [fj.fit(START, DATA, steps=4, multistart=2, seed=seed) for seed in (2**70, -3, 7)]
+    assert all(np.isfinite(r.train_loss) for r in results)
+    same = fj.fit(START, DATA, steps=4, multistart=2, seed=2**70)
+    assert eqx.tree_equal(same.model, results[0].model)
+
+
+@pytest.mark.parametrize(
+    "kwargs, argument",
+    [({"steps": True}, "steps"), ({"checks": 0}, "checks"), ({"validation_burn_in": -1}, "validation_burn_in")],
+)
+def test_hostile_sweep_arguments(kwargs, argument):
+    with pytest.raises(ValueError, match=f"`{argument}`"):
+        fj.sweep([START, START], DATA, **kwargs)
