@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import fricjax as fj
-from fricjax import AverageEnsemble, WeightedEnsemble, select_forward
+from fricjax import AverageEnsemble, WeightedEnsemble, fit_weighted_ensemble, select_forward
 
 DT = 1e-3
 N_SAMPLES = 1200
@@ -71,8 +71,6 @@ def test_average_equals_mean_of_member_simulations(setup):
     ensemble = AverageEnsemble(members)
     assert ensemble.requires == frozenset({"x", "v", "dt"})  # Dahl x, LuGre v + dt, Tustin v
     np.testing.assert_allclose(fj.simulate(ensemble, motion), predictions.mean(axis=0), rtol=1e-12, atol=1e-14)
-    np.testing.assert_allclose(ensemble.predict(motion), predictions.mean(axis=0), rtol=1e-12, atol=1e-14)
-    np.testing.assert_allclose(ensemble.member_predictions(motion), predictions, rtol=1e-12, atol=1e-14)
 
 
 def test_weighted_simulate_equals_combination_and_step_loop(setup):
@@ -98,14 +96,19 @@ def test_weighted_fit_recovers_known_weights_and_intercept(setup):
     motion, _, members, predictions = setup
     weights, intercept = np.array([0.7, -0.3, 1.5, 0.2]), -0.4
     data = fj.FrictionData(motion, intercept + weights @ predictions)
-    fitted = WeightedEnsemble.fit(members, data)  # simulates the members (compiled by the fixture already)
+    fitted = fit_weighted_ensemble(members, data)  # simulates the members (compiled by the fixture already)
     np.testing.assert_allclose(fitted.weights, weights, rtol=1e-9)
     np.testing.assert_allclose(fitted.intercept, intercept, rtol=1e-9)
     # precomputed predictions give the same fit without re-simulating
-    again = WeightedEnsemble.fit(members, data, predictions=predictions)
+    again = fit_weighted_ensemble(members, data, predictions=predictions)
     np.testing.assert_allclose(again.weights, fitted.weights, rtol=1e-12)
     np.testing.assert_allclose(again.intercept, fitted.intercept, rtol=1e-12)
     np.testing.assert_allclose(fj.simulate(fitted, motion), data.force, rtol=1e-9, atol=1e-9)
+    # the old spelling still works, with a deprecation warning, and gives the same ensemble
+    with pytest.warns(DeprecationWarning, match="fj.fit_weighted_ensemble"):
+        old = WeightedEnsemble.fit(members, data, predictions=predictions)
+    np.testing.assert_array_equal(old.weights, again.weights)
+    np.testing.assert_array_equal(old.intercept, again.intercept)
 
 
 def test_weighted_fit_collinear_members_share_the_weight(setup):
@@ -114,7 +117,7 @@ def test_weighted_fit_collinear_members_share_the_weight(setup):
     data = fj.FrictionData(motion, 0.2 + predictions[0])
     constant = Playback(jnp.full(motion.length, 3.0))
     forces = np.stack([predictions[0], predictions[0], np.full(motion.length, 3.0)])
-    fitted = WeightedEnsemble.fit([members[0], members[0], constant], data, predictions=forces)
+    fitted = fit_weighted_ensemble([members[0], members[0], constant], data, predictions=forces)
     np.testing.assert_allclose(fitted.weights, [0.5, 0.5, 0.0], atol=1e-9)
     np.testing.assert_allclose(fitted.intercept, 0.2, atol=1e-9)
 
@@ -123,7 +126,7 @@ def test_fitted_ensemble_no_worse_than_best_member(setup):
     motion, data, members, predictions = setup
     validation, test = data.split(0.5)
     t_val = validation.length
-    ensemble = WeightedEnsemble.fit(members, validation, predictions=predictions[:, :t_val])
+    ensemble = fit_weighted_ensemble(members, validation, predictions=predictions[:, :t_val])
     force = np.asarray(fj.simulate(ensemble, motion))  # the fitted ensemble, simulated over both splits
     ens_val = float(fj.nmse(validation.force, force[:t_val]))
     ens_test = float(fj.nmse(test.force, force[t_val:]))
@@ -133,7 +136,7 @@ def test_fitted_ensemble_no_worse_than_best_member(setup):
     # LS weight + intercept are special cases of the joint least-squares problem.
     assert ens_val <= min(single_val) * (1 + 1e-12)
     for i in range(len(members)):
-        alone = WeightedEnsemble.fit([members[i]], validation, predictions=predictions[i : i + 1, :t_val])
+        alone = fit_weighted_ensemble([members[i]], validation, predictions=predictions[i : i + 1, :t_val])
         alone_force = alone.intercept + alone.weights[0] * predictions[i, :t_val]
         assert ens_val <= float(fj.nmse(validation.force, alone_force)) * (1 + 1e-12)
     # On held-out data it is not a theorem: least squares is optimistic on its own data by about
@@ -255,7 +258,7 @@ def test_float32_follows_dtype():
     motion = fj.Motion.from_position(np.float32(1e-3) * np.sin(np.linspace(0, 12, 300, dtype=np.float32)), dt=DT)
     members = [fj.Coulomb(Fc=np.float32(1.0)), fj.CoulombViscous(Fc=np.float32(0.5), Fv=np.float32(20.0))]
     target = 0.5 + 0.3 * fj.simulate(members[0], motion) + 0.8 * fj.simulate(members[1], motion)
-    fitted = WeightedEnsemble.fit(members, fj.FrictionData(motion, target))
+    fitted = fit_weighted_ensemble(members, fj.FrictionData(motion, target))
     assert fitted.weights.dtype == jnp.float32
     np.testing.assert_allclose(fitted.weights, [0.3, 0.8], rtol=1e-4)
     assert fj.simulate(fitted, motion).dtype == jnp.float32
@@ -276,14 +279,14 @@ def test_errors(setup):
     with pytest.raises(ValueError, match="`weights` must be finite"):
         WeightedEnsemble(members[:2], [1.0, np.nan])
     with pytest.raises(TypeError, match="must be a fricjax.FrictionData"):
-        WeightedEnsemble.fit(members, (motion, data.force))
+        fit_weighted_ensemble(members, (motion, data.force))
     with pytest.raises(ValueError, match=r"shape \(4, 1200\), got \(4, 1199\)"):
-        WeightedEnsemble.fit(members, data, predictions=predictions[:, 1:])
+        fit_weighted_ensemble(members, data, predictions=predictions[:, 1:])
     with pytest.raises(ValueError, match=r"shape \(4, 1200\), got \(3, 1200\)"):
         select_forward(members, data, predictions=predictions[:3])
     broken = Playback(jnp.asarray(predictions[0]).at[7].set(jnp.nan))
     with pytest.raises(ValueError, match=r"member 1 \(Playback\) predicts NaN or inf on `data` \(first at sample 7\)"):
-        WeightedEnsemble.fit([members[0], broken], data)
+        fit_weighted_ensemble([members[0], broken], data)
     with pytest.raises(ValueError, match="member 0 .* predicts NaN"):
         select_forward([broken], data)
     with pytest.raises(ValueError, match="`criterion` must be 'press' or 'rss'"):
@@ -293,7 +296,7 @@ def test_errors(setup):
     with pytest.raises(ValueError, match="no member lowers the PRESS"):
         select_forward([Playback(jnp.zeros(motion.length)), Playback(jnp.ones(motion.length))], data)
     with pytest.raises(ValueError, match="3 samples cannot fit 4 weights"):
-        WeightedEnsemble.fit(members, data.slice(0, 3))
+        fit_weighted_ensemble(members, data.slice(0, 3))
     # simulate names the missing signal for the ensemble
     with pytest.raises(ValueError, match="AverageEnsemble integrates in time"):
         fj.simulate(AverageEnsemble(members), fj.Motion(v=np.ones(10)))

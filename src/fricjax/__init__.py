@@ -105,6 +105,7 @@ from ._data._tribometer import default_tribometer_model as default_tribometer_mo
 from ._data._tribometer import make_tribometer as make_tribometer
 from ._data._tribometer import model_parameters as model_parameters
 from ._estimation._ensemble_fit import ForwardSelection as ForwardSelection
+from ._estimation._ensemble_fit import fit_weighted_ensemble as fit_weighted_ensemble
 from ._estimation._ensemble_fit import select_forward as select_forward
 from ._estimation._fit import fit as fit
 from ._estimation._fit import levenberg_marquardt as levenberg_marquardt

@@ -1,7 +1,7 @@
 """Fitting ensembles: least-squares weights with intercept (emps-ensemble §3.3, eq. 16) and the PRESS forward
 selection of members (worden2007 §7), on the shared linear-algebra kernel (`fj.lstsq`, `fj.select_terms`).
 
-The ensemble classes live in `fricjax._models.combine._ensemble`; `WeightedEnsemble.fit` calls `fit_weights`.
+The ensemble classes live in `fricjax._models.combine._ensemble` (below this layer: they know nothing of fitting).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from jaxtyping import Array, ArrayLike
 from .._constraints import as_float_array
 from .._data._record import FrictionData
 from .._models._base import AbstractFrictionModel
-from .._models.combine._ensemble import WeightedEnsemble, _as_members
+from .._models.combine._ensemble import DEPRECATED_FIT, WeightedEnsemble, _as_members
 from .._simulate import simulate
 from .._smoothing import is_concrete
 from ._linear import lstsq, select_terms
@@ -40,6 +40,52 @@ def fit_weights(
     mean_y = jnp.mean(target)
     weights = lstsq((forces - mean_f[:, None]).T, target - mean_y, rcond=rcond).x
     return weights, mean_y - jnp.dot(mean_f, weights)
+
+
+def fit_weighted_ensemble(
+    members: Sequence[AbstractFrictionModel],
+    data: FrictionData,
+    *,
+    predictions: ArrayLike | None = None,
+    rcond: float | None = None,
+) -> WeightedEnsemble:
+    """Least-squares weights and intercept of the members' simulated forces on `data` (emps-ensemble §3.3, eq. 16).
+
+    Solves `min || data.force - intercept - sum_i weights_i * F_i ||^2` with `F_i = fj.simulate(member_i,
+    data.motion)`: `fj.lstsq` (an SVD solve on norm-scaled regressors, so members whose forces differ by orders of
+    magnitude are weighted accurately) of the centred forces on the centred measured force. Collinear members (e.g.
+    two copies of one model, or a member predicting a constant, which the intercept already spans) get the
+    minimum-norm split of their shared weight. Fit on data the members were *not* trained on (the validation
+    split): on their training data, overfitted members would draw too much weight. Since every single member
+    (weight 1, intercept 0) is one candidate solution, the ensemble's squared error on `data` is never larger than
+    the best member's. Jittable when `predictions` is given (value checks are skipped when traced).
+
+    **Arguments:**
+
+    - `members`: N >= 1 fitted friction models.
+    - `data`: a `FrictionData` (motion and measured force) to fit the weights on.
+    - `predictions`: the members' forces on `data.motion`, shape `(N, T)`, if already simulated
+      (`jnp.stack([fj.simulate(member, data.motion) for member in members])`); simulated when `None`.
+    - `rcond`: relative cut-off for small singular values (see `fj.lstsq`).
+
+    **Returns:** a `fj.WeightedEnsemble` with the fitted `weights` (N,) and `intercept` [N].
+
+    ```python
+    >>> import numpy as np, fricjax as fj
+    >>> motion = fj.Motion.from_position(1e-3 * np.sin(np.linspace(0, 6.28, 200)), dt=1e-3)
+    >>> members = [fj.Coulomb(Fc=1.0), fj.CoulombViscous(Fc=0.5, Fv=20.0)]
+    >>> target = 0.5 + 0.3 * fj.simulate(members[0], motion) + 0.8 * fj.simulate(members[1], motion)
+    >>> ensemble = fj.fit_weighted_ensemble(members, fj.FrictionData(motion, target))
+    >>> [round(float(w), 6) for w in ensemble.weights], round(float(ensemble.intercept), 6)
+    ([0.3, 0.8], 0.5)
+    ```
+    """
+    members = _as_members(members, "fit_weighted_ensemble")
+    weights, intercept = fit_weights(members, data, predictions, rcond, "fit_weighted_ensemble")
+    return WeightedEnsemble(members, weights, intercept)
+
+
+DEPRECATED_FIT["fit_weighted_ensemble"] = fit_weighted_ensemble  # for the deprecated `WeightedEnsemble.fit`
 
 
 class ForwardSelection(NamedTuple):

@@ -7,33 +7,37 @@ signals; the ensemble `requires` their union.
 
 - `AverageEnsemble`: the simple average of the members' forces (parlitz2004 §IV-H: averaging the DLR, DN and
   NLR-EXP models cut the MSE from 0.75 % to 0.28 %; worden2007 §7).
-- `WeightedEnsemble`: `F = intercept + sum_i weights_i * F_i`, with `WeightedEnsemble.fit` solving the weights
+- `WeightedEnsemble`: `F = intercept + sum_i weights_i * F_i`; `fj.fit_weighted_ensemble` solves the weights
   and intercept by linear least squares on data the members were not trained on (emps-ensemble §3.3, eq. 16:
   the grey-box and grey + black-box predictions as regressors of the measured output).
-- `select_forward` (in `fricjax._estimation._ensemble_fit`): orthogonal forward regression over the members'
-  predictions with the PRESS (leave-one-out) statistic (worden2007 §7, after Chen, Hong, Harris & Sharkey 2004):
-  add the member that most reduces PRESS, stop when none does.
+- `select_forward`: orthogonal forward regression over the members' predictions with the PRESS (leave-one-out)
+  statistic (worden2007 §7, after Chen, Hong, Harris & Sharkey 2004): add the member that most reduces PRESS,
+  stop when none does.
 
-The fitting (`WeightedEnsemble.fit`, `select_forward`) lives in `_estimation`, on `fj.lstsq` and
-`fj.select_terms`.
+The fitting (`fit_weighted_ensemble`, `select_forward`) lives in the estimation layer
+(`fricjax._estimation._ensemble_fit`, on `fj.lstsq` and `fj.select_terms`), which this module does not import.
 """
 
 from __future__ import annotations
 
 import abc
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+import warnings
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from ..._constraints import model_dtype, real, unwrap
-from ..._inputs import Motion, MotionSample
+from ..._inputs import MotionSample
 from .._base import AbstractFrictionModel
 
-if TYPE_CHECKING:  # annotations only: _models does not depend on _data
-    from ..._data._record import FrictionData
+# The deprecated `WeightedEnsemble.fit` reaches `fj.fit_weighted_ensemble` through this slot: the fitting lives in the
+# estimation layer, which this module may not import (DESIGN.md: no import runs upward); that layer's
+# `fricjax._estimation._ensemble_fit` fills the slot when it is imported, as `import fricjax` does. It goes with the
+# method once no caller is left.
+DEPRECATED_FIT: dict[str, Callable[..., Any]] = {}
 
 
 def _as_members(members: Any, where: str) -> tuple[AbstractFrictionModel, ...]:
@@ -89,19 +93,6 @@ class AbstractEnsemble(AbstractFrictionModel):
             for member, member_state in zip(self.members, state, strict=True)
         )
 
-    def predict(self, motion: Motion) -> Float[Array, "T"]:
-        """The ensemble force along `motion`: shorthand for `fj.simulate(self, motion)`."""
-        from ..._simulate import simulate  # deferred: _simulate sits above _models (it runs them)
-
-        return simulate(self, motion)
-
-    def member_predictions(self, motion: Motion) -> Float[Array, "N T"]:
-        """Each member's simulated force along `motion`, stacked: shape `(N, T)` (for residual plots and for
-        `WeightedEnsemble.fit(..., predictions=...)`)."""
-        from ..._simulate import simulate  # deferred: _simulate sits above _models (it runs them)
-
-        return jnp.stack([simulate(member, motion) for member in self.members])
-
 
 class AverageEnsemble(AbstractEnsemble):
     """The simple-average ensemble: `F = (1 / N) * sum_i F_i` (parlitz2004 §IV-H, worden2007 §7).
@@ -130,8 +121,8 @@ class AverageEnsemble(AbstractEnsemble):
 class WeightedEnsemble(AbstractEnsemble):
     """The linearly weighted ensemble: `F = intercept + sum_i weights_i * F_i` (emps-ensemble §3.3, eq. 16).
 
-    Build it from known weights, or fit them with `WeightedEnsemble.fit(members, data)` (least squares with
-    intercept) or choose members and weights with `select_forward`. `weights` and `intercept` are real array
+    Build it from known weights, or fit them with `fj.fit_weighted_ensemble(members, data)` (least squares with
+    intercept) or choose members and weights with `fj.select_forward`. `weights` and `intercept` are real array
     leaves, so the combination can also be refined by gradients together with (or, wrapping members in
     `fj.Fixed`, instead of) the members' parameters.
 
@@ -146,7 +137,7 @@ class WeightedEnsemble(AbstractEnsemble):
     >>> motion = fj.Motion.from_position(1e-3 * np.sin(np.linspace(0, 6.28, 200)), dt=1e-3)
     >>> members = [fj.Coulomb(Fc=1.0), fj.CoulombViscous(Fc=0.5, Fv=20.0)]
     >>> target = 0.5 + 0.3 * fj.simulate(members[0], motion) + 0.8 * fj.simulate(members[1], motion)
-    >>> ensemble = fj.WeightedEnsemble.fit(members, fj.FrictionData(motion, target))
+    >>> ensemble = fj.fit_weighted_ensemble(members, fj.FrictionData(motion, target))
     >>> [round(float(w), 6) for w in ensemble.weights], round(float(ensemble.intercept), 6)
     ([0.3, 0.8], 0.5)
     ```
@@ -173,41 +164,17 @@ class WeightedEnsemble(AbstractEnsemble):
 
     @classmethod
     def fit(
-        cls,
-        members: Sequence[AbstractFrictionModel],
-        data: FrictionData,
-        *,
-        predictions: ArrayLike | None = None,
-        rcond: float | None = None,
+        cls, members: Sequence[AbstractFrictionModel], data: Any, *, predictions: Any = None, rcond: Any = None
     ) -> WeightedEnsemble:
-        """Least-squares weights and intercept of the members' simulated forces on `data` (emps-ensemble §3.3).
-
-        Solves `min || data.force - intercept - sum_i weights_i * F_i ||^2` with `F_i = fj.simulate(member_i,
-        data.motion)`: `fj.lstsq` (an SVD solve on norm-scaled regressors, so members whose forces differ by
-        orders of magnitude are weighted accurately) of the centred forces on the centred measured force.
-        Collinear members (e.g. two copies of one model, or a member predicting a constant, which the intercept
-        already spans) get the minimum-norm split of their shared weight. Fit on data the members were *not*
-        trained on (the validation split): on their training data, overfitted members would draw too much
-        weight. Since every single member (weight 1, intercept 0) is one candidate solution, the ensemble's
-        squared error on `data` is never larger than the best member's. Jittable when `predictions` is given
-        (value checks are skipped when traced).
-
-        **Arguments:**
-
-        - `members`: N >= 1 fitted friction models.
-        - `data`: a `FrictionData` (motion and measured force) to fit the weights on.
-        - `predictions`: the members' forces on `data.motion`, shape `(N, T)`, if already simulated
-          (e.g. `AverageEnsemble(members).member_predictions(data.motion)`); simulated when `None`.
-        - `rcond`: relative cut-off for small singular values (see `fj.lstsq`).
-
-        **Returns:** a `WeightedEnsemble` with the fitted `weights` (N,) and `intercept` [N].
-        """
-        # deferred: _models sits below _estimation in the dependency order and must not import it at load time
-        from ..._estimation._ensemble_fit import fit_weights
-
-        members = _as_members(members, "WeightedEnsemble.fit")
-        weights, intercept = fit_weights(members, data, predictions, rcond, "WeightedEnsemble.fit")
-        return cls(members, weights, intercept)
+        """Deprecated: `fj.fit_weighted_ensemble(members, data, predictions=..., rcond=...)`, which takes the same
+        arguments and returns the same ensemble."""
+        warnings.warn(
+            "fj.WeightedEnsemble.fit is deprecated; call fj.fit_weighted_ensemble(members, data, ...) (same "
+            "arguments, same result).",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return DEPRECATED_FIT["fit_weighted_ensemble"](members, data, predictions=predictions, rcond=rcond)
 
 
 # ----------------------------------------------------------------------------------------------------------------
