@@ -32,6 +32,8 @@ import optimistix as optx
 from jaxtyping import Array, Float
 
 from .._data._emps import EMPSRecord
+from .._models._base import AbstractModel
+from .._simulate import run
 from .._systems._emps import EMPSPlant, emps_open_loop_rmse_mm
 from ._emps_hybrid import _split
 from ._emps_open_loop import INIT_WINDOW, _check_plant, _check_record, predict_emps_open_loop, score_emps_open_loop
@@ -58,16 +60,33 @@ def _lags(x: Array, n: int) -> Array:
     return jnp.stack([padded[n - 1 - i : n - 1 - i + x.shape[0]] for i in range(n)], axis=-1)
 
 
+class AllPoleFilter(AbstractModel):
+    """The all-pole filter `y_k = x_k - a_1 y_(k-1) - ... - a_na y_(k-na)` (`y = x / A`) as a model, so that its
+    recursion runs in `fj.simulate`'s loop (`run`), the one scan over time. State: the last `na` outputs, newest
+    first (zeros at rest). Input: the signal `x`, shape `(T,)`."""
+
+    a: Float[Array, " na+1"]
+
+    def init_state(self) -> Array:
+        return jnp.zeros((self.a.shape[0] - 1,), self.a.dtype)
+
+    def step(self, past: Array, xk: Array) -> tuple[Array, Array]:
+        y = xk - jnp.dot(self.a[1:], past)
+        return jnp.concatenate([y[None], past[:-1]]), y
+
+    def samples(self, inputs: Array) -> Array:
+        return inputs
+
+    def check_inputs(self, inputs: Any) -> None:
+        if jnp.ndim(inputs) != 1:
+            raise ValueError(f"AllPoleFilter: the input must be one signal of shape (T,), got {jnp.shape(inputs)}.")
+
+
 def _all_pole(a: Array, x: Array) -> Array:
     """`y = x / A` from rest, `a` (na+1,) with `a[0] = 1`, `x` (T,)."""
     if a.shape[0] == 1:
         return x
-
-    def step(past: Array, xk: Array) -> tuple[Array, Array]:
-        y = xk - jnp.dot(a[1:], past)
-        return jnp.concatenate([y[None], past[:-1]]), y
-
-    return jax.lax.scan(step, jnp.zeros((a.shape[0] - 1,), x.dtype), x)[1]
+    return run(AllPoleFilter(a), x, jnp.zeros((a.shape[0] - 1,), x.dtype))[1]
 
 
 def _filter(a: Array, b: Array, u: Array) -> Array:
