@@ -110,7 +110,8 @@ def scaling_case(size: int, solver: str, landmarks: int) -> dict[str, Any]:
     model = fj.unwrap(result.model)
     regressors = model.regressors
     test = split.test_record()
-    rows = regressors.teacher_forced(full.motion.samples(regressors.requires), full.force)[test.start :]
+    states = fj.simulate(regressors.play_operators, full.motion)  # the play states: a recursion, run by simulate
+    rows = regressors.teacher_forced(full.motion.samples(regressors.requires), full.force, states)[test.start :]
     block = max(1, 2**22 // model.num_centres)
     pieces = [model.kernel.gram(rows[i : i + block], model.centres) @ model.alpha for i in range(0, len(rows), block)]
     prediction = np.zeros(full.length)

@@ -122,13 +122,15 @@ CASES = {
 
 def build(train, case):
     kwargs = dict(case)
+    plays = kwargs.pop("plays", None)
     return fj.LocalModel.from_data(
         train,
         embedding=kwargs.pop("m"),
         delay=kwargs.pop("tau"),
         output_embedding=kwargs.pop("m_out", 0),
         output_delay=kwargs.pop("tau_out", 1),
-        plays=kwargs.pop("plays", None),
+        plays=plays,
+        play_states=None if plays is None else fj.simulate(fj.PlayOperators(plays), train.motion),
         neighbours=kwargs.pop("k"),
         **kwargs,
     )
@@ -272,7 +274,8 @@ def test_model_files_round_trip(tmp_path, record, feedback_model, drift_result, 
         np.testing.assert_array_equal(fj.simulate(loaded, motion), fj.simulate(model, motion))
     assert loaded.model.kind == "linear" and float(loaded.rate) == float(drift_result.model.rate)
     assert feedback_model.describe() == ["x[k]", "v[k]", "x[k-1]", "v[k-1]", "F[k-1]", "F[k-3]"]
-    plays = fj.LocalModel.from_data(record, embedding=3, delay=2, plays=[2e-6, 6e-6])
+    states = fj.simulate(fj.PlayOperators([2e-6, 6e-6]), record.motion)
+    plays = fj.LocalModel.from_data(record, embedding=3, delay=2, plays=[2e-6, 6e-6], play_states=states)
     assert plays.describe() == ["x[k]", "x[k-2]", "x[k-4]", "play[0]", "play[1]"]
 
 
@@ -364,6 +367,8 @@ def test_errors_name_the_argument(record):
         fj.LocalModel.from_data(train, embedding=0)
     with pytest.raises(ValueError, match="`burn_in`"):
         fj.LocalModel.from_data(train, burn_in=TRAIN)
+    with pytest.raises(ValueError, match=r"with `plays`, pass .* play_states=fj.simulate\(fj.PlayOperators\(plays\)"):
+        fj.LocalModel.from_data(train, plays=[1e-6])
     model = fj.LocalModel(regressors, points + np.arange(5.0)[:, None], forces, neighbours=2)
     with pytest.raises(ValueError, match=r"`query` must have shape \(..., 2\)"):
         model.predict(np.zeros(3))

@@ -155,15 +155,16 @@ def test_regressor_matrix_is_the_one_step_regression(record):
 @pytest.mark.parametrize("smoothing", [fj.Exact(), fj.Smooth(0.05)])
 def test_regressor_matrix_with_play_operators(record, smoothing):
     """With play operators among the regressors, the teacher-forced rows hold their states along the record (one
-    recursion of the displacement, exact or smoothed as the model's step) and the one-step prediction of
-    `fj.simulate` is linear in them; the play states match a NumPy loop."""
+    recursion of the displacement, exact or smoothed as the model's step, run by `fj.simulate` and passed in) and
+    the one-step prediction of `fj.simulate` is linear in them; the play states match a NumPy loop."""
     u, motion, _, noisy = record
     thresholds = np.array([2e-3, 1e-2])
     base = regressors(plays=thresholds, smoothing=smoothing)
     terms = fj.monomial_terms(base.size, 2)
     theta = 0.01 * np.cos(np.arange(len(terms)))
     model = fj.PolynomialNARX(base, terms, theta, 0.1)
-    matrix = np.asarray(model.regressor_matrix(motion, noisy))
+    states = fj.simulate(base.play_operators, motion)
+    matrix = np.asarray(model.regressor_matrix(motion, noisy, states))
     one_step = OUTPUT_MEAN + OUTPUT_SCALE * (0.1 + matrix @ theta)
     np.testing.assert_allclose(one_step, fj.simulate(model, motion, measured=noisy), rtol=0, atol=1e-12)
     dx = u[:, 0]  # dx_0 = 0 (the motion's convention)
@@ -175,8 +176,13 @@ def test_regressor_matrix_with_play_operators(record, smoothing):
         else:  # (|z + 1| - |z - 1|) / 2 with |s| = s tanh(s / eps)
             plays = 0.5 * ((z + 1) * np.tanh((z + 1) / 0.05) - (z - 1) * np.tanh((z - 1) / 0.05))
         expected.append(plays)
-    rows = np.asarray(base.teacher_forced(motion.samples(base.requires), noisy))
+    rows = np.asarray(base.teacher_forced(motion.samples(base.requires), noisy, states))
     np.testing.assert_allclose(rows[:, 4:6], expected, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(states, rows[:, 4:6])
+    with pytest.raises(ValueError, match=r"2 play operators.*play_states=fj.simulate\(regressors.play_operators"):
+        model.regressor_matrix(motion, noisy)
+    with pytest.raises(ValueError, match=r"`play_states` must .* shape \(400, 2\)"):
+        base.teacher_forced(motion.samples(base.requires), noisy, states[:, :1])
 
 
 def test_monomial_terms_are_every_monomial_once():
@@ -255,7 +261,7 @@ def test_noe_refinement_recovers_the_truth(record):
     start = true_model(THETA * (1 + 0.03 * np.cos(np.arange(7))), THETA0 * 1.1)
     data = fj.FrictionData(motion, clean).slice(0, 150)
     fitted = fj.fit(start, data, loss=fj.SimulationLoss(), solver=fj.levenberg_marquardt(), steps=30)
-    assert fitted.result == "successful", fitted.message
+    assert fitted.code == "successful", fitted.message
     np.testing.assert_allclose(fitted.model.theta, THETA, rtol=1e-6, atol=1e-8)
 
 

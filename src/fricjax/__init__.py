@@ -43,6 +43,7 @@ from ._models.blackbox._polynomial import PolynomialNARX as PolynomialNARX
 from ._models.blackbox._polynomial import monomial_terms as monomial_terms
 from ._models.blackbox._regressors import NARXRegressors as NARXRegressors
 from ._models.blackbox._regressors import NARXState as NARXState
+from ._models.blackbox._regressors import PlayOperators as PlayOperators
 from ._models.blackbox._rnn import RecurrentNetwork as RecurrentNetwork
 from ._models.blackbox._rnn import RecurrentNetworkState as RecurrentNetworkState
 from ._models.blackbox._wavelet import WaveletNARX as WaveletNARX

@@ -42,6 +42,7 @@ from .._models.blackbox._kernel import AbstractKernel, ExponentialKernel, Kernel
 from .._models.blackbox._regressors import NARXRegressors
 from .._simulate import simulate
 from .._smoothing import AbstractSmoothing
+from ._regressor_rows import teacher_forced_rows
 
 KERNELS = ("polynomial", "exponential")
 SOLVERS = ("direct", "cg", "nystrom")
@@ -335,7 +336,8 @@ class _Rows(NamedTuple):
             )
         template = KernelNARX(regs, PolynomialKernel(1), np.zeros((1, regs.size)), np.zeros(1))
         template.check_inputs(data.motion)
-        rows = np.asarray(regs.teacher_forced(data.motion.samples(regs.requires), data.force), np.float64)[start:]
+        rows = np.asarray(teacher_forced_rows(regs, data.motion.samples(regs.requires), data.force), np.float64)
+        rows = rows[start:]
         scales = unwrap(regs)
         force = np.asarray(data.force, np.float64)[start:]
         target = (force - float(scales.output_mean)) / float(scales.output_scale)

@@ -21,8 +21,10 @@ import numpy as np
 from .._constraints import Fixed
 from .._data._record import FrictionData
 from .._models.blackbox._local import KINDS, LocalModel, delay_columns
+from .._models.blackbox._regressors import PlayOperators
 from .._models.combine._sensor import SensorDrift
 from .._simulate import simulate
+from ._regressor_rows import play_states, teacher_forced_rows
 from ._sweep import stack_models
 
 
@@ -144,6 +146,7 @@ def identify_local_model(
     output_lags = 1 + (output_embedding - 1) * output_delay if output_embedding else 0
     burn_in = max(input_lags, output_lags) if burn_in is None else burn_in
     k_max = max(grids["neighbours"])
+    states = None if plays is None else play_states(PlayOperators(plays), data.motion.samples(frozenset({"x"})))
     template = LocalModel.from_data(
         data,
         embedding=max(grids["embedding"]),
@@ -152,6 +155,7 @@ def identify_local_model(
         output_embedding=output_embedding,
         output_delay=output_delay,
         plays=plays,
+        play_states=states,
         neighbours=k_max,
         kind=kind,
         rank=rank,
@@ -159,7 +163,7 @@ def identify_local_model(
         burn_in=burn_in,
     )  # checks the structure and the sizes (burn-in, k_max <= points)
     regressors = template.regressors
-    rows = regressors.teacher_forced(data.motion.samples(regressors.requires), data.force)[burn_in:]
+    rows = regressors.teacher_forced(data.motion.samples(regressors.requires), data.force, states)[burn_in:]
     width = template.dimension
     configs = []
     for m in grids["embedding"]:
@@ -189,7 +193,7 @@ def identify_local_model(
         predictions = np.asarray(_free_runs(stack_models(configs), masks, validation.motion))[..., validation_burn_in:]
         rates = np.zeros(predictions.shape[:2])
     else:
-        queries = regressors.teacher_forced(validation.motion.samples(regressors.requires), validation.force)
+        queries = teacher_forced_rows(regressors, validation.motion.samples(regressors.requires), validation.force)
         targets = jnp.stack([template.forces.value, jnp.asarray(times, rows.dtype)], axis=1)
         both = np.asarray(_predictions(stack_models(configs), masks, queries[validation_burn_in:], targets))
         t_val = dt * np.arange(validation.length)[validation_burn_in:]
@@ -214,6 +218,7 @@ def identify_local_model(
         output_embedding=output_embedding,
         output_delay=output_delay,
         plays=plays,
+        play_states=states,
         neighbours=best[2],
         kind=kind,
         rank=rank,

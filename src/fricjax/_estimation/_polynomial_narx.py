@@ -17,6 +17,7 @@ from .._models.blackbox._polynomial import PolynomialNARX, Terms, evaluate_monom
 from .._models.blackbox._regressors import NARXRegressors
 from .._models.combine._sensor import SensorDrift
 from ._linear import TermSelection, select_terms
+from ._regressor_rows import teacher_forced_rows
 
 
 class PolynomialNARXResult(NamedTuple):
@@ -136,7 +137,7 @@ def identify_polynomial_narx(
         )
     template = PolynomialNARX(regressors, candidates, np.zeros(len(candidates)))
     template.check_inputs(data.motion)
-    phi = np.asarray(regressors.teacher_forced(data.motion.samples(regressors.requires), data.force), np.float64)
+    phi = np.asarray(teacher_forced_rows(regressors, data.motion.samples(regressors.requires), data.force), np.float64)
     matrix = evaluate_monomials(phi[burn_in:], candidates)
     scales = unwrap(regressors)
     force = np.asarray(data.force, np.float64)[burn_in:]

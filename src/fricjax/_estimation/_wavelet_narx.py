@@ -22,6 +22,7 @@ from .._models.blackbox._regressors import NARXRegressors
 from .._models.blackbox._wavelet import WaveletNARX
 from .._smoothing import AbstractSmoothing
 from ._linear import LstsqResult, TermSelection, lstsq, select_terms
+from ._regressor_rows import teacher_forced_rows
 
 
 class WaveletNARXResult(NamedTuple):
@@ -220,7 +221,7 @@ def identify_wavelet_narx(
 @eqx.filter_jit
 def _teacher_forced(regressors: NARXRegressors, samples: Any, force: Any) -> Any:
     """The teacher-forced regressor rows, compiled as one program (not op by op)."""
-    return regressors.teacher_forced(samples, force)
+    return teacher_forced_rows(regressors, samples, force)
 
 
 def _count(value: Any, name: str, where: str, least: int, what: str) -> int:

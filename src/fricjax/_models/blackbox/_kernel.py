@@ -212,12 +212,14 @@ class KernelNARX(AbstractNARX):
         values = self.kernel.profile(self.centres @ phi)
         return self.b + jnp.dot(self.alpha * self.unit_mask, values)
 
-    def regressor_matrix(self, motion: Motion, measured: Any) -> Float[Array, "T M"]:
+    def regressor_matrix(self, motion: Motion, measured: Any, play_states: Any = None) -> Float[Array, "T M"]:
         """The kernel matrix of the record's teacher-forced regressor rows against the centres, `(T, m)` (the
         model is linear in `alpha`: its one-step prediction is `denormalise(b + regressor_matrix @ (mask *
-        alpha))`). It is `T x m` numbers: for long records use `fj.simulate(model, motion, measured=...)`."""
+        alpha))`). It is `T x m` numbers: for long records use `fj.simulate(model, motion, measured=...)`.
+        `play_states`: with play operators among the regressors, their states along the record,
+        `fj.simulate(model.regressors.play_operators, motion)`."""
         self.check_inputs(motion)
-        rows = self.regressors.teacher_forced(motion.samples(self.requires), measured)
+        rows = self.regressors.teacher_forced(motion.samples(self.requires), measured, play_states)
         p = unwrap(self)
         return p.kernel.gram(rows, p.centres)
 

@@ -180,6 +180,7 @@ class LocalModel(AbstractFrictionModel):
         output_embedding: int = 0,
         output_delay: int = 1,
         plays: Any = None,
+        play_states: Any = None,
         neighbours: int = 10,
         kind: Literal["constant", "linear"] = "constant",
         rank: int | None = None,
@@ -197,7 +198,9 @@ class LocalModel(AbstractFrictionModel):
         took six past forces besides nine displacements). Signals and forces are normalised by the record's
         mean and standard deviation. Training pairs are the record's teacher-forced delay vectors (measured past
         forces) and forces, from sample `burn_in` on (default: the largest lag, so that no vector reaches before
-        the record). The other arguments are the constructor's.
+        the record). With `plays`, `play_states` are the play operators' states along `data` (a recursion over
+        time, which runs in `fj.simulate` only): `fj.simulate(fj.PlayOperators(plays), data.motion)`, `(T, K)`. The
+        other arguments are the constructor's.
         """
         where = "LocalModel.from_data"
         embedding = _positive_int(embedding, "embedding", where)
@@ -219,7 +222,12 @@ class LocalModel(AbstractFrictionModel):
                 f"{where}: `burn_in` must be an integer in 0..{data.length - 1} (samples of the record), "
                 f"got {burn_in!r}."
             )
-        points, forces = training_set(regressors, data, columns, burn_in)
+        if regressors.num_plays and play_states is None:
+            raise ValueError(
+                f"{where}: with `plays`, pass the play operators' states along `data` (a recursion over time, which "
+                "runs in fj.simulate only): play_states=fj.simulate(fj.PlayOperators(plays), data.motion)."
+            )
+        points, forces = training_set(regressors, data, columns, burn_in, play_states)
         return cls(
             regressors,
             points,
@@ -354,10 +362,13 @@ def delay_columns(
     return np.asarray(inputs + plays + outputs, dtype=np.int32)
 
 
-def training_set(regressors: NARXRegressors, data: Any, columns: Any, burn_in: int) -> tuple[Array, Array]:
+def training_set(
+    regressors: NARXRegressors, data: Any, columns: Any, burn_in: int, play_states: Any = None
+) -> tuple[Array, Array]:
     """The training pairs of a record: the teacher-forced delay vectors (rows `burn_in..T-1`, `columns` of the
-    regressor vectors) and the measured forces [N]."""
-    rows = regressors.teacher_forced(data.motion.samples(regressors.requires), data.force)
+    regressor vectors; `play_states` the play operators' states along the record, if any) and the measured forces
+    [N]."""
+    rows = regressors.teacher_forced(data.motion.samples(regressors.requires), data.force, play_states)
     return rows[burn_in:, np.asarray(columns)], jnp.asarray(data.force, rows.dtype)[burn_in:]
 
 

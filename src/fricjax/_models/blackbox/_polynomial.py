@@ -170,11 +170,13 @@ class PolynomialNARX(AbstractNARX):
     def network(self, phi: Float[Array, " P"]) -> Array:
         return self.theta0 + jnp.dot(self.theta * self.unit_mask, evaluate_monomials(phi, self.terms))
 
-    def regressor_matrix(self, motion: Motion, measured: Any) -> Float[Array, "T M"]:
+    def regressor_matrix(self, motion: Motion, measured: Any, play_states: Any = None) -> Float[Array, "T M"]:
         """The model's monomials along a record under teacher forcing, `(T, M)` (normalised units, mask not
-        applied): the one-step prediction is `denormalise(theta0 + regressor_matrix @ (mask * theta))`."""
+        applied): the one-step prediction is `denormalise(theta0 + regressor_matrix @ (mask * theta))`.
+        `play_states`: with play operators among the regressors, their states along the record,
+        `fj.simulate(model.regressors.play_operators, motion)`."""
         self.check_inputs(motion)
-        phi = self.regressors.teacher_forced(motion.samples(self.requires), measured)
+        phi = self.regressors.teacher_forced(motion.samples(self.requires), measured, play_states)
         return evaluate_monomials(phi, self.terms)
 
     def describe(self) -> list[str]:

@@ -14,7 +14,10 @@ Optionally, the regressors include a bank of play operators of the displacement 
 Prandtl-Ishlinskii hysteresis models (parlitz2004 §III-B: one element per threshold). A NARX with a few lags
 cannot hold the state of a hysteretic system with non-local memory (nested loops after each reversal); the
 play states carry it, so the network becomes a static map of the play states and the current inputs. This is
-an extension of the papers' NARX networks (their memory was the lags alone), not part of them.
+an extension of the papers' NARX networks (their memory was the lags alone), not part of them. The bank of play
+operators alone is the model `PlayOperators`: `fj.simulate(regressors.play_operators, motion)` gives their states
+along a record, which the teacher-forced regressor rows (`NARXRegressors.teacher_forced`) take as an argument
+(a recursion over time runs in `fj.simulate` only; this module builds the rest of the rows by shifts).
 
 Sweeps over orders compare models of one maximal shape: `input_mask` (one entry per input lag 0..n_u) and
 `output_mask` (one per output lag 1..n_y) multiply the regressors, so a mask of zeros removes a lag without
@@ -24,10 +27,9 @@ changing a shape (and so without recompiling). The masks are fixed (never traine
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -35,6 +37,7 @@ from jaxtyping import Array, Float
 from ..._constraints import Fixed, as_float_array, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
+from .._base import AbstractFrictionModel
 
 SIGNALS = ("x", "v", "a", "dx")
 """The `MotionSample` signals a NARX may take as inputs: displacement [m], velocity [m/s], acceleration
@@ -49,6 +52,58 @@ class NARXState(eqx.Module):
     inputs: Float[Array, "L S"]
     outputs: Float[Array, " Y"]
     plays: Float[Array, " K"]
+
+
+def advance_plays(plays: Array, dx: Any, thresholds: Array, smoothing: AbstractSmoothing) -> Array:
+    """One step of a bank of play operators: `p_i(k) = clip(p_i(k-1) + dx_k / Delta_i, -1, 1)`, the clip exact or
+    smoothed by `smoothing` (the one implementation, for `PlayOperators` and `NARXRegressors` alike)."""
+    return smoothing.clip(plays + jnp.asarray(dx, plays.dtype) / thresholds, 1.0)
+
+
+class PlayOperators(AbstractFrictionModel):
+    """A bank of play operators of the displacement, `p_i(k) = clip(p_i(k-1) + dx_k / Delta_i, -1, 1)`: the
+    rate-independent memory elements of Maxwell-slip and Prandtl-Ishlinskii hysteresis models (parlitz2004 §III-B,
+    one element per threshold), here the play states that `fj.NARXRegressors(plays=)` adds to a NARX's regressors.
+
+    Its output is not a force but the K play states after each sample (dimensionless, in [-1, 1]): run by
+    `fj.simulate(operators, motion)`, shape `(T, K)`, from rest (all states 0). `NARXRegressors.play_operators` is
+    the bank of a regressor map; the teacher-forced regressor rows (`NARXRegressors.teacher_forced`,
+    `regressor_matrix` of the linear-in-parameters models, `fj.LocalModel.from_data`) take these states.
+
+    **Arguments:**
+
+    - `thresholds`: the K thresholds `Delta_i > 0` [m] (typically 0.03-3 times the breakaway displacement).
+    - `smoothing`: the saturation, `Exact()` (default) or `Smooth(eps)` (`eps` dimensionless).
+
+    ```python
+    >>> import numpy as np, fricjax as fj
+    >>> motion = fj.Motion(x=np.array([0.0, 1e-3, 3e-3, 2e-3]))
+    >>> np.asarray(fj.simulate(fj.PlayOperators([2e-3]), motion))[:, 0].round(6).tolist()
+    [0.0, 0.5, 1.0, 0.5]
+    ```
+    """
+
+    thresholds: Any
+    smoothing: AbstractSmoothing
+    requires: ClassVar[frozenset[str]] = frozenset({"x"})
+
+    def __init__(self, thresholds: Any, smoothing: AbstractSmoothing | None = None):
+        raw = thresholds.value if isinstance(thresholds, Fixed) else thresholds
+        self.thresholds = fixed_array(raw, (int(np.size(raw)),), "thresholds", "PlayOperators", True)
+        self.smoothing = Exact() if smoothing is None else smoothing
+
+    @property
+    def num_plays(self) -> int:
+        """The number K of play operators."""
+        return int(np.shape(unwrap(self.thresholds))[0])
+
+    def init_state(self) -> Array:
+        thresholds = unwrap(self.thresholds)
+        return jnp.zeros((self.num_plays,), thresholds.dtype)
+
+    def step(self, state: Array, sample: MotionSample) -> tuple[Array, Array]:
+        state = advance_plays(state, sample.dx, self.thresholds, self.smoothing)
+        return state, state
 
 
 class NARXRegressors(eqx.Module):
@@ -163,6 +218,12 @@ class NARXRegressors(eqx.Module):
         return int(np.shape(unwrap(self.plays))[0])
 
     @property
+    def play_operators(self) -> PlayOperators:
+        """The bank of play operators of these regressors (thresholds `plays`, this `smoothing`; empty without
+        plays): `fj.simulate(regressors.play_operators, motion)` gives the play states `teacher_forced` takes."""
+        return PlayOperators(self.plays, self.smoothing)
+
+    @property
     def requires(self) -> frozenset[str]:
         return frozenset(s for s in self.signals if s in ("x", "v", "a")) | (
             frozenset({"x"}) if "dx" in self.signals or self.num_plays else frozenset()
@@ -184,7 +245,7 @@ class NARXRegressors(eqx.Module):
         window = jnp.concatenate([u[None].astype(state.inputs.dtype), state.inputs], axis=0)
         plays = state.plays
         if self.num_plays:  # a play operator per threshold, driven by the displacement step
-            plays = self.smoothing.clip(plays + jnp.asarray(sample.dx, plays.dtype) / self.plays, 1.0)
+            plays = advance_plays(plays, sample.dx, self.plays, self.smoothing)
         past = (state.outputs - self.output_mean) / self.output_scale
         phi = jnp.concatenate([(window * self.input_mask[:, None]).reshape(-1), plays, past * self.output_mask])
         return phi, NARXState(window, state.outputs, plays)
@@ -203,17 +264,18 @@ class NARXRegressors(eqx.Module):
     def denormalise(self, y_normalised: Array) -> Array:
         return self.output_mean + self.output_scale * y_normalised
 
-    def teacher_forced(self, samples: MotionSample, measured: Any) -> Float[Array, "T P"]:
+    def teacher_forced(self, samples: MotionSample, measured: Any, play_states: Any = None) -> Float[Array, "T P"]:
         """The regressor vectors `phi_k` of a whole record under teacher forcing, as rows: `(T, size)`.
 
         Row k is the `phi_k` that `fj.simulate(model, motion, measured=measured)` feeds the model at sample k:
         inputs `u_k .. u_{k-n_u}`, the play states `p_i(k)` and measured outputs `y_{k-1} .. y_{k-n_y}`, with the
-        state at rest before the record (inputs 0, plays 0, outputs 0, as `init_state`). Built by shifting (the
-        play operators, which depend on the displacement alone, by one scan): the regressors of a model linear in
-        its parameters (least squares, term selection) without simulating it.
+        state at rest before the record (inputs 0, plays 0, outputs 0, as `init_state`). Built by shifting: the
+        regressors of a model linear in its parameters (least squares, term selection) without simulating it.
+        The play states are a recursion over time, which runs in `fj.simulate` only: give them as `play_states`.
 
         **Arguments:** `samples`, the record's per-step signals (`motion.samples(regressors.requires)`);
-        `measured`, the force [N], shape `(T,)`.
+        `measured`, the force [N], shape `(T,)`; `play_states`, the play operators' states along the record,
+        `fj.simulate(regressors.play_operators, motion)`, shape `(T, K)` (needed only with play operators).
         """
         p = unwrap(self)
         u = jnp.stack([jnp.asarray(getattr(samples, s)) for s in self.signals], axis=-1)  # (T, S)
@@ -233,22 +295,29 @@ class NARXRegressors(eqx.Module):
         lagged = [outputs[n_y - j : n_y - j + length] for j in range(1, n_y + 1)]
         past = jnp.stack(lagged, axis=1) if n_y else jnp.zeros((length, 0), y.dtype)  # n_y = 0: a Volterra series
         past = ((past - p.output_mean) / p.output_scale * p.output_mask).reshape(length, n_y)
-        plays = self.play_states(samples, u.dtype)
-        return jnp.concatenate([window, plays, past], axis=1)
+        plays = checked_play_states(self, play_states, length, "NARXRegressors.teacher_forced")
+        return jnp.concatenate([window, plays.astype(u.dtype), past], axis=1)
 
-    def play_states(self, samples: MotionSample, dtype: Any = None) -> Float[Array, "T K"]:
-        """The play operators' states `p_i(k)` along a record from rest, `(T, K)` (dimensionless; `(T, 0)`
-        without plays): the same recursion, and the same smoothing, as the model's step."""
-        dx = jnp.asarray(samples.dx, dtype)
-        if not self.num_plays:
-            return jnp.zeros((dx.shape[0], 0), dx.dtype)
-        p = unwrap(self)
 
-        def play(state: Array, step: Array) -> tuple[Array, Array]:
-            state = p.smoothing.clip(state + step / p.plays, 1.0)
-            return state, state
-
-        return jax.lax.scan(play, jnp.zeros((self.num_plays,), dx.dtype), dx)[1]
+def checked_play_states(regressors: NARXRegressors, play_states: Any, length: int, where: str) -> Array:
+    """`play_states` as a `(T, K)` array for the K play operators of `regressors` along a record of `length`
+    samples (`(T, 0)` without plays), or a clear error when they are missing or misshapen."""
+    count = regressors.num_plays
+    if play_states is None:
+        if count:
+            raise ValueError(
+                f"{where}: the regressors hold {count} play operators, whose states along the record are a recursion "
+                "over time that runs in fj.simulate only; pass them as "
+                "play_states=fj.simulate(regressors.play_operators, motion)."
+            )
+        return jnp.zeros((length, 0))
+    states = jnp.asarray(play_states)
+    if states.shape != (length, count):
+        raise ValueError(
+            f"{where}: `play_states` must hold the {count} play states at each of the {length} samples, shape "
+            f"({length}, {count}) (fj.simulate(regressors.play_operators, motion)), got {states.shape}."
+        )
+    return states
 
 
 def fixed_array(value: Any, shape: tuple[int, ...], name: str, owner: str, positive: bool = False) -> Fixed:

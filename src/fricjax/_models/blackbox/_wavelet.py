@@ -194,12 +194,14 @@ class WaveletNARX(AbstractNARX):
     def network(self, phi: Float[Array, " m"]) -> Array:
         return jnp.dot(self.features(phi), self.weights) + self.d
 
-    def regressor_matrix(self, motion: Motion, measured: Any) -> Float[Array, "T n"]:
+    def regressor_matrix(self, motion: Motion, measured: Any, play_states: Any = None) -> Float[Array, "T n"]:
         """The network's linear-in-parameters columns along a record under teacher forcing, `(T, p + Kw + Ks)`
         (normalised units, mask not applied): the one-step prediction is
-        `regressors.denormalise(d + regressor_matrix @ [L, mask * a, mask * s])`."""
+        `regressors.denormalise(d + regressor_matrix @ [L, mask * a, mask * s])`. `play_states`: with play
+        operators among the regressors, their states along the record,
+        `fj.simulate(model.regressors.play_operators, motion)`."""
         self.check_inputs(motion)
-        return self.features(self.regressors.teacher_forced(motion.samples(self.requires), measured))
+        return self.features(self.regressors.teacher_forced(motion.samples(self.requires), measured, play_states))
 
 
 def _length(value: Any) -> tuple[int]:
