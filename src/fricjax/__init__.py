@@ -110,7 +110,6 @@ from ._estimation._ensemble_fit import fit_weighted_ensemble as fit_weighted_ens
 from ._estimation._ensemble_fit import select_forward as select_forward
 from ._estimation._fit import fit as fit
 from ._estimation._fit import levenberg_marquardt as levenberg_marquardt
-from ._estimation._problem import solve_linear as solve_linear
 from ._estimation._kernel_narx import KernelNARXCandidate as KernelNARXCandidate
 from ._estimation._kernel_narx import KernelNARXResult as KernelNARXResult
 from ._estimation._kernel_narx import identify_kernel_narx as identify_kernel_narx
@@ -128,8 +127,13 @@ from ._estimation._losses import OneStepLoss as OneStepLoss
 from ._estimation._losses import SimulationLoss as SimulationLoss
 from ._estimation._polynomial_narx import PolynomialNARXResult as PolynomialNARXResult
 from ._estimation._polynomial_narx import identify_polynomial_narx as identify_polynomial_narx
+from ._estimation._problem import solve_linear as solve_linear
 from ._estimation._recursive_fit import RecursiveFitResult as RecursiveFitResult
 from ._estimation._recursive_fit import recursive_fit as recursive_fit
+from ._estimation._serialise import load_model as load_model
+from ._estimation._serialise import save_model as save_model
+from ._estimation._sharding import batch_devices as batch_devices
+from ._estimation._sharding import shard_batch as shard_batch
 from ._estimation._solution import RESULT_CODES as RESULT_CODES
 from ._estimation._solution import RESULTS as RESULTS
 from ._estimation._solution import FitFailed as FitFailed
@@ -138,10 +142,6 @@ from ._estimation._solution import Solution as Solution
 from ._estimation._solvers import AbstractSolver as AbstractSolver
 from ._estimation._solvers import OptaxSolver as OptaxSolver
 from ._estimation._solvers import OptimistixSolver as OptimistixSolver
-from ._estimation._serialise import load_model as load_model
-from ._estimation._serialise import save_model as save_model
-from ._estimation._sharding import batch_devices as batch_devices
-from ._estimation._sharding import shard_batch as shard_batch
 from ._estimation._strategies import Continuation as Continuation
 from ._estimation._strategies import MultiStart as MultiStart
 from ._estimation._strategies import ParameterScaling as ParameterScaling

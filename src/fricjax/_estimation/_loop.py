@@ -192,11 +192,11 @@ def run_stage(
         train, val = map(np.asarray, batched_losses(problem, ys, args, batched_args))
         done += n
         search.observe(ys, int(np.max(np.asarray(steps))), np.asarray(bad) | ~np.isfinite(train), train, val, eps)
-        finished = np.asarray(finished)
+        ended = np.asarray(finished)
         outcome.states = states
         outcome.results = [
             "successful" if f and ok else ("max_steps" if ok else "solver_failed")
-            for f, ok in zip(finished, np.asarray(result == RESULTS.successful).reshape(-1), strict=True)
+            for f, ok in zip(ended, np.asarray(result == RESULTS.successful).reshape(-1), strict=True)
         ]
         if search.diverged.all():
             outcome.stop = "diverged"
@@ -205,7 +205,7 @@ def run_stage(
                 "(lower the learning rate, check the data scale, or start closer)"
             )
             break
-        if finished.all():
+        if ended.all():
             break  # every start's solver met its own convergence test (or failed)
         if tolerance is not None and search.converged(tolerance):
             outcome.converged = (

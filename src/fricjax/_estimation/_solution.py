@@ -35,7 +35,7 @@ class RESULTS(eqx.Enumeration):
 
 RESULT_NAMES = ("successful", "max_steps", "early_stopped", "diverged", "solver_failed")
 #: `{name: sentence}` of every result code (the command line's legend; `RESULTS` is the enumeration).
-RESULT_CODES = {name: RESULTS[getattr(RESULTS, name)] for name in RESULT_NAMES}
+RESULT_CODES = {name: RESULTS[getattr(RESULTS, name)] for name in RESULT_NAMES}  # type: ignore[misc]
 _USABLE = ("successful", "max_steps", "early_stopped")
 
 

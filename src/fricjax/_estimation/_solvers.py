@@ -144,10 +144,11 @@ class OptimistixSolver(AbstractSolver):
     def terminate(self, problem: Any, y: Any, args: Any, state: Any) -> tuple[jax.Array, Any]:
         ok = state.result == optx.RESULTS.successful
         failed = jnp.invert(ok)
-        return state.done | failed, RESULTS.where(ok, RESULTS.successful, RESULTS.solver_failed)
+        verdict = RESULTS.where(ok, RESULTS.successful, RESULTS.solver_failed)  # type: ignore[arg-type]
+        return state.done | failed, verdict
 
     def failure(self, state: Any) -> str:
-        return optx.RESULTS[state.result] or "unknown failure"
+        return optx.RESULTS[state.result] or "unknown failure"  # type: ignore[misc] # the item's sentence
 
 
 def as_solver(solver: Any, where: str = "fit") -> AbstractSolver:
