@@ -3,6 +3,7 @@ solver wrappers, and the arguments a fit refuses (one line naming the argument).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import equinox as eqx
@@ -168,3 +169,52 @@ def test_seeds_of_any_size():
 def test_hostile_sweep_arguments(kwargs, argument):
     with pytest.raises(ValueError, match=f"`{argument}`"):
         fj.sweep([START, START], DATA, **kwargs)
+
+
+def test_strategies_are_the_keywords_in_any_order():
+    """The keywords are strategies: the same fit from `strategies=[...]`, in another order, to the bit."""
+    lm = fj.levenberg_marquardt()
+    by_keywords = fj.fit(
+        START, DATA, solver=lm, steps=20, scaling=fj.ParameterScaling(), multistart=fj.MultiStart(2, 0.3),
+        separable=("offset",), seed=3,
+    )  # fmt: skip
+    by_strategies = fj.fit(
+        START, DATA, solver=lm, steps=20, seed=3,
+        strategies=[fj.MultiStart(2, 0.3), fj.ParameterScaling(), fj.Separable(("offset",))],
+    )  # fmt: skip
+    assert eqx.tree_equal(by_keywords.model, by_strategies.model)
+    assert by_keywords.code == by_strategies.code and by_keywords.num_starts == 2
+
+
+class AddStart(fj.AbstractStrategy):
+    """A strategy written by a user: one more start, at a given model (a data-driven guess)."""
+
+    def __init__(self, guess):
+        self.guess = guess
+
+    def transform(self, plan):
+        params = eqx.partition(self.guess, eqx.is_inexact_array)[0]
+        params = jax.tree_util.tree_map(lambda p, ref: p if ref is not None else None, params, plan.params0)
+        extra = jax.tree_util.tree_map(lambda p: p[None], params)
+        if plan.scales is not None:
+            extra = jax.tree_util.tree_map(lambda p, c: p / c, extra, plan.scales)
+        starts = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), plan.starts, extra)
+        return dataclasses.replace(plan, starts=starts)
+
+
+def test_a_user_strategy_adds_a_start():
+    far = fj.CoulombViscous(Fc=0.05, Fv=1.0, offset=-2.0, smoothing=fj.Smooth(1e-4))
+    result = fj.fit(far, DATA, solver=optax.adam(1e-2), steps=10, strategies=[AddStart(TRUTH)])
+    assert result.num_starts == 2 and result.best_start == 1
+    assert result.train_loss < 1e-6
+
+
+def test_strategy_arguments_are_checked():
+    with pytest.raises(TypeError, match="`strategies`"):
+        fj.fit(START, DATA, steps=2, strategies=[optax.adam(1e-2)])
+    with pytest.raises(ValueError, match="`count`"):
+        fj.MultiStart(True)
+    with pytest.raises(ValueError, match="`stages`"):
+        fj.Continuation(1e-3, 1e-5, stages=0)
+    with pytest.raises(ValueError, match="`patience`"):
+        fj.EarlyStopping(-1)

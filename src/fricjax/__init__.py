@@ -142,9 +142,14 @@ from ._estimation._solution import Solution as Solution
 from ._estimation._solvers import AbstractSolver as AbstractSolver
 from ._estimation._solvers import OptaxSolver as OptaxSolver
 from ._estimation._solvers import OptimistixSolver as OptimistixSolver
+from ._estimation._strategies import AbstractStrategy as AbstractStrategy
 from ._estimation._strategies import Continuation as Continuation
+from ._estimation._strategies import EarlyStopping as EarlyStopping
+from ._estimation._strategies import FitPlan as FitPlan
 from ._estimation._strategies import MultiStart as MultiStart
 from ._estimation._strategies import ParameterScaling as ParameterScaling
+from ._estimation._strategies import Separable as Separable
+from ._estimation._strategies import Tolerance as Tolerance
 from ._estimation._sweep import SweepResult as SweepResult
 from ._estimation._sweep import stack_models as stack_models
 from ._estimation._sweep import sweep as sweep

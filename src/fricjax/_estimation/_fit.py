@@ -9,6 +9,7 @@ GA + Nelder-Mead of worden2007 §4.4 / parlitz2004 §III-C / amthor §II-B.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -37,7 +38,16 @@ from ._problem import (
 from ._sharding import shard_batch
 from ._solution import FitFailed, Solution
 from ._solvers import as_solver, levenberg_marquardt
-from ._strategies import Continuation, MultiStart, ParameterScaling
+from ._strategies import (
+    AbstractStrategy,
+    Continuation,
+    EarlyStopping,
+    FitPlan,
+    MultiStart,
+    ParameterScaling,
+    Separable,
+    Tolerance,
+)
 
 __all__ = ["DEFAULT_SOLVER", "fit", "levenberg_marquardt"]
 
@@ -67,6 +77,7 @@ def fit(
     seed: int = 0,
     compute_std: bool = False,
     throw: bool = False,
+    strategies: Sequence[AbstractStrategy] = (),
 ) -> Solution:
     """Fit the parameters of `model` to `data` by gradients through the simulator.
 
@@ -107,6 +118,10 @@ def fit(
     - `progress`: show a tqdm progress bar. `seed`: for the multi-start draws (results are deterministic).
     - `compute_std`: Gauss-Newton standard deviations of the trained physical parameters (a dense Jacobian
       over them: for physical models, not for networks with thousands of weights).
+    - `strategies`: further `fj.AbstractStrategy` wrappers of the problem, applied after the keyword ones above
+      (which are the same strategies: `scaling=` is `fj.ParameterScaling`, `multistart=` `fj.MultiStart`,
+      `continuation=` `fj.Continuation`, `separable=` `fj.Separable`, `patience=` `fj.EarlyStopping`,
+      `tolerance=` `fj.Tolerance`).
     - `throw`: raise `fj.FitFailed` (holding the `Solution`) when the fit diverged or its solver failed, instead
       of returning the failure.
 
@@ -132,16 +147,18 @@ def fit(
         raise TypeError(f"fit: `loss` must be a fricjax loss (fj.SimulationLoss(), ...), got {type(loss).__name__}.")
     _check_records(model, data, validation, loss)
     steps = positive_int(steps, "steps", "fit")
+    strategies_arg = strategies
     eval_every = optional(positive_int, eval_every, "eval_every", "fit")
-    patience = optional(positive_int, patience, "patience", "fit")
-    tolerance = optional(nonnegative_float, tolerance, "tolerance", "fit")
     seed = seed_value(seed, "seed", "fit")
     solver = as_solver(DEFAULT_SOLVER if solver is None else solver)
-    if isinstance(multistart, bool) or not (multistart is None or isinstance(multistart, (int, MultiStart))):
-        raise TypeError(f"fit: `multistart` must be a count or fj.MultiStart(count, spread), got {multistart!r}.")
-    if isinstance(multistart, int):
-        multistart = MultiStart(positive_int(multistart, "multistart", "fit"))
-    count = 1 if multistart is None else multistart.count
+    strategies = [*_keyword_strategies(scaling, multistart, continuation, separable, patience, tolerance)]
+    for strategy in strategies_arg:
+        if not isinstance(strategy, AbstractStrategy):
+            raise TypeError(
+                "fit: `strategies` takes fj.AbstractStrategy objects (fj.MultiStart, fj.Continuation, "
+                f"fj.ParameterScaling, fj.Separable, fj.EarlyStopping, fj.Tolerance), got {type(strategy).__name__}."
+            )
+        strategies.append(strategy)
     val_loss_fn = loss.validation_loss() if validation_burn_in is None else SimulationLoss(burn_in=validation_burn_in)
     if validation is not None and getattr(val_loss_fn, "burn_in", 0) >= validation.length:
         raise ValueError(
@@ -149,27 +166,30 @@ def fit(
             f"in a validation record of {validation.length} samples; lower `validation_burn_in` or pass more data."
         )
 
-    if continuation is not None:  # smooth from the start, so every stage shares one tree structure
-        model = with_smoothing(model, Smooth(jnp.asarray(continuation.eps_start, dtype=float)))
+    # the plan: each strategy wraps the problem (before and after parameter selection), in the order given
+    plan = FitPlan(model=model, seed=seed)
+    for strategy in strategies:
+        plan = strategy.prepare(plan)
+    model, separable, tolerance, patience = plan.model, plan.separable, plan.tolerance, plan.patience
     spec, linear_spec = parameter_specs(model, train, freeze, separable, loss, data)
     params0, static = eqx.partition(model, spec)
-    scales = None if scaling is None else scaling.scales(params0, model)
+    plan = dataclasses.replace(plan, params0=params0, starts=MultiStart(1, 0.0).draw(params0, seed))
+    for strategy in strategies:
+        plan = strategy.transform(plan)
     problem = Problem(
         loss=loss,
         linear_spec=linear_spec,
         linear_nonnegative=nonnegative_flags(model, linear_spec, separable),
         nonnegative=eqx.partition(nonnegative_mask(model), spec)[0],
-        scales=scales,
+        scales=plan.scales,
         data=data,
         validation=validation,
         val_loss=val_loss_fn,
     )
+    count = jax.tree_util.tree_leaves(plan.starts)[0].shape[0] if jax.tree_util.tree_leaves(plan.starts) else 1
     extra0 = loss.init_extra(model, data)
-    starts = (MultiStart(1, 0.0) if multistart is None else multistart).draw(params0, seed)
-    if scales is not None:
-        starts = jax.tree_util.tree_map(lambda p, c: p / c, starts, scales)
     extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + e.shape), extra0)
-    ys0 = shard_batch((starts, extras))  # the starts spread over the local devices (identity on one)
+    ys0 = shard_batch((plan.starts, extras))  # the starts spread over the local devices (identity on one)
 
     bar = _progress_bar(progress, steps, solver.kind)
     search = Search(ys0, validation is not None, start_time, bar)
@@ -179,8 +199,7 @@ def fit(
         code, message = "successful", "only linear parameters: solved by least squares"
         search.best_scores = np.zeros(count)
     else:
-        eps_schedule = [None] if continuation is None else list(continuation.schedule())
-        for eps, budget in zip(eps_schedule, _split(steps, len(eps_schedule)), strict=True):
+        for eps, budget in zip(plan.stages, _split(steps, len(plan.stages)), strict=True):
             if budget == 0:
                 continue
             if eps is not None:
@@ -224,7 +243,7 @@ def fit(
         chosen, kept = _no_worse_than_start(problem, chosen, ys0, static, validation is not None)
         if kept:
             message += "; " + kept
-            if scaling is None and solver.kind == "optax":
+            if plan.scales is None and solver.kind == "optax":
                 message += (
                     " (real parameters are stepped as stored: for physical models pass scaling="
                     "fj.ParameterScaling(), which scales each by its magnitude or physical range)"
@@ -275,6 +294,38 @@ def fit(
 # ----------------------------------------------------------------------------------------------------------------
 # helpers
 # ----------------------------------------------------------------------------------------------------------------
+
+
+def _keyword_strategies(
+    scaling: Any, multistart: Any, continuation: Any, separable: Any, patience: Any, tolerance: Any
+) -> list[AbstractStrategy]:
+    """The strategies `fit`'s keywords stand for (thin compatibility: each keyword is one strategy)."""
+    out: list[AbstractStrategy] = []
+    if continuation is not None:
+        if not isinstance(continuation, Continuation):
+            raise TypeError(
+                f"fit: `continuation` must be fj.Continuation(eps_start, eps_end, stages), got {continuation!r}."
+            )
+        out.append(continuation)
+    if separable:
+        out.append(Separable(separable))
+    if scaling is not None:
+        if not isinstance(scaling, ParameterScaling):
+            raise TypeError(f"fit: `scaling` must be fj.ParameterScaling(...), got {scaling!r}.")
+        out.append(scaling)
+    if multistart is not None:
+        if isinstance(multistart, bool) or not isinstance(multistart, (int, np.integer, MultiStart)):
+            raise TypeError(f"fit: `multistart` must be a count or fj.MultiStart(count, spread), got {multistart!r}.")
+        out.append(
+            multistart
+            if isinstance(multistart, MultiStart)
+            else MultiStart(positive_int(multistart, "multistart", "fit"))
+        )
+    if patience is not None:
+        out.append(EarlyStopping(positive_int(patience, "patience", "fit")))
+    if tolerance is not None:
+        out.append(Tolerance(nonnegative_float(tolerance, "tolerance", "fit")))
+    return out
 
 
 def _check_records(model: Any, data: Any, validation: Any, loss: Any) -> None:

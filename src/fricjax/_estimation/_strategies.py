@@ -1,7 +1,15 @@
-"""Fit strategies: explicit, opt-in objects that `fj.fit` applies only when asked (none is applied silently).
+"""Fit strategies: explicit, opt-in wrappers of the problem a fit solves, applied only when asked.
+
+A strategy changes the `FitPlan` the driver builds, through two hooks called for every strategy in the order given:
+`prepare(plan)` before the parameters are selected (the model's smoothing, the separable paths, the smoothing
+stages, the stopping rules) and `transform(plan)` after (the starts, the scales). `fj.fit(..., strategies=[...])`
+takes them in any combination; its keywords `scaling=`, `multistart=`, `continuation=`, `separable=`,
+`patience=` and `tolerance=` are the same strategies.
 
 `MultiStart` (vmap-ed global search), `Continuation` (smoothing annealed towards the exact model),
-`ParameterScaling` (the optimiser sees real parameters divided by a scale).
+`ParameterScaling` (the optimiser sees real parameters divided by a scale), `Separable` (linear parameters solved by
+least squares inside every evaluation), `EarlyStopping` (patience on the validation loss), `Tolerance` (converged
+when the loss stops falling). Best-so-far is not a strategy: the loop always keeps each start's best parameters.
 """
 
 from __future__ import annotations
@@ -16,10 +24,52 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._constraints import AbstractUnwrappable, Positive
+from .._smoothing import Smooth, with_smoothing
+from .._validation import nonnegative_float, positive_float, positive_int
 
 
 @dataclasses.dataclass(frozen=True)
-class MultiStart:
+class FitPlan:
+    """What the fit driver runs, as the strategies leave it.
+
+    - `model`: the start model (smoothing as the first stage needs it); `separable`: dotted paths solved by least
+      squares; `stages`: the smoothing width of each stage (`None`: the model's own); `tolerance`, `patience`: the
+      loop's stopping rules; `seed`: for random starts.
+    - After parameter selection: `params0` (the trained leaves of the start), `scales` (None, or a tree shaped
+      like `params0`: the optimiser sees parameters divided by it) and `starts` (a batch of `params0`-shaped trees
+      along a new leading axis, in the optimiser's coordinates: divided by `scales`).
+    """
+
+    model: Any
+    separable: tuple[str, ...] = ()
+    stages: tuple[float | None, ...] = (None,)
+    tolerance: float | None = None
+    patience: int | None = None
+    seed: int = 0
+    params0: Any = None
+    scales: Any = None
+    starts: Any = None
+
+
+class AbstractStrategy:
+    """A wrapper of the fit problem: override `prepare` and / or `transform` (each returns the plan, changed with
+    `dataclasses.replace`)."""
+
+    def prepare(self, plan: FitPlan) -> FitPlan:
+        """Before parameter selection: the model, the separable paths, the stages, the stopping rules."""
+        return plan
+
+    def transform(self, plan: FitPlan) -> FitPlan:
+        """After parameter selection: the starts and scales (`plan.params0` is set)."""
+        return plan
+
+
+def _divide(starts: Any, scales: Any) -> Any:
+    return starts if scales is None else jax.tree_util.tree_map(lambda p, c: p / c, starts, scales)
+
+
+@dataclasses.dataclass(frozen=True)
+class MultiStart(AbstractStrategy):
     """`count` starts drawn around the initial model, fitted together in one vmap-ed program.
 
     Positive (log-stored) parameters are multiplied by `exp(spread * N(0, 1))`; real ones get
@@ -31,10 +81,11 @@ class MultiStart:
     spread: float = 0.5
 
     def __post_init__(self) -> None:
-        if self.count < 1:
-            raise ValueError(f"MultiStart: `count` must be >= 1, got {self.count}.")
-        if not self.spread >= 0:
-            raise ValueError(f"MultiStart: `spread` must be >= 0, got {self.spread}.")
+        object.__setattr__(self, "count", positive_int(self.count, "count", "MultiStart"))
+        object.__setattr__(self, "spread", nonnegative_float(self.spread, "spread", "MultiStart"))
+
+    def transform(self, plan: FitPlan) -> FitPlan:
+        return dataclasses.replace(plan, starts=_divide(self.draw(plan.params0, plan.seed), plan.scales))
 
     def draw(self, params: Any, seed: int = 0) -> Any:
         """`count` starts around `params` (trainable leaves; a leading axis of size `count` is added to each);
@@ -58,7 +109,7 @@ class MultiStart:
 
 
 @dataclasses.dataclass(frozen=True)
-class Continuation:
+class Continuation(AbstractStrategy):
     """Smoothing continuation: the model is fitted in smooth mode with `eps` annealed geometrically from
     `eps_start` to `eps_end` in `stages` stages (steps split evenly); the result is also scored in exact mode.
     `eps` is in the units each model documents (m/s for LuGre / Dahl / static curves, m for GMS, a fraction of
@@ -69,17 +120,21 @@ class Continuation:
     stages: int = 5
 
     def __post_init__(self) -> None:
-        if not (self.eps_start > 0 and self.eps_end > 0):
-            raise ValueError(f"Continuation: eps_start and eps_end must be > 0, got {self.eps_start}, {self.eps_end}.")
-        if self.stages < 1:
-            raise ValueError(f"Continuation: `stages` must be >= 1, got {self.stages}.")
+        object.__setattr__(self, "eps_start", positive_float(self.eps_start, "eps_start", "Continuation"))
+        object.__setattr__(self, "eps_end", positive_float(self.eps_end, "eps_end", "Continuation"))
+        object.__setattr__(self, "stages", positive_int(self.stages, "stages", "Continuation"))
+
+    def prepare(self, plan: FitPlan) -> FitPlan:
+        # smooth from the start, so that every stage shares one tree structure
+        model = with_smoothing(plan.model, Smooth(jnp.asarray(self.eps_start, dtype=float)))
+        return dataclasses.replace(plan, model=model, stages=tuple(float(eps) for eps in self.schedule()))
 
     def schedule(self) -> np.ndarray:
         return np.geomspace(self.eps_start, self.eps_end, self.stages)
 
 
 @dataclasses.dataclass(frozen=True)
-class ParameterScaling:
+class ParameterScaling(AbstractStrategy):
     """The optimiser sees every real (not log/softplus-stored) parameter divided by a scale: its initial
     magnitude `|value|`; where that is 0, the physical range the model declares (`parameter_ranges()`: LuGre
     `z0` ~ Fc / sigma0 [m], offsets ~ Fc [N]), else 1; or `scale` where given per dotted field path.
@@ -95,6 +150,10 @@ class ParameterScaling:
     """
 
     scale: dict[str, float] = dataclasses.field(default_factory=dict)
+
+    def transform(self, plan: FitPlan) -> FitPlan:
+        scales = self.scales(plan.params0, plan.model)
+        return dataclasses.replace(plan, scales=scales, starts=_divide(plan.starts, scales))
 
     def scales(self, params: Any, model: Any = None) -> Any:
         """The scale of every trained leaf of `params` (a tree shaped like it; 1 for log/softplus leaves).
@@ -122,6 +181,52 @@ class ParameterScaling:
                 raise ValueError(f"ParameterScaling: the scale of {path!r} must be a positive number, got {value!r}.")
             scales = eqx.tree_at(where_from_path(path), scales, replace_fn=_constant(value))
         return scales
+
+
+@dataclasses.dataclass(frozen=True)
+class Separable(AbstractStrategy):
+    """The fields at these dotted `paths` enter the simulated force linearly (offsets, FIR coefficients, LuGre
+    `sigma1` / `sigma2`, static `Fv`): they are solved exactly by least squares inside every evaluation
+    (`SimulationLoss` only; physically non-negative ones by non-negative least squares)."""
+
+    paths: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        paths = (self.paths,) if isinstance(self.paths, str) else tuple(self.paths)
+        if not all(isinstance(path, str) for path in paths):
+            raise TypeError(f"Separable: `paths` must be dotted field paths ('offset', 'model.sigma2'), got {paths!r}.")
+        object.__setattr__(self, "paths", paths)
+
+    def prepare(self, plan: FitPlan) -> FitPlan:
+        return dataclasses.replace(plan, separable=(*plan.separable, *self.paths))
+
+
+@dataclasses.dataclass(frozen=True)
+class EarlyStopping(AbstractStrategy):
+    """Stop when the validation loss has not improved for `patience` checks (needs validation data); the best
+    model seen is returned (`early_stopped`)."""
+
+    patience: int
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "patience", positive_int(self.patience, "patience", "EarlyStopping"))
+
+    def prepare(self, plan: FitPlan) -> FitPlan:
+        return dataclasses.replace(plan, patience=self.patience)
+
+
+@dataclasses.dataclass(frozen=True)
+class Tolerance(AbstractStrategy):
+    """End a stage as converged (`successful`) when the best start's training loss falls by less than `rtol`
+    (relative) over one check; solvers with their own convergence test then run in checks too."""
+
+    rtol: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "rtol", nonnegative_float(self.rtol, "tolerance", "Tolerance"))
+
+    def prepare(self, plan: FitPlan) -> FitPlan:
+        return dataclasses.replace(plan, tolerance=self.rtol)
 
 
 def submodels(model: Any, prefix: str = "") -> list[tuple[str, eqx.Module]]:
