@@ -1,0 +1,66 @@
+"""`fricjax compare --data emps`: the EMPS table, the inverse dynamic model (IDM) identified with each of the 8
+friction laws of the emps-ensemble paper (4 laws, symmetric and asymmetric), with its relative error on the
+training and the test file (`emps_table`)."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+from typing import Any
+
+import numpy as np
+
+from ..._data._emps import load_emps
+from ..._models.physics._static import BoPavelescu, CoulombViscous, Threlfall, Tustin
+from .._emps_idm import fit_emps_idm
+from ._output import fricjax_version, strict_json, versions, write_atomic
+from ._settings import CompareError
+
+
+def emps_table(out: pathlib.Path) -> None:
+    """Fit the IDM with every law on `DATA_EMPS.mat`, score it on `DATA_EMPS_PULSES.mat` (both read from
+    `$FRICJAX_DATA/emps`, default `../shared/data/emps`), print the table and write `out/report.json`.
+
+    **Raises:** `CompareError` when the EMPS files are missing or unreadable.
+    """
+    root = pathlib.Path(os.environ.get("FRICJAX_DATA", pathlib.Path.cwd().parent / "shared" / "data")) / "emps"
+    train_path, test_path = root / "DATA_EMPS.mat", root / "DATA_EMPS_PULSES.mat"
+    if not train_path.is_file() or not test_path.is_file():
+        raise CompareError(f"--data emps: EMPS files not found in {root}; set FRICJAX_DATA to the data folder")
+    try:
+        train, test = load_emps(train_path), load_emps(test_path)
+    except (ValueError, OSError) as err:
+        raise CompareError(f"--data emps: {err}") from err
+    laws: list[tuple[str, Any]] = [
+        ("Coulomb + viscous", CoulombViscous),
+        ("Threlfall", Threlfall),
+        ("Tustin", Tustin),
+        ("Bo-Pavelescu", BoPavelescu),
+    ]
+    rows = []
+    print(f"{'law':34s} {'train rel. error %':>18s} {'test rel. error %':>18s}  parameters")
+    for label, law in laws:
+        for asymmetric in (False, True):
+            result = fit_emps_idm(train, law, asymmetric=asymmetric)
+            name = f"{label} ({'asymmetric' if asymmetric else 'symmetric'})"
+            test_error = float(result.relative_error_on(test))
+            params = {
+                "M": float(result.M),
+                "offset": float(result.offset),
+                **{k: np.asarray(v).tolist() for k, v in result.params.items()},
+            }
+            rows.append(
+                {
+                    "law": name,
+                    "train_relative_error_percent": float(result.relative_error),
+                    "test_relative_error_percent": test_error,
+                    "parameters": params,
+                }
+            )
+            text = ", ".join(f"{k}={np.round(np.asarray(v), 4).tolist()}" for k, v in params.items())
+            print(f"{name:34s} {float(result.relative_error):18.4f} {test_error:18.4f}  {text}")
+    write_atomic(
+        out / "report.json",
+        strict_json({"data": "emps", "fricjax": fricjax_version(), "versions": versions(), "idm": rows}),
+    )
+    print(f"report: {out / 'report.json'}")

@@ -1,0 +1,87 @@
+"""The figures of `compare`: prediction errors on a test record per model (`plot_prediction_errors`) and measured
+vs predicted friction-displacement loops of the best models (`plot_test_loops`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+
+def _display(units: Any) -> tuple[float, str, str]:
+    """(factor from SI to the displayed displacement unit, that unit, the force unit): a record given in SI is
+    shown in µm (pre-sliding scales), one given in other units in those units."""
+    if units is None or (units.x == "m" and units.force == "N"):
+        return 1e6, "µm", "N"
+    return 1.0 / units.x_factor, units.x, units.force
+
+
+def _stride(n: int, limit: int = 20_000) -> int:
+    """A stride that keeps at most `limit` points of a long record in a figure."""
+    return max(1, -(-n // limit))
+
+
+def plot_prediction_errors(rows: Sequence[Any], test: Any, path: Any, *, units: Any = None) -> None:
+    """Prediction errors on a test record per model, one panel each with its own error scale (parlitz2004 Fig. 6
+    layout). `rows`: scored models with `label`, `nmse`, `max_error`, `prediction` (offset-corrected, on the
+    scored part); `test`: the `fj.compare.TestRecord` (or a `Split`: its test part); `units`: the record's units
+    (forces are shown in them)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    test = _as_test(test)
+    _, _, f_unit = _display(units)
+    f_scale = 1.0 if units is None else 1.0 / units.force_factor
+    ordered = sorted(rows, key=lambda r: (not np.isfinite(r.nmse), np.nan_to_num(r.nmse)))
+    measured = np.asarray(test.record.force)[test.scored_start :]
+    t = np.arange(measured.size) * float(np.asarray(test.record.motion.dt))
+    step = _stride(measured.size)
+    fig, axes = plt.subplots(len(ordered) + 1, 1, figsize=(10, 1.4 * (len(ordered) + 1)), sharex=True)
+    axes[0].plot(t[::step], f_scale * measured[::step], "k", lw=0.7)
+    axes[0].set_ylabel(f"F [{f_unit}]")
+    axes[0].set_title(f"{test.name}: measured force (top) and prediction errors e = F_hat - F (each its own scale)")
+    for ax, r in zip(axes[1:], ordered, strict=True):
+        error = f_scale * (np.asarray(r.prediction) - measured)
+        ax.plot(t[::step], error[::step], lw=0.6)
+        limit = float(np.nanmax(np.abs(error))) if np.isfinite(error).any() else 1.0
+        ax.set_ylim(-1.05 * limit, 1.05 * limit)
+        ax.text(
+            0.01, 0.8, f"{r.label}: NMSE {r.nmse:.3g} %, MAX/std {r.max_error:.3g}", transform=ax.transAxes, fontsize=8
+        )
+        ax.set_ylabel(f"e [{f_unit}]")
+    axes[-1].set_xlabel("time in the scored part [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_test_loops(rows: Sequence[Any], test: Any, path: Any, *, units: Any = None) -> None:
+    """Measured vs predicted friction-displacement loops on a test record's scored part, best four models."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    test = _as_test(test)
+    x_scale, x_unit, f_unit = _display(units)
+    f_scale = 1.0 if units is None else 1.0 / units.force_factor
+    ordered = sorted(rows, key=lambda r: (not np.isfinite(r.nmse), np.nan_to_num(r.nmse)))[:4]
+    x = np.asarray(test.record.motion.samples().x)[test.scored_start :] * x_scale
+    measured = np.asarray(test.record.force)[test.scored_start :] * f_scale
+    step = _stride(x.size)
+    fig, axes = plt.subplots(1, len(ordered), figsize=(4 * len(ordered), 3.8), squeeze=False)
+    for ax, r in zip(axes[0], ordered, strict=True):
+        ax.plot(x[::step], measured[::step], color="0.6", lw=0.8, label="measured")
+        ax.plot(x[::step], f_scale * np.asarray(r.prediction)[::step], "r", lw=0.6, label="predicted")
+        ax.set(title=f"{r.label}\nNMSE {r.nmse:.3g} %", xlabel=f"x [{x_unit}]", ylabel=f"F [{f_unit}]")
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _as_test(test: Any) -> Any:
+    return test.test_record(init_window=0) if hasattr(test, "test_record") else test

@@ -1,0 +1,147 @@
+"""Fit recipes shared by the model families of `compare`: what a recipe is (`ModelSpec`: a start built from the
+training record and a fit), Levenberg-Marquardt with the linear parameters by least squares (`lm_recipe`), the
+output layer by least squares then output error (`least_squares_then_noe`), a structure chosen on the validation
+part (`structure_by_validation`), and the result of a model identified without iterations (`identified_result`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import optax
+
+from ..._estimation._fit import fit, levenberg_marquardt
+from ..._estimation._result import FitResult
+from ..._estimation._strategies import MultiStart, ParameterScaling
+from ..._metrics import nmse
+from ..._models.combine._sensor import SensorDrift
+from ._records import Split
+from ._scoring import SIGNIFICANT_T, VALIDATION_BLOCKS, free_run, paired_validation_gain
+from ._settings import DataScales, FitSettings
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelSpec:
+    """How to start and fit one model family in `compare`: `build(scales)` and
+    `fit(start, split, seed, progress)`. `build` is None for models identified from the split as a whole (their
+    `fit` gets `start=None`: structure and parameters chosen on the training and validation parts together)."""
+
+    label: str
+    build: Callable[[DataScales], Any] | None
+    fit: Callable[[Any, Split, int, bool], FitResult]
+
+
+def separable_paths(start: Any, paths: tuple[str, ...]) -> tuple[str, ...]:
+    """The linear parameters of a (possibly drift-wrapped) model: the friction model's, and the drift rate."""
+    if isinstance(start, SensorDrift):
+        return (*(f"model.{path}" for path in paths), "rate")
+    return paths
+
+
+def lm_recipe(separable: tuple[str, ...], starts: int, settings: FitSettings) -> Callable[..., FitResult]:
+    """Levenberg-Marquardt with parameter scaling from `starts` starts (the validation part choosing), the
+    parameters `separable` (and the drift rate) solved by least squares inside each step."""
+
+    def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
+        return fit(
+            start,
+            split.train,
+            scaling=ParameterScaling(),
+            validation=split.until_validation_end,
+            validation_burn_in=split.train_end,
+            solver=levenberg_marquardt(),
+            steps=settings.steps,
+            tolerance=settings.tolerance,
+            separable=separable_paths(start, separable),
+            multistart=MultiStart(starts, spread=0.5) if starts > 1 else None,
+            seed=seed,
+            progress=progress,
+            compute_std=True,
+        )
+
+    return run
+
+
+def identified_result(model: Any, message: str, wall_time: float, validation_nmse: float) -> FitResult:
+    """A `FitResult` for a model identified in closed form or by a grid (no optimiser steps)."""
+    empty = np.zeros(0)
+    history = {"step": empty, "train_loss": empty, "val_loss": empty, "eps": empty, "time": empty}
+    nan = float("nan")
+    return FitResult(model, "successful", message, history, nan, validation_nmse, validation_nmse, 0, wall_time, 1, 0)
+
+
+def structure_by_validation(
+    structures: dict[str, Callable[[DataScales], Any]], refine: Callable[..., FitResult]
+) -> Callable[..., FitResult]:
+    """Identify each structure on the training part, keep the one whose free run (exact) has the least NMSE on the
+    validation part, then `refine` it; the fit's message names the structure and every validation score."""
+
+    def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
+        began = time.perf_counter()
+        scales = DataScales.from_data(split.train)
+        measured = np.asarray(split.until_validation_end.force)[split.train_end :]
+        scores = {}
+        candidates = {}
+        for name, build in structures.items():
+            model = build(scales)
+            prediction = free_run(model, split.until_validation_end)[split.train_end :]
+            value = float(nmse(measured, prediction))
+            candidates[name], scores[name] = model, value if np.isfinite(value) else np.inf
+        chosen = min(scores, key=lambda name: scores[name])
+        refined = refine(candidates[chosen], split, seed, progress)
+        listed = ", ".join(f"{name} {value:.3g} %" for name, value in scores.items())
+        message = f"structure: {chosen} (validation NMSE before refinement: {listed}); {refined.message}"
+        return dataclasses.replace(refined, message=message, wall_time=time.perf_counter() - began)
+
+    return run
+
+
+def least_squares_then_noe(linear: tuple[str, ...], settings: FitSettings) -> Callable[..., FitResult]:
+    """The output layer `linear` (and the drift rate) by least squares, then every weight by output error; the
+    output-error model is kept only when it predicts the validation part significantly better
+    (`paired_validation_gain`)."""
+
+    def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
+        validation: dict[str, Any] = {"validation": split.until_validation_end, "validation_burn_in": split.train_end}
+        paths = separable_paths(start, linear)
+        if not paths:  # nothing enters the free run linearly (a NARX with fed-back forces and no drift)
+            first = identified_result(start, "", 0.0, float("nan"))
+        else:
+            first = fit(start, split.train, train=paths, separable=paths, steps=1, **validation)
+        rate = 3e-3
+        warmup = min(30, settings.neural_steps // 5)  # 30 steps, less for short budgets (decay needs > warm-up)
+        schedule = optax.warmup_cosine_decay_schedule(rate / 10, rate, warmup, settings.neural_steps, rate / 30)
+        noe = fit(
+            first.model,
+            split.train,
+            solver=optax.chain(optax.clip_by_global_norm(1.0), optax.adam(schedule)),
+            steps=settings.neural_steps,
+            separable=separable_paths(start, ()),
+            seed=seed,
+            progress=progress,
+            **validation,
+        )
+        wall_time = first.wall_time + noe.wall_time
+        if not noe.val_loss < first.val_loss:  # the NOE stage returned its start
+            return dataclasses.replace(noe, wall_time=wall_time)
+        improvement, t = paired_validation_gain(first.model, noe.model, split)
+        gain = f"; output error improved the validation error by {100 * improvement:.2g} % (paired t = {t:.2f}"
+        if t >= SIGNIFICANT_T:
+            return dataclasses.replace(noe, message=f"{noe.message}{gain}): kept", wall_time=wall_time)
+        noise = f" over {VALIDATION_BLOCKS} blocks, < {SIGNIFICANT_T:g}: within the noise)"
+        within = noise + ", so the least-squares start is kept"
+        return dataclasses.replace(
+            noe,
+            model=first.model,
+            message=noe.message + gain + within,
+            train_loss=first.train_loss,
+            val_loss=first.val_loss,
+            exact_val_loss=first.exact_val_loss,
+            std=first.std,
+            wall_time=wall_time,
+        )
+
+    return run

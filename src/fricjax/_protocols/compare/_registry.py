@@ -1,0 +1,47 @@
+"""The models `compare` can fit, by command-line name (`MODEL_NAMES`; `PHYSICS_MODELS` by default), and their
+recipes (`default_models`): each one's start built from the training record and its fit, with the force sensor's
+drift (`FitSettings.drift`) wrapped around every model."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ..._models.combine._sensor import SensorDrift
+from ._blackbox_recipes import linear_in_parameters_models, neural_models
+from ._physics_recipes import physics_models
+from ._recipes import ModelSpec
+from ._settings import DataScales, FitSettings
+
+PHYSICS_MODELS = ("stribeck", "lugre", "gms", "nlr", "dnlrx")
+NEURAL_MODELS = ("mlp", "gsnn", "rnn", "avd")
+LINEAR_MODELS = ("narx", "kernel", "knn", "wavelet")
+MODEL_NAMES = PHYSICS_MODELS + NEURAL_MODELS + LINEAR_MODELS
+"""Every model `compare` can fit; the command line fits `PHYSICS_MODELS` unless told otherwise."""
+
+
+def default_models(settings: FitSettings | None = None) -> dict[str, ModelSpec]:
+    """Every model `compare` can fit (`MODEL_NAMES`: the physics, neural and linear-in-parameters models), keyed by
+    their command-line names; `settings` sets the step budgets and element counts (`FitSettings()` by default)."""
+    settings = FitSettings() if settings is None else settings
+    specs = physics_models(settings)
+    specs.update(neural_models(settings))
+    specs.update(linear_in_parameters_models(settings))
+    if settings.drift == "none":
+        return specs
+    return {name: _with_drift(spec, settings.drift) for name, spec in specs.items()}
+
+
+def _with_drift(spec: ModelSpec, kind: str) -> ModelSpec:
+    """The spec with its model wrapped in `SensorDrift` (rate 0; leaky: tau = the training record's duration)."""
+
+    inner = spec.build
+    if inner is None:  # identified with its drift from the split itself
+        return spec
+
+    def build(scales: DataScales) -> Any:
+        model = inner(scales)
+        if isinstance(model, SensorDrift):  # identified with its drift (the linear-in-parameters models)
+            return model
+        return SensorDrift(model, 0.0, None if kind == "linear" else scales.duration)
+
+    return ModelSpec(spec.label, build, spec.fit)

@@ -1,0 +1,151 @@
+"""What `compare` reports: the comparison table (`format_table`, sorted by test NMSE with `by_score`) and the
+contents of `report.json` (`compare_report`: data, split, test records, settings, noise floor, and every model's
+scores, parameters and standard deviations)."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any
+
+import numpy as np
+
+from ..._constraints import parameter_arrays, unwrap
+from ..._smoothing import exact
+from ._output import fricjax_version, versions
+from ._records import LoadedRecord, Split, TestRecord
+from ._scoring import ModelScore, Score
+from ._settings import RESULT_CODES, FitSettings
+
+
+def by_score(row: ModelScore) -> tuple[bool, float]:
+    """Sort key of the table: by test NMSE (the first test record), non-finite scores last."""
+    return (not np.isfinite(row.nmse), float(row.nmse) if np.isfinite(row.nmse) else 0.0)
+
+
+def label_width(rows: list[ModelScore]) -> int:
+    """The width of the table's first column: the longest label (at least 44 characters)."""
+    return max([44, *(len(r.label) for r in rows)])
+
+
+def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = None) -> str:
+    """The comparison table, sorted by test NMSE (kernel paper Table 1 / worden2007 Fig. 11 layout): one NMSE
+    column per test record (where there are several), MAX as the largest absolute error divided by the standard
+    deviation of the measured force, the noise-floor reference row where there is one, and what the result
+    codes mean."""
+    w = label_width(rows)
+    names = list(rows[0].tests) if rows and rows[0].tests else ["test"]
+    several = len(names) > 1
+    heads = [f"NMSE % {i + 1}" for i in range(len(names))] if several else ["NMSE %"]
+    lines = [
+        f"{'model':{w}s} {'params':>6s} "
+        + " ".join(f"{h:>10s}" for h in heads)
+        + f" {'MAX/std':>7s} {'fit s':>7s}  result"
+    ]
+
+    def values(tests: dict[str, Score], fallback: float) -> list[float]:
+        return [tests[n].nmse if n in tests else fallback for n in names] if tests else [fallback]
+
+    for r in sorted(rows, key=by_score):
+        cells = " ".join(f"{v:10.4f}" for v in values(r.tests, r.nmse))
+        lines.append(f"{r.label:{w}s} {r.num_parameters:6d} {cells} {r.max_error:7.3f} {r.fit_time:7.1f}  {r.result}")
+    if reference:
+        floor = [reference[n].nmse if n in reference else float("nan") for n in names]
+        cells = " ".join(f"{v:10.4f}" for v in floor)
+        first = reference.get(names[0])
+        lines.append(
+            f"{'noise floor (true model + sensor model)':{w}s} {'':6s} {cells} "
+            f"{(first.max_error if first else float('nan')):7.3f}"
+        )
+    if several:
+        lines.append("test records: " + "; ".join(f"{i + 1} = {n}" for i, n in enumerate(names)))
+    codes = sorted({r.result for r in rows if r.result in RESULT_CODES})
+    lines.append("result: " + "; ".join(f"{c} = {RESULT_CODES[c]}" for c in codes))
+    return "\n".join(lines)
+
+
+def compare_report(
+    *,
+    data: str,
+    seed: int,
+    training: LoadedRecord,
+    split: Split,
+    tests: list[TestRecord],
+    cards: dict[str, Any],
+    floor: dict[str, Score],
+    settings: FitSettings,
+    rows: list[ModelScore],
+    started: float,
+) -> dict[str, Any]:
+    """The contents of `report.json`: `data` and `seed` as given, the training record's data card and units, the
+    split, each test record (its windows, noise floor and, for other records, its data card from `cards`), the
+    settings, the result codes, the noise floor, and every model's row (sorted by test NMSE); `total_time_s` counts
+    from `started` (a `time.perf_counter()` reading)."""
+    units = training.units
+    return {
+        "fricjax": fricjax_version(),
+        "versions": versions(),
+        "data": data,
+        "seed": seed,
+        "data_card": training.card,
+        "units": {"x": units.x, "v": units.v, "force": units.force, "internal": "SI (m, m/s, N)"},
+        "split": {
+            "train": [0, split.train_end],
+            "validation": [split.train_end, split.validation_end],
+            "test_part": [split.validation_end, split.full.length]
+            if split.validation_end < split.full.length
+            else None,
+        },
+        "test_records": [
+            {
+                "name": t.name,
+                "samples": t.record.length,
+                "init_window": [t.start, t.scored_start],
+                "scored": [t.scored_start, t.record.length],
+                "noise_floor_nmse_percent": floor[t.name].nmse if t.name in floor else None,
+                "card": cards.get(t.name),
+            }
+            for t in tests
+        ],
+        "settings": {
+            **dataclasses.asdict(settings),
+            "solvers": "Levenberg-Marquardt (optimistix) with separable least squares for linear parameters; "
+            "GMS: Adam with smoothing continuation from gms_starts starts, then a Levenberg-Marquardt polish",
+            "scoring": "free run in exact mode from each record's first sample; the force offset is the mean "
+            "error over the initialisation window, which is not scored",
+        },
+        "result_codes": RESULT_CODES,
+        "reference": {
+            "model": "true model + sensor drift and offset (noise-free sensor reading)",
+            "scores": {name: dataclasses.asdict(value) for name, value in floor.items()},
+        }
+        if floor
+        else None,
+        "models": [
+            {
+                "name": r.name,
+                "label": r.label,
+                "nmse_percent": r.nmse,
+                "max_error_over_std": r.max_error,
+                "validation_nmse_percent": r.validation_nmse,
+                "test_scores": {name: dataclasses.asdict(value) for name, value in r.tests.items()},
+                "fit_time_s": r.fit_time,
+                "num_parameters": r.num_parameters,
+                "result": r.result,
+                "result_message": r.message,
+                "parameters": _parameters(r.model),
+                "parameter_std": _estimated_std(r.std) if r.std is not None else None,
+            }
+            for r in sorted(rows, key=by_score)
+        ],
+        "total_time_s": time.perf_counter() - started,
+    }
+
+
+def _parameters(model: Any) -> dict[str, Any]:
+    return {path: value.tolist() for path, value in parameter_arrays(unwrap(exact(model))).items()}
+
+
+def _estimated_std(std: Any) -> dict[str, Any]:
+    """The Gauss-Newton standard deviations that were estimated: fixed and untrained leaves (NaN) are left out."""
+    return {path: value.tolist() for path, value in parameter_arrays(std).items() if not np.all(np.isnan(value))}

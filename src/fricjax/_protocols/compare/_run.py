@@ -1,0 +1,185 @@
+"""`fricjax compare` from end to end: fit the named models and score them on the test records (`fit_and_score`),
+then, from the command line's options, load and split the records, add ensembles, print the table and write the
+models, figures and `report.json` (`run_compare`)."""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from ..._estimation._serialise import save_model
+from ._emps_table import emps_table
+from ._ensembles import add_ensembles
+from ._figures import plot_prediction_errors, plot_test_loops
+from ._output import check_writable, fricjax_version, strict_json
+from ._records import Split, TestRecord, load_record_spec, split_record, statistics_warnings
+from ._registry import MODEL_NAMES, PHYSICS_MODELS, default_models
+from ._report import compare_report, format_table
+from ._scoring import ModelScore, count_parameters, free_run, reference_scores, score_row
+from ._settings import CompareError, DataScales, FitSettings
+
+
+def fit_and_score(
+    names: list[str],
+    split: Split,
+    *,
+    tests: list[TestRecord] | None = None,
+    settings: FitSettings | None = None,
+    seed: int = 0,
+    progress: bool = True,
+    log: Callable[[str], None] = print,
+) -> list[ModelScore]:
+    """Fit each named model on the train part (the validation part chooses among starts), then score it by
+    free-run simulation in exact mode on every test record (default: the split's test part, with the default
+    initialisation window)."""
+    specs = default_models(settings)
+    tests = [split.test_record()] if tests is None else list(tests)
+    scales = DataScales.from_data(split.train)
+    rows = []
+    for name in names:
+        spec = specs[name]
+        start_time = time.perf_counter()
+        log(f"fitting {spec.label} ...")
+        result = spec.fit(None if spec.build is None else spec.build(scales), split, seed, progress)
+        elapsed = time.perf_counter() - start_time
+        model = result.model
+        full_prediction = free_run(model, split.full)
+        predictions = {
+            test.name: full_prediction if test.record is split.full else free_run(model, test.record) for test in tests
+        }
+        row = score_row(
+            name,
+            spec.label,
+            model,
+            full_prediction,
+            predictions,
+            split,
+            tests,
+            fit_time=elapsed,
+            num_parameters=count_parameters(model),
+            result=result.code,  # the name of the fj.RESULTS item
+            message=result.message,
+            std=result.std,
+        )
+        rows.append(row)
+        log(f"  {spec.label}: test NMSE {row.nmse:.3f} %, MAX {row.max_error:.3f}, {elapsed:.1f} s: {result.message}")
+    return rows
+
+
+def run_compare(
+    *,
+    data: str = "tribometer:mixed",
+    test: Sequence[str] | None = None,
+    split_at: Sequence[float] | None = None,
+    init_window: int | None = None,
+    models: Sequence[str] = PHYSICS_MODELS,
+    steps: int = 40,
+    gms_elements: int = 4,
+    maxwell_elements: int = 5,
+    drift: str = "linear",
+    neural_steps: int = 600,
+    dt: float | None = None,
+    x_unit: str | None = None,
+    force_unit: str | None = None,
+    out: str | os.PathLike[str] = "fricjax-compare",
+    seed: int = 0,
+    progress: bool = True,
+) -> None:
+    """`fricjax compare` with the command line's options as arguments (`fricjax compare --help` says what each
+    does): fit every model on the training record `data`, score each by free run on the test records (`test`, or
+    the record's own test part), add ensembles, print the table, and write the models, the figures and
+    `report.json` to `out`. `data="emps"`: the EMPS table instead (`emps_table`). Files are staged in a folder
+    inside `out` and moved in one by one, the report last; an interruption leaves nothing new in `out`.
+
+    **Raises:** `CompareError` for bad input (one line).
+    """
+    out = pathlib.Path(out)
+    models = [m.lower() for m in models]  # model names are case-insensitive
+    if models == ["all"]:
+        models = list(MODEL_NAMES)
+    unknown = [m for m in models if m not in MODEL_NAMES]
+    if unknown:
+        raise CompareError(f"--models: unknown model {unknown[0]!r}; choose from {', '.join(MODEL_NAMES)}")
+    if init_window is not None and init_window < 0:
+        raise CompareError(f"--init-window must be >= 0 samples, got {init_window}")
+    settings = FitSettings(
+        steps=steps,
+        gms_elements=gms_elements,
+        maxwell_elements=maxwell_elements,
+        drift=drift,
+        neural_steps=neural_steps,
+    )
+    check_writable(out)
+    if data == "emps":
+        emps_table(out)
+        return
+    units_kw: dict[str, Any] = {"dt": dt, "x_unit": x_unit, "force_unit": force_unit}
+    training = load_record_spec(data, seed=seed, **units_kw)
+    test_specs = list(test or [])
+    split = split_record(training, split_at, tested_elsewhere=bool(test_specs))
+    tests: list[TestRecord] = []
+    cards: dict[str, Any] = {}  # the data cards of the other test records, by test name
+    if split.validation_end < training.data.length:
+        tests.append(split.test_record(init_window, training.reference))
+    for spec in test_specs:
+        loaded = load_record_spec(spec, seed=seed, **units_kw)
+        name = loaded.name if loaded.name not in {t.name for t in tests} else f"{loaded.name} #{len(tests) + 1}"
+        tests.append(TestRecord.whole(loaded, init_window, name))
+        cards[name] = loaded.card
+    if not tests:
+        raise CompareError("nothing to test on: the split leaves no test part; pass --test records")
+    units = training.units
+    print(
+        f"fricjax {fricjax_version()} compare: {data}, {split.full.length} samples (train {split.train_end}, "
+        f"validation {split.validation_end - split.train_end}); test: "
+        + "; ".join(
+            f"{t.name} ({t.record.length - t.scored_start} scored after a {t.init_window}-sample initialisation window)"
+            for t in tests
+        )
+        + f"; models: {', '.join(models)}"
+    )
+    for line in statistics_warnings(split, tests, units):
+        print("warning: " + line)
+    started = time.perf_counter()
+    rows = fit_and_score(list(models), split, tests=tests, settings=settings, seed=seed, progress=progress)
+    rows += add_ensembles(rows, split, tests)
+    floor = reference_scores(tests)
+    print()
+    print(format_table(rows, floor))
+    staging = pathlib.Path(tempfile.mkdtemp(prefix=".partial-", dir=out))
+    try:
+        (staging / "models").mkdir()
+        for row in rows:
+            save_model(staging / "models" / f"{row.name}.eqx", row.model)
+        plot_prediction_errors(rows, tests[0], staging / "test_errors.png", units=units)
+        plot_test_loops(rows, tests[0], staging / "hysteresis_loops.png", units=units)
+        report = compare_report(
+            data=data,
+            seed=seed,
+            training=training,
+            split=split,
+            tests=tests,
+            cards=cards,
+            floor=floor,
+            settings=settings,
+            rows=rows,
+            started=started,
+        )
+        (staging / "report.json").write_text(strict_json(report))
+        # move in file by file (each an atomic rename); nothing in `out` that this run did not write is touched
+        (out / "models").mkdir(exist_ok=True)
+        for item in sorted((staging / "models").iterdir()):
+            item.replace(out / "models" / item.name)
+        for name in ("test_errors.png", "hysteresis_loops.png", "report.json"):  # the report last
+            (staging / name).replace(out / name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    print(
+        f"\nreport: {out / 'report.json'}; figures: {out / 'test_errors.png'}, {out / 'hysteresis_loops.png'}; "
+        f"models: {out / 'models'} ({time.perf_counter() - started:.0f} s)"
+    )

@@ -1,0 +1,103 @@
+"""What `compare` is configured by: the scales of the training record that starting models are built from
+(`DataScales`), the budgets and model sizes (`FitSettings`), what the fits' result codes mean (`RESULT_CODES`),
+and the one-line error for bad input (`CompareError`)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..._data._record import FrictionData
+
+
+@dataclasses.dataclass(frozen=True)
+class DataScales:
+    """Scales read off a training record, used to build starting models.
+
+    `force` [N]: half the 1-99 % range of the force; `Fc`, `Fs` [N]: the median and the 99.5 % level of
+    |F| while sliding; `vs` [m/s]: a velocity below which sliding is rare; `stiffness` [N/m]: the typical
+    |dF/dx| right after reversals (pre-sliding); `breakaway` [m] = Fs / stiffness; `dx` [m]: the median step;
+    `duration` [s]: the record's length; `v_fast` [m/s]: the 90 % level of |v| (the fast end of the record);
+    `train`: the record itself (black-box models normalise by it).
+    """
+
+    force: float
+    Fc: float
+    Fs: float
+    vs: float
+    stiffness: float
+    breakaway: float
+    dx: float
+    duration: float = 1.0
+    v_fast: float = 1e-3
+    train: FrictionData | None = dataclasses.field(default=None, repr=False, compare=False)
+
+    @classmethod
+    def from_data(cls, data: FrictionData) -> DataScales:
+        samples = data.motion.samples()
+        x, v = np.asarray(samples.x), np.asarray(samples.v)
+        force = np.asarray(data.force)
+        force = force - np.median(force)
+        scale = 0.5 * float(np.percentile(force, 99) - np.percentile(force, 1))
+        fast = np.abs(v) > np.percentile(np.abs(v), 70)
+        Fc = float(np.median(np.abs(force[fast]))) if fast.any() else scale
+        Fs = max(float(np.percentile(np.abs(force), 99.5)), 1.05 * Fc)
+        vs = float(np.percentile(np.abs(v), 30)) or 1e-3
+        window = 3
+        dxw = x[window:] - x[:-window]
+        dfw = force[window:] - force[:-window]
+        moving = np.abs(dxw) > np.percentile(np.abs(dxw), 20) + 1e-15
+        slopes = np.abs(dfw[moving] / dxw[moving])
+        stiffness = float(np.percentile(slopes, 90)) if slopes.size else scale / 1e-5
+        steps = np.abs(np.diff(x))
+        dx = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1e-9
+        duration = data.length * float(np.asarray(data.motion.dt))
+        v_fast = float(np.percentile(np.abs(v), 90)) or 1e-3
+        return cls(scale, Fc, Fs, vs, stiffness, Fs / stiffness, dx, duration, v_fast, data)
+
+
+@dataclasses.dataclass(frozen=True)
+class FitSettings:
+    """Budgets and model sizes of `compare` (the command line's `--steps`, `--gms-elements`,
+    `--maxwell-elements`).
+
+    - `steps`: the Levenberg-Marquardt step budget of every fit (GMS: its Adam stage gets 8 x as many steps,
+      then an LM polish of `steps`). An LM fit ends earlier, as converged (`successful`), when its training
+      loss falls by less than `tolerance` (relative) over `steps / 8` steps; `max_steps` means not converged.
+    - `gms_elements`, `maxwell_elements`: the element counts of GMS and of Maxwell-slip NLR / DNLRX.
+    - `gms_starts`: starts of the GMS fit, split between its two Stribeck-velocity ends (at least one each).
+    - `neural_steps`: the output-error (NOE) Adam steps of the neural models (`mlp`, `gsnn`, `rnn`, `avd`; see
+      `neural_models`), after their teacher-forced stage.
+    - `drift`: the force sensor's drift fitted with every model (`fj.SensorDrift`): `"linear"` (default),
+      `"leaky"` (a leaky integrator, its time constant fitted from the training record's duration) or
+      `"none"`. It restarts at 0 on each test record; the record's offset is the initialisation window's.
+    """
+
+    steps: int = 40
+    gms_elements: int = 4
+    maxwell_elements: int = 5
+    gms_starts: int = 2
+    tolerance: float = 1e-4
+    drift: str = "linear"
+    neural_steps: int = 600
+
+    def __post_init__(self) -> None:
+        if self.drift not in ("linear", "leaky", "none"):
+            raise CompareError(f"--drift must be linear, leaky or none, got {self.drift!r}")
+        for name in ("steps", "gms_elements", "maxwell_elements", "gms_starts", "neural_steps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise CompareError(f"--{name.replace('_', '-')} must be a positive integer, got {value!r}")
+
+
+RESULT_CODES = {
+    "successful": "the solver stopped by its tolerance (converged)",
+    "max_steps": "the step budget ran out first: not converged (raise --steps)",
+    "early_stopped": "stopped when the validation loss stopped improving",
+    "diverged": "the loss became non-finite; the last good model was kept",
+}
+
+
+class CompareError(ValueError):
+    """A problem with the user's input to `compare`, reported as one line."""
