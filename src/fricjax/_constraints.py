@@ -9,18 +9,20 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Sequence
-from typing import Any, Literal, TypeAlias
+from typing import TYPE_CHECKING, Any, Generic, Literal, TypeAlias, TypeVar
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike
+from jaxtyping import Array, ArrayLike, Float
 
 from ._smoothing import is_concrete
 
 ParamLike: TypeAlias = ArrayLike | Sequence[float] | Sequence[Sequence[float]]
 """What constructors accept for a parameter: a scalar, a NumPy / JAX array or a (nested) list of floats."""
+
+_T = TypeVar("_T")
 
 
 class AbstractUnwrappable(eqx.Module):
@@ -74,13 +76,42 @@ class Positive(AbstractUnwrappable):
         return jax.nn.softplus(self.raw)
 
 
-class Fixed(AbstractUnwrappable):
-    """A parameter excluded from training: its gradient is stopped at `unwrap`."""
+class Fixed(AbstractUnwrappable, Generic[_T]):
+    """A parameter excluded from training: its gradient is stopped at `unwrap`. As a type, `Fixed[Float[Array, " N"]]`
+    is a field that holds a fixed array of that shape (the array itself once the model is unwrapped)."""
 
-    value: Any
+    value: _T  # what was wrapped: an array (a number or list as a user passed it), or a wrapper (`Fixed(Positive(v))`)
 
     def unwrap(self) -> Any:
         return jax.lax.stop_gradient(unwrap(self.value))
+
+
+# Field types of model parameters, for annotations only: nothing checks them at run time. Dimension names as in
+# STYLE.md (`N` elements). A constructor stores a parameter as a float array or inside a wrapper (`Positive`, `Fixed`,
+# `Simplex`) that `unwrap` resolves at the simulation / loss boundary: in a model as built a field holds what its
+# constructor stored, in an unwrapped model the array.
+if TYPE_CHECKING:
+    # The type checker reads these three as `Any`: whether such a field holds an array or a wrapper depends on the
+    # constructor and on the caller's arguments (`fj.Fixed(1.0)`, `fj.Positive(...)`), and code reads them as arrays
+    # from unwrapped models (`p = unwrap(model)`, `isinstance(p, GMS)`, `p.k * dx`), which a union would reject
+    # at every read without a cast.
+    Parameter: TypeAlias = Any
+    ParameterVector: TypeAlias = Any
+    SidedParameter: TypeAlias = Any
+else:
+    Parameter: TypeAlias = Float[Array, ""] | AbstractUnwrappable
+    """One number: a 0-d float array, or a wrapper of one (`Positive`, `Fixed`)."""
+
+    ParameterVector: TypeAlias = Float[Array, " N"] | AbstractUnwrappable
+    """One number per element (stiffnesses, thresholds, fractions): a 1-d float array, or a wrapper of one
+    (`Positive`, `Fixed`, `Simplex`)."""
+
+    SidedParameter: TypeAlias = Float[Array, ""] | Float[Array, " 2"] | AbstractUnwrappable
+    """A static law's coefficient: one number (symmetric law) or a pair (value for v > 0, value for v < 0), or a
+    wrapper of either."""
+
+FixedScalar: TypeAlias = Fixed[Float[Array, ""]]
+"""One number held fixed, never trained (a normalisation, a kernel width, a forgetting factor)."""
 
 
 def _is_wrapper(leaf: object) -> bool:
