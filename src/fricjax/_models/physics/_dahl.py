@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ..._constraints import ParamLike, model_dtype, positive, real, unwrap
+from ..._constraints import Parameter, ParamLike, model_dtype, positive, real, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact
 from .._base import AbstractFrictionModel
@@ -64,11 +64,11 @@ class Dahl(AbstractFrictionModel):
     - `smoothing`: `Exact()` or `Smooth(eps)`, eps in m/s.
     """
 
-    sigma0: Any
-    Fc: Any
-    alpha: Any
-    offset: Any
-    F0: Any
+    sigma0: Parameter
+    Fc: Parameter
+    alpha: Parameter
+    offset: Parameter
+    F0: Parameter
     smoothing: AbstractSmoothing
 
     requires: ClassVar[frozenset[str]] = frozenset({"x"})

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -10,7 +10,17 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..._constraints import ParamLike, Simplex, as_float_array, model_dtype, positive, real, unwrap
+from ..._constraints import (
+    Parameter,
+    ParameterVector,
+    ParamLike,
+    Simplex,
+    as_float_array,
+    model_dtype,
+    positive,
+    real,
+    unwrap,
+)
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._base import AbstractFrictionModel
@@ -64,11 +74,11 @@ class GMS(AbstractFrictionModel):
     """
 
     stribeck: AbstractStribeck
-    k: Any
-    alpha: Any
-    C: Any
-    sigma2: Any
-    offset: Any
+    k: ParameterVector
+    alpha: ParameterVector
+    C: Parameter
+    sigma2: Parameter
+    offset: Parameter
     smoothing: AbstractSmoothing
 
     requires: ClassVar[frozenset[str]] = frozenset({"x", "v", "dt"})

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ..._constraints import ParamLike, model_dtype, positive, real, unwrap
+from ..._constraints import Parameter, ParamLike, model_dtype, positive, real, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._base import AbstractFrictionModel
@@ -72,11 +72,11 @@ class LuGre(AbstractFrictionModel):
     """
 
     stribeck: AbstractStribeck
-    sigma0: Any
-    sigma1: Any
-    sigma2: Any
-    offset: Any
-    z0: Any
+    sigma0: Parameter
+    sigma1: Parameter
+    sigma2: Parameter
+    offset: Parameter
+    z0: Parameter
     smoothing: AbstractSmoothing
 
     requires: ClassVar[frozenset[str]] = frozenset({"v", "dt"})

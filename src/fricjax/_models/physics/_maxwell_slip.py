@@ -14,7 +14,17 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..._constraints import Fixed, ParamLike, as_float_array, model_dtype, positive, real, unwrap
+from ..._constraints import (
+    Fixed,
+    Parameter,
+    ParameterVector,
+    ParamLike,
+    as_float_array,
+    model_dtype,
+    positive,
+    real,
+    unwrap,
+)
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact
 from .._base import AbstractFrictionModel
@@ -32,7 +42,7 @@ class MaxwellSlipState(eqx.Module):
 class AbstractForceMap(eqx.Module):
     """Maps the normalised deflections `dbar(t)` (and their / the displacement's history) to a force [N]."""
 
-    offset: Any
+    offset: Parameter
 
     @property
     def dbar_lags(self) -> int:
@@ -55,7 +65,7 @@ class SpringForces(AbstractForceMap):
     **Arguments:** `k` element stiffnesses [N/m] (> 0), shape (M,); `offset` b [N].
     """
 
-    k: Any
+    k: ParameterVector
 
     def __init__(self, k: ParamLike, offset: ParamLike = 0.0):
         dtype = model_dtype(k, offset)
@@ -131,7 +141,7 @@ class MaxwellSlip(AbstractFrictionModel):
     ```
     """
 
-    thresholds: Any
+    thresholds: ParameterVector
     force_map: AbstractForceMap
     smoothing: AbstractSmoothing
 

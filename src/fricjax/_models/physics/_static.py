@@ -19,7 +19,17 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ..._constraints import Fixed, ParamLike, as_float_array, model_dtype, positive, real, unwrap
+from ..._constraints import (
+    Fixed,
+    Parameter,
+    ParamLike,
+    SidedParameter,
+    as_float_array,
+    model_dtype,
+    positive,
+    real,
+    unwrap,
+)
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._base import AbstractFrictionModel
@@ -45,7 +55,7 @@ def _coefficient(value: ParamLike, name: str, *, is_positive: bool, dtype: Any =
 class AbstractStaticFriction(AbstractFrictionModel):
     """A memoryless friction law F(v); `model(v)` evaluates it, `simulate` runs it as a (stateless) scan."""
 
-    offset: Any
+    offset: Parameter
     smoothing: AbstractSmoothing
 
     requires: ClassVar[frozenset[str]] = frozenset({"v"})
@@ -101,7 +111,7 @@ class Coulomb(AbstractStaticFriction):
     ```
     """
 
-    Fc: Any
+    Fc: SidedParameter
 
     def __init__(self, Fc: ParamLike, *, offset: ParamLike = 0.0, smoothing: AbstractSmoothing = Exact()):
         dtype = model_dtype(Fc, offset)
@@ -121,8 +131,8 @@ class CoulombViscous(AbstractStaticFriction):
     `offset` [N]; `smoothing`.
     """
 
-    Fc: Any
-    Fv: Any
+    Fc: SidedParameter
+    Fv: SidedParameter
 
     def __init__(
         self, Fc: ParamLike, Fv: ParamLike, *, offset: ParamLike = 0.0, smoothing: AbstractSmoothing = Exact()
@@ -149,9 +159,9 @@ class Threlfall(AbstractStaticFriction):
     (+, -) pair; `offset` [N]; `smoothing`.
     """
 
-    Fc: Any
-    Fv: Any
-    v0: Any
+    Fc: SidedParameter
+    Fv: SidedParameter
+    v0: SidedParameter
 
     def __init__(
         self,
@@ -180,11 +190,11 @@ class Threlfall(AbstractStaticFriction):
 class AbstractStribeckLaw(AbstractStaticFriction):
     """Coulomb + viscous + Stribeck term with exponent: the shared law of `Tustin` and `BoPavelescu`."""
 
-    Fc: Any
-    Fs: Any
-    vs: Any
-    delta: Any
-    Fv: Any
+    Fc: SidedParameter
+    Fs: SidedParameter
+    vs: SidedParameter
+    delta: SidedParameter
+    Fv: SidedParameter
 
     def _law(self, v: Array, sign: Array, pick: Any) -> Array:
         p = unwrap(self)

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import abc
-from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike
 
-from ..._constraints import ParamLike, model_dtype, positive, unwrap
+from ..._constraints import Parameter, ParamLike, model_dtype, positive, unwrap
 
 
 def abs_pow(u: ArrayLike, p: ArrayLike) -> Array:
@@ -27,9 +26,9 @@ def abs_pow(u: ArrayLike, p: ArrayLike) -> Array:
 class AbstractStribeck(eqx.Module):
     """A Stribeck curve: `s(v) > 0`, the friction magnitude in steady sliding at velocity `v` (even in v)."""
 
-    Fc: Any
-    Fs: Any
-    vs: Any
+    Fc: Parameter
+    Fs: Parameter
+    vs: Parameter
 
     @abc.abstractmethod
     def __call__(self, v: ParamLike) -> Array:
@@ -51,7 +50,7 @@ class ExponentialStribeck(AbstractStribeck):
     ```
     """
 
-    delta: Any
+    delta: Parameter
 
     def __init__(self, Fc: ParamLike, Fs: ParamLike, vs: ParamLike, delta: ParamLike = 1.0):
         dtype = model_dtype(Fc, Fs, vs, delta)
@@ -73,7 +72,7 @@ class RationalStribeck(AbstractStribeck):
     **Arguments:** `Fc` [N] (> 0); `Fs` [N] (> 0); `vs` [m/s] (> 0); `mu` exponent (> 0).
     """
 
-    mu: Any
+    mu: Parameter
 
     def __init__(self, Fc: ParamLike, Fs: ParamLike, vs: ParamLike, mu: ParamLike = 2.0):
         dtype = model_dtype(Fc, Fs, vs, mu)
