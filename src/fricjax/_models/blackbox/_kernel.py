@@ -27,7 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..._constraints import Fixed, as_float_array, unwrap
+from ..._constraints import Fixed, FixedScalar, as_float_array, unwrap
 from ..._inputs import Motion
 from ._narx import AbstractNARX, unit_mask_field
 from ._regressors import NARXRegressors, fixed_array
@@ -110,7 +110,7 @@ class ExponentialKernel(AbstractKernel):
     ```
     """
 
-    width: Any
+    width: FixedScalar
 
     def __init__(self, width: Any = 1.0):
         self.width = fixed_array(width, (), "width", "ExponentialKernel", positive=True)
@@ -164,10 +164,10 @@ class KernelNARX(AbstractNARX):
 
     regressors: NARXRegressors
     kernel: AbstractKernel
-    centres: Any
+    centres: Fixed[Float[Array, "M P"]]
     alpha: Array
     b: Array
-    unit_mask: Any
+    unit_mask: Fixed[Float[Array, " M"]]
 
     def __init__(
         self,
@@ -209,8 +209,9 @@ class KernelNARX(AbstractNARX):
         return int(self.alpha.shape[0])
 
     def network(self, phi: Float[Array, " P"]) -> Array:
-        values = self.kernel.profile(self.centres @ phi)
-        return self.b + jnp.dot(self.alpha * self.unit_mask, values)
+        p = unwrap(self)
+        values = p.kernel.profile(p.centres @ phi)
+        return p.b + jnp.dot(p.alpha * p.unit_mask, values)
 
     def regressor_matrix(self, motion: Motion, measured: Any, play_states: Any = None) -> Float[Array, "T M"]:
         """The kernel matrix of the record's teacher-forced regressor rows against the centres, `(T, m)` (the

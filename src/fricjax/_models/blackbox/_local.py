@@ -33,9 +33,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
-from ..._constraints import Fixed, unwrap
+from ..._constraints import Fixed, FixedScalar, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import is_concrete
 from .._base import AbstractFrictionModel
@@ -105,13 +105,13 @@ class LocalModel(AbstractFrictionModel):
     """
 
     regressors: NARXRegressors
-    points: Any
-    forces: Any
-    columns: Any
-    metric: Any
-    neighbour_mask: Any
-    rank: Any
-    rcond: Any
+    points: Fixed[Float[Array, "N D"]]
+    forces: Fixed[Float[Array, " N"]]
+    columns: Fixed[Int[Array, " D"]]
+    metric: Fixed[Float[Array, " D"]]
+    neighbour_mask: Fixed[Float[Array, " K"]]
+    rank: Fixed[Int[Array, ""]]
+    rcond: FixedScalar
     neighbours: int = eqx.field(static=True)
     kind: str = eqx.field(static=True)
 
@@ -295,16 +295,17 @@ class LocalModel(AbstractFrictionModel):
 
     def _predict_one(self, query: Float[Array, " D"], targets: Float[Array, "N C"]) -> Array:
         """One query, parameters unwrapped: the `C` predictions of the targets' columns."""
-        distance = jnp.sum(jnp.square((self.points.T - query[:, None]) * self.metric[:, None]), axis=0)
+        p = unwrap(self)
+        distance = jnp.sum(jnp.square((p.points.T - query[:, None]) * p.metric[:, None]), axis=0)
         index = nearest(distance, self.neighbours)
-        values, w = targets[index], self.neighbour_mask  # (K, C), (K,)
+        values, w = targets[index], p.neighbour_mask  # (K, C), (K,)
         if self.kind == "constant":
             return w @ values / jnp.sum(w)
-        z = self.points[index] * self.metric  # (K, D), metric-scaled
+        z = p.points[index] * p.metric  # (K, D), metric-scaled
         w2 = jnp.square(w) / jnp.sum(jnp.square(w))
         zbar, vbar = w2 @ z, w2 @ values
-        slope = tpcr(w[:, None] * (z - zbar), w[:, None] * (values - vbar), self.rank, self.rcond)  # (D, C)
-        return vbar + (query * self.metric - zbar) @ slope
+        slope = tpcr(w[:, None] * (z - zbar), w[:, None] * (values - vbar), p.rank, p.rcond)  # (D, C)
+        return vbar + (query * p.metric - zbar) @ slope
 
     def describe(self) -> list[str]:
         """The coordinates of the delay vector, in order: `"x[k-4]"`, `"play[2]"`, `"F[k-1]"`."""

@@ -29,7 +29,7 @@ class AbstractNARX(AbstractFrictionModel):
     (`NARXState`). Subclasses give `regressors` and `network(phi) -> normalised force`."""
 
     regressors: eqx.AbstractVar[NARXRegressors]
-    unit_mask: eqx.AbstractVar[Any]
+    unit_mask: eqx.AbstractVar[Fixed[Float[Array, " units"]]]  # 0/1 per unit (hidden unit, term, centre)
 
     @property
     def requires(self) -> frozenset[str]:  # type: ignore[override]
@@ -109,7 +109,7 @@ class MLPNARX(AbstractNARX):
     b: Array
     d: Array
     d0: Array
-    unit_mask: Any
+    unit_mask: Fixed[Float[Array, " width"]]
     theta: Array | None
 
     def __init__(
@@ -154,7 +154,7 @@ class MLPNARX(AbstractNARX):
         )
 
     def network(self, phi: Array) -> Array:
-        hidden = jnp.tanh(self.W @ phi + self.b) * self.unit_mask
+        hidden = jnp.tanh(self.W @ phi + self.b) * unwrap(self.unit_mask)
         return jnp.dot(self.d, hidden) + self.d0 + _linear(self.theta, phi)
 
 
@@ -205,7 +205,7 @@ class GSNN(AbstractNARX):
     a_excess: Positive
     d: Array
     d0: Array
-    unit_mask: Any
+    unit_mask: Fixed[Float[Array, " J"]]
     theta: Array | None
     denominator: str = eqx.field(static=True)
     bound: float = eqx.field(static=True)
@@ -299,4 +299,4 @@ class GSNN(AbstractNARX):
         g, _ = _DENOMINATORS[self.denominator]
         numerator = self.b + jnp.tanh(self.w @ phi + self.w0)
         denominator = self.a + g(self.c @ phi + self.c0)
-        return jnp.dot(self.d, numerator / denominator * self.unit_mask) + self.d0 + _linear(self.theta, phi)
+        return jnp.dot(self.d, numerator / denominator * unwrap(self.unit_mask)) + self.d0 + _linear(self.theta, phi)

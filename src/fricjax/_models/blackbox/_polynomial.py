@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..._constraints import as_float_array
+from ..._constraints import Fixed, as_float_array, unwrap
 from ..._inputs import Motion
 from ._narx import AbstractNARX, unit_mask_field
 from ._regressors import NARXRegressors
@@ -137,7 +137,7 @@ class PolynomialNARX(AbstractNARX):
     terms: Terms = eqx.field(static=True)
     theta: Array
     theta0: Array
-    unit_mask: Any
+    unit_mask: Fixed[Float[Array, " M"]]
 
     def __init__(
         self,
@@ -168,7 +168,7 @@ class PolynomialNARX(AbstractNARX):
         return max([0, *(sum(t) for t in self.terms)])
 
     def network(self, phi: Float[Array, " P"]) -> Array:
-        return self.theta0 + jnp.dot(self.theta * self.unit_mask, evaluate_monomials(phi, self.terms))
+        return self.theta0 + jnp.dot(self.theta * unwrap(self.unit_mask), evaluate_monomials(phi, self.terms))
 
     def regressor_matrix(self, motion: Motion, measured: Any, play_states: Any = None) -> Float[Array, "T M"]:
         """The model's monomials along a record under teacher forcing, `(T, M)` (normalised units, mask not

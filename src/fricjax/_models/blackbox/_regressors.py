@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..._constraints import Fixed, as_float_array, unwrap
+from ..._constraints import Fixed, FixedScalar, as_float_array, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._base import AbstractFrictionModel
@@ -83,7 +83,7 @@ class PlayOperators(AbstractFrictionModel):
     ```
     """
 
-    thresholds: Any
+    thresholds: Fixed[Float[Array, " K"]]
     smoothing: AbstractSmoothing
     requires: ClassVar[frozenset[str]] = frozenset({"x"})
 
@@ -102,7 +102,7 @@ class PlayOperators(AbstractFrictionModel):
         return jnp.zeros((self.num_plays,), thresholds.dtype)
 
     def step(self, state: Array, sample: MotionSample) -> tuple[Array, Array]:
-        state = advance_plays(state, sample.dx, self.thresholds, self.smoothing)
+        state = advance_plays(state, sample.dx, unwrap(self.thresholds), self.smoothing)
         return state, state
 
 
@@ -129,13 +129,13 @@ class NARXRegressors(eqx.Module):
     signals: tuple[str, ...] = eqx.field(static=True)
     input_lags: int = eqx.field(static=True)
     output_lags: int = eqx.field(static=True)
-    input_mean: Any
-    input_scale: Any
-    output_mean: Any
-    output_scale: Any
-    input_mask: Any
-    output_mask: Any
-    plays: Any
+    input_mean: Fixed[Float[Array, " S"]]
+    input_scale: Fixed[Float[Array, " S"]]
+    output_mean: FixedScalar
+    output_scale: FixedScalar
+    input_mask: Fixed[Float[Array, " L+1"]]
+    output_mask: Fixed[Float[Array, " Y"]]
+    plays: Fixed[Float[Array, " K"]]
     smoothing: AbstractSmoothing
 
     def __init__(
@@ -240,14 +240,15 @@ class NARXRegressors(eqx.Module):
     def __call__(self, state: NARXState, sample: MotionSample) -> tuple[Array, NARXState]:
         """`(phi_k, partial)`: the regressor vector and the history with the inputs of sample k pushed (window
         `[u_k, ..., u_{k-n_u}]`) and the play operators advanced; `advance` then pushes the output."""
+        p = unwrap(self)
         u = jnp.stack([jnp.asarray(getattr(sample, s)) for s in self.signals])
-        u = (u - self.input_mean) / self.input_scale
+        u = (u - p.input_mean) / p.input_scale
         window = jnp.concatenate([u[None].astype(state.inputs.dtype), state.inputs], axis=0)
         plays = state.plays
         if self.num_plays:  # a play operator per threshold, driven by the displacement step
-            plays = advance_plays(plays, sample.dx, self.plays, self.smoothing)
-        past = (state.outputs - self.output_mean) / self.output_scale
-        phi = jnp.concatenate([(window * self.input_mask[:, None]).reshape(-1), plays, past * self.output_mask])
+            plays = advance_plays(plays, sample.dx, p.plays, self.smoothing)
+        past = (state.outputs - p.output_mean) / p.output_scale
+        phi = jnp.concatenate([(window * p.input_mask[:, None]).reshape(-1), plays, past * p.output_mask])
         return phi, NARXState(window, state.outputs, plays)
 
     def advance(self, partial: NARXState, y: Array) -> NARXState:
@@ -262,7 +263,8 @@ class NARXRegressors(eqx.Module):
         return NARXState(state.inputs, outputs, state.plays)
 
     def denormalise(self, y_normalised: Array) -> Array:
-        return self.output_mean + self.output_scale * y_normalised
+        p = unwrap(self)
+        return p.output_mean + p.output_scale * y_normalised
 
     def teacher_forced(self, samples: MotionSample, measured: Any, play_states: Any = None) -> Float[Array, "T P"]:
         """The regressor vectors `phi_k` of a whole record under teacher forcing, as rows: `(T, size)`.

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..._constraints import Fixed, as_float_array, unwrap
+from ..._constraints import Fixed, FixedScalar, as_float_array, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact
 from .._base import AbstractFrictionModel
@@ -53,12 +53,12 @@ class RecurrentNetwork(AbstractFrictionModel):
     v: Array
     theta: Array
     theta0: Array
-    connectivity: Any
-    unit_mask: Any
-    input_mean: Any
-    input_scale: Any
-    output_mean: Any
-    output_scale: Any
+    connectivity: Fixed[Float[Array, "N N"]]
+    unit_mask: Fixed[Float[Array, " N"]]
+    input_mean: Fixed[Float[Array, " S"]]
+    input_scale: Fixed[Float[Array, " S"]]
+    output_mean: FixedScalar
+    output_scale: FixedScalar
     smoothing: AbstractSmoothing
     signals: tuple[str, ...] = eqx.field(static=True)
     delays: tuple[int, ...] = eqx.field(static=True)

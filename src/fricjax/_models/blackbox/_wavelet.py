@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..._constraints import Positive, as_float_array, real, unwrap
+from ..._constraints import Fixed, Positive, as_float_array, real, unwrap
 from ..._inputs import Motion
 from ._narx import AbstractNARX, unit_mask_field
 from ._regressors import NARXRegressors, fixed_array
@@ -99,9 +99,9 @@ class WaveletNARX(AbstractNARX):
     """
 
     regressors: NARXRegressors
-    center: Any
-    P: Any
-    Q: Any
+    center: Fixed[Float[Array, " m"]]
+    P: Fixed[Float[Array, "m p"]]
+    Q: Fixed[Float[Array, "m q"]]
     L: Array
     a: Array
     b: Positive
@@ -110,7 +110,7 @@ class WaveletNARX(AbstractNARX):
     beta: Positive
     gamma: Array
     d: Array
-    unit_mask: Any
+    unit_mask: Fixed[Float[Array, " Kw+Ks"]]
 
     def __init__(
         self,
