@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._constraints import ParamLike, model_dtype, positive, real, unwrap
+from .._constraints import Parameter, ParamLike, model_dtype, positive, real, unwrap
 from .._inputs import InputRecord
 from .._models._base import AbstractSystem
 
@@ -70,14 +70,14 @@ class BoucWen(AbstractSystem):
     ```
     """
 
-    m: Any
-    c: Any
-    k: Any
-    alpha: Any
-    beta: Any
+    m: Parameter
+    c: Parameter
+    k: Parameter
+    alpha: Parameter
+    beta: Parameter
     gamma: Array
     delta: Array
-    nu: Any
+    nu: Parameter
     substeps: int = eqx.field(static=True, default=20)
 
     requires: ClassVar[frozenset[str]] = frozenset({"u", "u_next"})

@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._constraints import ParamLike, as_float_array, model_dtype, positive, real, unwrap
+from .._constraints import Parameter, ParamLike, as_float_array, model_dtype, positive, real, unwrap
 from .._inputs import InputRecord
 from .._models._base import AbstractSystem
 from .._models.combine._hybrid import HybridFriction
@@ -72,7 +72,7 @@ class EMPSPlant(eqx.Module):
     ```
     """
 
-    mass: Any
+    mass: Parameter
     friction: AbstractStaticFriction
     offset: Float[Array, ""]
 

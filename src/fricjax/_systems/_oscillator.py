@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._constraints import ParamLike, model_dtype, positive, unwrap
+from .._constraints import Parameter, ParamLike, model_dtype, positive, unwrap
 from .._inputs import MotionSample
 from .._models._base import AbstractFrictionModel, AbstractSystem
 
@@ -39,7 +39,7 @@ class OscillatorState(eqx.Module):
 
     y: Array
     v: Array
-    element: Any
+    element: Any  # the element model's state: any pytree, as its `init_state` returns
     F: Array
 
 
@@ -63,9 +63,9 @@ class HystereticOscillator(AbstractSystem):
     ```
     """
 
-    m: Any
-    c: Any
-    k: Any
+    m: Parameter
+    c: Parameter
+    k: Parameter
     element: AbstractFrictionModel
     substeps: int = eqx.field(static=True, default=8)
 

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._constraints import Fixed, as_float_array, unwrap
+from .._constraints import Fixed, FixedScalar, as_float_array, unwrap
 from .._models._base import AbstractModel
 from .._smoothing import is_concrete
 
@@ -90,9 +90,9 @@ class RecursiveLeastSquares(AbstractModel):
     ```
     """
 
-    theta0: Any
-    p0: Any
-    forgetting: Any
+    theta0: Fixed[Float[Array, " P"]]
+    p0: Fixed[Float[Array, " P"]]
+    forgetting: FixedScalar
     method: str = eqx.field(static=True)
 
     requires: ClassVar[frozenset[str]] = frozenset({"regressors", "target"})

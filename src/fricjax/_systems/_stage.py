@@ -32,9 +32,9 @@ from typing import Any, ClassVar, Literal
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array
+from jaxtyping import Array, Float
 
-from .._constraints import Fixed, ParamLike, as_float_array, unwrap
+from .._constraints import Fixed, FixedScalar, ParamLike, as_float_array, unwrap
 from .._inputs import MotionSample
 from .._models._base import AbstractFrictionModel, AbstractSystem
 from .._smoothing import is_concrete
@@ -64,16 +64,16 @@ class StageCompensator(eqx.Module):
     """
 
     kind: str = eqx.field(static=True)
-    mass: Any
-    Fc: Any
-    Fv: Any
-    thresholds: Any
-    stribeck_velocities: Any
-    theta: Any
-    forgetting: Any
-    p0: Any
-    adapt_from: Any
-    feedforward_from: Any
+    mass: Float[Array, ""]
+    Fc: Float[Array, ""]
+    Fv: Float[Array, ""]
+    thresholds: Fixed[Float[Array, " M"]]
+    stribeck_velocities: Fixed[Float[Array, " J"]]
+    theta: Float[Array, " M+J+2"]
+    forgetting: FixedScalar
+    p0: FixedScalar
+    adapt_from: FixedScalar
+    feedforward_from: FixedScalar
 
     def __init__(
         self,
@@ -132,7 +132,7 @@ class StageCompensator(eqx.Module):
         """The inverse model's regressors: the normalised element deflections, the Stribeck terms, the velocity,
         1 (parameters unwrapped)."""
         direction = jnp.mean(deflection) if deflection.shape[0] else jnp.sign(velocity)
-        stribeck = direction * jnp.exp(-((velocity / self.stribeck_velocities) ** 2))
+        stribeck = direction * jnp.exp(-((velocity / unwrap(self.stribeck_velocities)) ** 2))
         return jnp.concatenate([deflection, stribeck, velocity[None], jnp.ones((1,), deflection.dtype)])
 
 
@@ -145,7 +145,7 @@ class StageState(eqx.Module):
     x: Array
     v: Array
     F: Array
-    friction: Any
+    friction: Any  # the plant friction model's state: any pytree, as its `init_state` returns
     integral: Array
     error: Array
     reference: Array
@@ -176,13 +176,13 @@ class PositioningStage(AbstractSystem):
     - `resolution`: the position sensor's quantisation [m] (0.1 nm in amthor; 0 for none).
     """
 
-    mass: Any
+    mass: Float[Array, ""]
     friction: AbstractFrictionModel
-    kp: Any
-    ki: Any
-    kd: Any
+    kp: Float[Array, ""]
+    ki: Float[Array, ""]
+    kd: Float[Array, ""]
     compensator: StageCompensator
-    resolution: Any
+    resolution: FixedScalar
 
     requires: ClassVar[frozenset[str]] = frozenset({"reference"})
 

@@ -24,9 +24,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike
+from jaxtyping import Array, ArrayLike, Float
 
-from ..._constraints import Fixed, ParamLike, as_float_array, unwrap
+from ..._constraints import Fixed, FixedScalar, ParamLike, as_float_array, unwrap
 from ..._inputs import MotionSample
 from ..blackbox._regressors import fixed_array
 from ..physics._static import AbstractStaticFriction
@@ -79,9 +79,9 @@ class HybridFriction(AbstractStaticFriction):
     W: Array
     b: Array
     d: Array
-    center: Any
-    scale: Any
-    force_scale: Any
+    center: Fixed[Float[Array, " P"]]
+    scale: Fixed[Float[Array, " P"]]
+    force_scale: FixedScalar
     inputs: tuple[str, ...] = eqx.field(static=True)
 
     def __init__(

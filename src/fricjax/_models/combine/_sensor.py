@@ -15,7 +15,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from ..._constraints import ParamLike, model_dtype, positive, real, unwrap
+from ..._constraints import Parameter, ParamLike, model_dtype, positive, real, unwrap
 from ..._inputs import MotionSample
 from .._base import AbstractFrictionModel
 
@@ -24,7 +24,7 @@ class SensorDriftState(eqx.Module):
     """The wrapped model's state, the time of the next sample since the record's first one [s], and the drift
     added to the last output [N]."""
 
-    inner: Any
+    inner: Any  # the wrapped model's state: any pytree, as its `init_state` returns
     t: Array
     last: Array
 
@@ -51,8 +51,8 @@ class SensorDrift(AbstractFrictionModel):
     """
 
     model: AbstractFrictionModel
-    rate: Any
-    tau: Any
+    rate: Parameter
+    tau: Parameter | None
 
     def __init__(self, model: AbstractFrictionModel, rate: ParamLike = 0.0, tau: ParamLike | None = None):
         if not isinstance(model, AbstractFrictionModel):
