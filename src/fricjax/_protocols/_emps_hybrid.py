@@ -29,7 +29,7 @@ from .._data._emps import EMPSRecord
 from .._data._preprocessing import butter_filtfilt
 from .._estimation._fit import fit, levenberg_marquardt
 from .._estimation._linear import lstsq, select_terms
-from .._estimation._result import FitResult
+from .._estimation._solution import FitResult
 from .._estimation._strategies import ParameterScaling
 from .._models.combine._hybrid import HybridFriction
 from .._smoothing import Smooth, with_smoothing

@@ -45,7 +45,7 @@ from jaxtyping import Array, Float
 from .._data._emps import EMPSRecord
 from .._estimation._fit import fit, levenberg_marquardt
 from .._estimation._losses import AbstractLoss
-from .._estimation._result import FitResult
+from .._estimation._solution import FitResult
 from .._estimation._strategies import Continuation, ParameterScaling
 from .._inputs import InputRecord
 from .._models.physics._static import AbstractStaticFriction, CoulombViscous

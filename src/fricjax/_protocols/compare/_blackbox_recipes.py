@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..._estimation._fit import fit
-from ..._estimation._result import FitResult
+from ..._estimation._solution import FitResult
 from ..._metrics import nmse
 from ..._models.combine._sensor import SensorDrift
 from ..._smoothing import Smooth

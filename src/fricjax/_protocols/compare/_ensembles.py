@@ -18,8 +18,8 @@ def add_ensembles(rows: list[ModelScore], split: Split, tests: list[TestRecord] 
     """Average and least-squares-weighted ensembles (weights with intercept fitted on the validation part,
     parlitz2004 §IV-H, emps-ensemble §3.3), and the PRESS forward selection of worden2007 §7, scored on every
     test record like the single models (default: the split's test part)."""
-    from ..._estimation._ensemble_fit import select_forward
-    from ..._models.combine._ensemble import AverageEnsemble, WeightedEnsemble
+    from ..._estimation._ensemble_fit import fit_weighted_ensemble, select_forward
+    from ..._models.combine._ensemble import AverageEnsemble
 
     if len(rows) < 2:
         return []
@@ -60,7 +60,7 @@ def add_ensembles(rows: list[ModelScore], split: Split, tests: list[TestRecord] 
     start = time.perf_counter()
     out = [row("ensemble_average", "Ensemble: average", AverageEnsemble(members), lambda p: p.mean(axis=0), 0, start)]
     start = time.perf_counter()
-    weighted = WeightedEnsemble.fit(members, val_data, predictions=full_predictions[:, val])
+    weighted = fit_weighted_ensemble(members, val_data, predictions=full_predictions[:, val])
     out.append(
         row(
             "ensemble_weighted",

@@ -16,7 +16,7 @@ import optax
 
 from ..._constraints import Positive
 from ..._estimation._fit import fit, levenberg_marquardt
-from ..._estimation._result import FitResult
+from ..._estimation._solution import FitResult
 from ..._estimation._strategies import Continuation, MultiStart, ParameterScaling
 from ..._models.combine._sensor import SensorDrift
 from ..._models.combine._tangent import TangentGradients

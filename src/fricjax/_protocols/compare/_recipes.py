@@ -14,7 +14,7 @@ import numpy as np
 import optax
 
 from ..._estimation._fit import fit, levenberg_marquardt
-from ..._estimation._result import FitResult
+from ..._estimation._solution import FitResult
 from ..._estimation._strategies import MultiStart, ParameterScaling
 from ..._metrics import nmse
 from ..._models.combine._sensor import SensorDrift
