@@ -157,6 +157,7 @@ def test_derivatives_are_the_plain_scans():
     np.testing.assert_allclose(jax.vmap(jax.grad(loss))(scales), each, rtol=1e-10)
 
 
+@pytest.mark.slow  # a few seconds (a subprocess or a fit): the fast tier stays under 5 minutes
 def test_outputs_independent_of_the_batched_argument():
     """A batch over `dt` alone, which Maxwell-slip's forces do not read: the forces are one row repeated, and
     gradients and forward derivatives through the batch are those of the rows (the vmap rule batches every

@@ -47,6 +47,7 @@ def test_any_reflection_coefficients_give_a_stable_monic_denominator():
     np.testing.assert_allclose(np.asarray(one.denominator), [1.0, np.tanh(0.3)])
 
 
+@pytest.mark.slow  # a few seconds (a subprocess or a fit): the fast tier stays under 5 minutes
 def test_recovers_a_known_error_filter_of_the_force(records):
     base, record = records
     start_mm = fj.score_emps_open_loop(TRUTH, record)

@@ -154,6 +154,7 @@ def test_gradients_match_finite_differences(record):
 WRONG = EMPSPlant(97.0, CoulombViscous(Fc=21.0, Fv=190.0, offset=-2.5, smoothing=Smooth(1e-3)))
 
 
+@pytest.mark.slow  # a few seconds (a subprocess or a fit): the fast tier stays under 5 minutes
 def test_frozen_physics_stays_frozen(record):
     short = fj.split_emps_record(record, 0, 150)
     fitted = fit_emps_hybrid(short, WRONG, inputs=("v",), width=4, freeze_physics=True, steps=4, validation=None)

@@ -68,6 +68,7 @@ def _threads(*, import_fricjax: bool = True, **env: str) -> int:
     return json.loads(_run(PROBE, "fricjax" if import_fricjax else "scipy", str(LIBRARIES[0]), **env))
 
 
+@pytest.mark.slow  # a few seconds (a subprocess or a fit): the fast tier stays under 5 minutes
 def test_import_sets_scipys_openblas_to_one_thread_and_respects_the_users_choice():
     assert _threads() == 1
     untouched = _threads(import_fricjax=False)

@@ -67,8 +67,14 @@ SOLVERS = {
 }
 
 
-@pytest.mark.parametrize("name", list(SOLVERS))
-@pytest.mark.parametrize("starts", [1, 3])
+CROSS = [
+    pytest.param(name, starts, marks=[pytest.mark.slow] if starts > 1 and name in ("adam", "bfgs") else [])
+    for starts in (1, 3)
+    for name in SOLVERS
+]
+
+
+@pytest.mark.parametrize("name, starts", CROSS)
 def test_solvers_cross_starts(name, starts):
     """Every solver through the one loop, with one start and a vmapped batch of three: the fit improves on the start,
     reports a code from fj.RESULTS, and a batch is never worse than its first start alone."""

@@ -10,6 +10,7 @@ import sys
 
 import jax
 import jax.numpy as jnp
+import pytest
 
 import fricjax  # noqa: F401  (imported before any computation, as conftest does: the setting applies here)
 
@@ -57,6 +58,7 @@ def test_this_process_compiles_a_scan_with_stacked_states_into_one_function():
     assert "xla_cpu_small_call" in _hlo_of_a_scan_stacking_its_states()
 
 
+@pytest.mark.slow  # a few seconds (a subprocess or a fit): the fast tier stays under 5 minutes
 def test_the_users_flags_are_kept_and_extra_options_merged():
     out = _probe("--xla_backend_extra_options=xla_cpu_disable_loop_unrolling --xla_force_host_platform_device_count=2")
     assert f"--xla_backend_extra_options=xla_cpu_disable_loop_unrolling,{KEY}=" in out["flags"]
@@ -64,6 +66,7 @@ def test_the_users_flags_are_kept_and_extra_options_merged():
     assert out["devices"] == 2 and out["one_function"] and out["warnings"] == []
 
 
+@pytest.mark.slow  # a few seconds (a subprocess or a fit): the fast tier stays under 5 minutes
 def test_opting_out_leaves_xla_flags_alone_and_xla_its_default():
     out = _probe("--xla_force_host_platform_device_count=2", keep=True)
     assert out["flags"] == "--xla_force_host_platform_device_count=2"
