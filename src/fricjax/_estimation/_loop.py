@@ -32,6 +32,13 @@ def _in_axes(batched_args: bool) -> tuple[int, int, int | None]:
 
 
 @eqx.filter_jit
+def init_states(solver: AbstractSolver, problem: Any, ys: Any, args: Any, batched_args: bool = False) -> Any:
+    """The solver state of every start, in a program of its own (so `run_steps` compiles once per fit for solvers
+    whose state lives across checks)."""
+    return jax.vmap(lambda y, a: solver.init(problem, y, a), in_axes=(0, 0 if batched_args else None))(ys, args)
+
+
+@eqx.filter_jit
 def run_steps(
     solver: AbstractSolver, problem: Any, ys: Any, states: Any, args: Any, n: jax.Array, batched_args: bool = False
 ) -> tuple[Any, Any, jax.Array, jax.Array, Any, jax.Array]:
@@ -56,7 +63,7 @@ def run_steps(
             ok = ok & tree_finite(new_y)
             done, result = solver.terminate(problem, y, a, new_state)
             new_dynamic = eqx.filter(new_state, eqx.is_array)
-            keep = lambda new, old: _where_tree(ok, new, old)  # noqa: E731
+            keep = lambda new, old: _where_tree(ok, new, old)  # noqa: E731 - a non-finite step changes nothing
             return i + 1, keep(new_y, y), keep(new_dynamic, dynamic), done & ok, result, jnp.invert(ok)
 
         carry = (jnp.asarray(0), y, dynamic, done, result, jnp.asarray(False))
@@ -180,11 +187,13 @@ def run_stage(
     """`budget` solver steps from `search.ys`, in chunks of `check_every` with the host-side checks between them.
     `states` are initial solver states (default: `solver.init` of every start, inside the loop's program)."""
     outcome = StageOutcome()
+    if states is None and not solver.restarts_at_checks:
+        states = init_states(solver, problem, search.ys, args, batched_args)
     done = 0
     while done < budget:
         n = min(check_every, budget - done)
-        if done and solver.restarts_at_checks:
-            states = None
+        if solver.restarts_at_checks:
+            states = None  # initialised inside `run_steps`, from the (projected) iterate
         ys, states, steps, finished, result, bad = run_steps(
             solver, problem, search.ys, states, args, jnp.asarray(n), batched_args
         )
