@@ -224,3 +224,24 @@ def test_strategy_arguments_are_checked():
         fj.Continuation(1e-3, 1e-5, stages=0)
     with pytest.raises(ValueError, match="`patience`"):
         fj.EarlyStopping(-1)
+
+
+def test_least_squares_steps_optimistix_as_optimistix_does():
+    """fj.least_squares runs an optimistix solver in the one loop: the same iterate as optx.least_squares."""
+    t = jnp.linspace(0.0, 1.0, 80)
+
+    def residuals(p, args):
+        return p[0] * jnp.exp(-p[1] * t) + p[2] - args
+
+    target = 2.0 * jnp.exp(-3.0 * t) + 0.5
+    y0 = jnp.array([1.0, 1.0, 0.0])
+    solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
+    ours = fj.least_squares(residuals, y0, args=target, solver=solver, steps=50)
+    theirs = optx.least_squares(residuals, solver, y0, args=target, max_steps=50)
+    assert ours.code == "successful" and ours.evaluations == int(theirs.stats["num_steps"])
+    np.testing.assert_allclose(ours.model, theirs.value, rtol=1e-12, atol=1e-14)
+    assert ours.train_loss < 1e-20
+    assert fj.least_squares(residuals, y0, args=target, solver=solver, steps=1, throw=True).code == "max_steps"
+    with pytest.raises(fj.FitFailed, match="diverged") as info:  # NaN from the start: the start comes back
+        fj.least_squares(lambda p, _: jnp.log(p), -y0 - 1.0, throw=True)
+    np.testing.assert_array_equal(info.value.solution.model, -y0 - 1.0)

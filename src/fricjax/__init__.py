@@ -113,6 +113,7 @@ from ._estimation._fit import levenberg_marquardt as levenberg_marquardt
 from ._estimation._kernel_narx import KernelNARXCandidate as KernelNARXCandidate
 from ._estimation._kernel_narx import KernelNARXResult as KernelNARXResult
 from ._estimation._kernel_narx import identify_kernel_narx as identify_kernel_narx
+from ._estimation._least_squares import least_squares as least_squares
 from ._estimation._linear import LstsqResult as LstsqResult
 from ._estimation._linear import TermSelection as TermSelection
 from ._estimation._linear import covariance as covariance

@@ -141,24 +141,21 @@ def fit(
     ```
     """
     start_time = time.perf_counter()
-    start_time = time.perf_counter()
     loss = SimulationLoss() if loss is None else loss
     if not isinstance(loss, AbstractLoss):
         raise TypeError(f"fit: `loss` must be a fricjax loss (fj.SimulationLoss(), ...), got {type(loss).__name__}.")
     _check_records(model, data, validation, loss)
     steps = positive_int(steps, "steps", "fit")
-    strategies_arg = strategies
     eval_every = optional(positive_int, eval_every, "eval_every", "fit")
     seed = seed_value(seed, "seed", "fit")
     solver = as_solver(DEFAULT_SOLVER if solver is None else solver)
-    strategies = [*_keyword_strategies(scaling, multistart, continuation, separable, patience, tolerance)]
-    for strategy in strategies_arg:
+    for strategy in strategies:
         if not isinstance(strategy, AbstractStrategy):
             raise TypeError(
                 "fit: `strategies` takes fj.AbstractStrategy objects (fj.MultiStart, fj.Continuation, "
                 f"fj.ParameterScaling, fj.Separable, fj.EarlyStopping, fj.Tolerance), got {type(strategy).__name__}."
             )
-        strategies.append(strategy)
+    strategies = [*_keyword_strategies(scaling, multistart, continuation, separable, patience, tolerance), *strategies]
     val_loss_fn = loss.validation_loss() if validation_burn_in is None else SimulationLoss(burn_in=validation_burn_in)
     if validation is not None and getattr(val_loss_fn, "burn_in", 0) >= validation.length:
         raise ValueError(

@@ -32,6 +32,7 @@ import optimistix as optx
 from jaxtyping import Array, Float
 
 from .._data._emps import EMPSRecord
+from .._estimation._least_squares import least_squares
 from .._models._base import AbstractModel
 from .._simulate import run
 from .._systems._emps import EMPSPlant, emps_open_loop_rmse_mm
@@ -227,18 +228,10 @@ def fit_emps_bgbm(
         reflection, b = params
         return 1000.0 * (_filter(denominator_from_reflection(reflection), b, un) - target)[scored]  # mm
 
-    solution: Any = optx.least_squares(
-        residuals, optx.LevenbergMarquardt(rtol=1e-8, atol=1e-10), params0, max_steps=int(steps), throw=False
-    )
-    reflection, b = solution.value
-    ok = bool(jnp.all(jnp.isfinite(jnp.concatenate([reflection, b.ravel()]))))
-    if not ok:  # keep the start rather than return NaN
-        reflection, b = params0
+    solution = least_squares(residuals, params0, solver=optx.LevenbergMarquardt(rtol=1e-8, atol=1e-10), steps=steps)
+    reflection, b = solution.model  # the start where the solve met only non-finite values
     model = EMPSErrorModel(plant=plant, reflection=reflection, numerators=b, scales=scales, inputs=inputs)
-    if solution.result == optx.RESULTS.successful:
-        result = "successful"
-    else:
-        result = "max_steps" if solution.result == optx.RESULTS.max_steps_reached else "failed"
+    result = {"solver_failed": "failed", "diverged": "nonfinite: returned the start"}.get(solution.code, solution.code)
     train_q = sim.q + model.error(train, sim)  # the grey box's free run of the head, simulated once
     nan = float("nan")
     return EMPSBGBMFit(
@@ -246,7 +239,7 @@ def fit_emps_bgbm(
         train_rmse_mm=float(emps_open_loop_rmse_mm(jnp.asarray(train.qm, train_q.dtype), train_q, skip=INIT_WINDOW)),
         val_rmse_mm=nan if val is None else model.score(val),
         val_physics_mm=nan if val is None else score_emps_open_loop(plant, val),
-        result=result if ok else "nonfinite: returned the start",
+        result=result,
     )
 
 
