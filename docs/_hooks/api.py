@@ -62,14 +62,19 @@ SECTIONS = (
         "Fitting",
         (
             "_estimation._fit",
+            "_estimation._solution",
+            "_estimation._solvers",
+            "_estimation._least_squares",
+            "_estimation._problem",
             "_estimation._losses",
             "_estimation._strategies",
-            "_estimation._result",
             "_estimation._sweep",
             "_estimation._sharding",
             "_estimation._serialise",
         ),
-        "`fj.fit`, its losses and strategies, sweeps of many configurations in one program, model files.",
+        "`fj.fit` and `fj.least_squares` over the one optimisation loop: `Solution` and `RESULTS`, solvers "
+        "(`AbstractSolver` and the optax / optimistix adapters), losses and strategies, sweeps of many "
+        "configurations in one program, model files.",
     ),
     Section(
         "linear.md",
