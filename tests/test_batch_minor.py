@@ -247,3 +247,22 @@ def test_the_rule_for_any_model_tuple_state_integer_field_vector_output():
     np.testing.assert_allclose(out, np.stack(expected), rtol=0, atol=1e-15)
     grad = jax.grad(lambda s: jnp.sum(jax.vmap(lambda c: loss(s, c))(counts)))(1.0)
     np.testing.assert_allclose(grad, sum(jax.grad(loss)(1.0, c) for c in counts), rtol=1e-10)
+
+
+def test_batching_is_an_option_of_simulate():
+    """`batching="vmap"` switches the layout off on the driver (the same forces, a transposed output);
+    `"batch_minor"` for a model that does not declare it, or an unknown value, is one clear error."""
+    models = [nlr(1.0 + 0.2 * i, 1.0 - 0.1 * i, 0.1 * i) for i in range(3)]
+    mo = motion()
+    minor = eqx.filter_vmap(lambda m: fj.simulate(m, mo, batching="batch_minor"))(stack(models))
+    own = eqx.filter_vmap(lambda m: fj.simulate(m, mo, batching="vmap"))(stack(models))
+    np.testing.assert_allclose(own, minor, rtol=0, atol=ATOL)
+    jaxpr = jax.make_jaxpr(lambda ms: eqx.filter_vmap(lambda m: fj.simulate(m, mo, batching="vmap"))(ms))
+    assert any(T in shape for shape in transposed_shapes(jaxpr(stack(models)).jaxpr))  # vmap's own: (T, B) moved
+    gms = fj.GMS(fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3), k=[1e4, 5e3], alpha=[0.5, 0.5], C=20.0)
+    with pytest.raises(ValueError, match="batching=.batch_minor.*GMS does not"):
+        fj.simulate(gms, mo, batching="batch_minor")
+    with pytest.raises(ValueError, match="`batching` must be one of"):
+        fj.simulate(models[0], mo, batching="minor")
+    with pytest.raises(ValueError, match="`batching` must be one of"):
+        fj.SimulationLoss(batching="rows")

@@ -38,8 +38,9 @@ def _derivatives(model: Any, motion: fj.Motion, target: jax.Array) -> tuple[np.n
     return np.asarray(value), _flat(grad_p), np.asarray(grad_x), _flat(forward)
 
 
-# the fast tier checks two models in exact mode; the rest (compilation-bound: ~7 s each) run in the slow tier
-FAST = {("lugre", "exact"), ("bo_pavelescu_asym", "exact")}
+# the fast tier checks one model in exact mode here (LuGre's tangent gradients: the driver-option test below); the
+# rest (compilation-bound: ~7 s each) run in the slow tier
+FAST = {("bo_pavelescu_asym", "exact")}
 CASES = [
     pytest.param(name, mode, marks=() if (name, mode) in FAST else pytest.mark.slow)
     for name in TANGENT
@@ -93,3 +94,24 @@ def test_tangent_gradients_refuses_a_model_that_feeds_back():
     narx = fj.MLPNARX.init(fj.NARXRegressors(("v",), 1, 2), 3, key=jax.random.PRNGKey(0))
     with pytest.raises(ValueError, match="feeds back"):
         fj.TangentGradients(narx)
+
+
+def test_derivatives_are_an_option_of_the_driver():
+    """`fj.simulate(..., derivatives="tangent")` and `fj.SimulationLoss(derivatives="tangent")` give the scan's
+    derivatives (the choice on the driver, not on the model) and the wrapper's values, through a SensorDrift too
+    (it overrides `feedback`; its free run still takes the tangent path); unknown values are refused."""
+    model = MODELS["lugre"]
+    motion = presliding_to_sliding(200)
+    target = 1.05 * fj.simulate(model, motion) + 0.01
+    data = fj.FrictionData(motion, target)
+    tangent = _flat(jax.grad(lambda m: fj.SimulationLoss(derivatives="tangent")(m, None, data))(model))
+    scan = _flat(jax.grad(lambda m: fj.SimulationLoss(derivatives="scan")(m, None, data))(model))
+    np.testing.assert_allclose(tangent, scan, rtol=1e-10, atol=1e-10 * np.max(np.abs(scan)))
+    drifting = fj.SensorDrift(model, 0.1, 1.0)
+    wrapped_drift = fj.SensorDrift(fj.TangentGradients(model), 0.1, 1.0)
+    a = fj.simulate(drifting, motion, derivatives="tangent")
+    np.testing.assert_array_equal(a, fj.simulate(wrapped_drift, motion))  # the same path: equal to the bit
+    with pytest.raises(ValueError, match="`derivatives` must be one of"):
+        fj.SimulationLoss(derivatives="adjoint")
+    with pytest.raises(ValueError, match="`derivatives` must be one of"):
+        fj.simulate(model, motion, derivatives="reverse")

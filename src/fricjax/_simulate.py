@@ -25,6 +25,28 @@ DEFAULT_UNROLL = 2
 # ... and of the batch-minor free run under vmap (`model.batch_minor()`): 1 measured faster than 2 (Maxwell-slip)
 BATCH_MINOR_UNROLL = 1
 
+# How the loop runs (not what it computes): the options of `simulate` and `run`, chosen in one place (`run`), in the
+# way diffrax's `diffeqsolve(..., adjoint=)` is. Models declare what they support (`AbstractModel.batch_minor`,
+# `packed_unroll`; the tangent path applies to free runs with floating-point states and signals, the scan's own
+# derivative elsewhere: one-step / k-step prediction, integer states).
+DERIVATIVES = ("auto", "scan", "tangent")
+BATCHING = ("auto", "vmap", "batch_minor")
+
+
+def check_options(model: Any, derivatives: Any, batching: Any, where: str = "simulate") -> None:
+    """Validate `simulate`'s `derivatives` / `batching` for `model` (a clear error naming the argument)."""
+    if derivatives not in DERIVATIVES:
+        raise ValueError(f"{where}: `derivatives` must be one of {DERIVATIVES}, got {derivatives!r}.")
+    if batching not in BATCHING:
+        raise ValueError(f"{where}: `batching` must be one of {BATCHING}, got {batching!r}.")
+    if model is None:
+        return
+    if batching == "batch_minor" and not unwrap(model).batch_minor():
+        raise ValueError(
+            f"{where}: batching='batch_minor' needs a model that declares it (LuGre, Maxwell-slip LR / NLR); "
+            f"{type(model).__name__} does not: use batching='auto' or 'vmap'."
+        )
+
 
 def simulate(
     model: AbstractModel,
@@ -34,6 +56,8 @@ def simulate(
     measured: Any = None,
     horizon: int | None = None,
     unroll: int | None = None,
+    derivatives: str = "auto",
+    batching: str = "auto",
 ) -> Any:
     """Run `model` along `inputs`: one jit-compiled `lax.scan` over time.
 
@@ -60,6 +84,13 @@ def simulate(
     - `horizon`: prediction horizon k >= 1 (needs `measured`); a horizon of T or more is the free run.
     - `unroll`: scan unrolling (performance only); `None`: `DEFAULT_UNROLL`, or the model's `packed_unroll`
       for a free run that is not differentiated.
+    - `derivatives`: how the free run is differentiated (the values are the same; speed only): `"scan"` the scan's
+      own JVP / VJP; `"tangent"` the tangent-linear recurrence (per-step state Jacobians in parallel over time,
+      then one small linear scan; free runs with floating-point states; teacher-forced runs keep the scan's);
+      `"auto"` (default) the scan's, or the tangent path for a model wrapped in the older `fj.TangentGradients`.
+    - `batching`: how a free run batched by `jax.vmap` is laid out (speed only): `"batch_minor"` the batch as the
+      loop's minor axis, outputs written in `(batch, time)` order (models that declare it: LuGre, Maxwell-slip LR /
+      NLR); `"vmap"` vmap's own batching; `"auto"` (default) batch-minor where the model declares it.
 
     **Returns:** the outputs along time: the friction force `(T,)` for friction models.
 
@@ -83,14 +114,22 @@ def simulate(
         if measured is None:
             raise ValueError("simulate: `horizon` needs the measured outputs: pass `measured=` (teacher forcing).")
         horizon = int(horizon)
+    check_options(model, derivatives, batching)
     if measured is not None:  # arrays, never static Python values, under the jit
         measured = jax.tree_util.tree_map(jnp.asarray, measured)
-    return _simulate(model, inputs, state0, measured, horizon, unroll)
+    return _simulate(model, inputs, state0, measured, horizon, unroll, derivatives, batching)
 
 
 @eqx.filter_jit
 def _simulate(
-    model: AbstractModel, inputs: Any, state0: Any, measured: Any, horizon: int | None, unroll: int | None
+    model: AbstractModel,
+    inputs: Any,
+    state0: Any,
+    measured: Any,
+    horizon: int | None,
+    unroll: int | None,
+    derivatives: str = "auto",
+    batching: str = "auto",
 ) -> Any:
     model = unwrap(model)
     samples = model.samples(inputs)
@@ -104,10 +143,10 @@ def _simulate(
                 )
     state = model.init_state() if state0 is None else state0
     if horizon is None or horizon == 1:
-        _, outputs = run(model, samples, state, measured, unroll=unroll)
+        _, outputs = run(model, samples, state, measured, unroll=unroll, derivatives=derivatives, batching=batching)
         return outputs
     if horizon >= length or not feeds_back(model):  # nothing is fed back within reach: the free run
-        return run(model, samples, state, unroll=unroll)[1]
+        return run(model, samples, state, unroll=unroll, derivatives=derivatives, batching=batching)[1]
     return _k_step(model, samples, state, measured, horizon, unroll)
 
 
@@ -119,19 +158,27 @@ def run(
     *,
     unroll: int | None = None,
     return_states: bool = False,
+    derivatives: str = "auto",
+    batching: str = "auto",
 ) -> tuple[Any, Any]:
     """The scan itself (not jitted, no checks): `model` must be unwrapped (`fj.unwrap`), `samples` the model's
     per-step signals (`model.samples(inputs)`: leaves with a leading time axis; scalar leaves, such as `dt`, are
     constants closed over by the loop body). With `measured`, each step is followed by
     `model.feedback(state, measured_k)`.
 
+    `derivatives` and `batching` as for `simulate` (checked there, by `check_options`); this is the one place they
+    choose how the loop runs.
+
     **Returns:** `(final_state, outputs)`, or `(final_state, (outputs, states))` with `return_states=True`
     (the state after every sample, feedback applied).
     """
-    if measured is None and not return_states and model.tangent_gradients() and _all_inexact(samples, state):
+    free = measured is None and not return_states
+    tangent = derivatives == "tangent" or (derivatives == "auto" and model.tangent_gradients())
+    if free and tangent and _all_inexact(samples, state):
         return _tangent_run(model, samples, state, DEFAULT_UNROLL if unroll is None else unroll)
-    if measured is None and not return_states and (model.packed_unroll is not None or model.batch_minor()):
-        return _primal_run(model, samples, state, unroll)
+    batch_minor = model.batch_minor() and batching != "vmap"
+    if free and (model.packed_unroll is not None or batch_minor):
+        return _primal_run(model, samples, state, unroll, batch_minor)
     return _plain_run(model, samples, state, measured, DEFAULT_UNROLL if unroll is None else unroll, return_states)
 
 
@@ -151,7 +198,9 @@ def _plain_run(
     return jax.lax.scan(body, state, (steps, measured), unroll=unroll)
 
 
-def _primal_run(model: AbstractModel, samples: Any, state: Any, unroll: int | None) -> tuple[Any, Any]:
+def _primal_run(
+    model: AbstractModel, samples: Any, state: Any, unroll: int | None, batch_minor: bool
+) -> tuple[Any, Any]:
     """The free run of `run` for a model declaring a faster primal (`packed_unroll`, `batch_minor()`): a custom JVP
     whose rule is the JVP of the plain scan, so every derivative, of any order, is that of `_plain_run`; only the
     values outside derivatives take the faster forms (benchmarks/README.md):
@@ -160,7 +209,8 @@ def _primal_run(model: AbstractModel, samples: Any, state: Any, unroll: int | No
       faster loop from a body closing over one parameter vector than over many small parameter arrays (GMS,
       4 elements, unroll 1: ~110 against ~510 ns per step). Differentiated, the packed body is slower (nested
       derivatives 2.4-3x: tangents and cotangents gathered into the vector at every step), hence primal only.
-    - `batch_minor()`: under `jax.vmap`, `_batch_minor_scan` (a `custom_vmap` rule) instead of vmap's own batching.
+    - `batch_minor` (the model declares `batch_minor()` and `batching` is not "vmap"): under `jax.vmap`,
+      `_batch_minor_scan` (a `custom_vmap` rule) instead of vmap's own batching.
     """
     # every array of the model is an argument of the custom rules (a batched integer field must reach the vmap
     # rule as an argument, not as a constant it closes over); only the floating-point arrays are packed
@@ -185,7 +235,7 @@ def _primal_run(model: AbstractModel, samples: Any, state: Any, unroll: int | No
 
         return jax.lax.scan(body, state_, steps, unroll=primal_unroll)
 
-    if model.batch_minor():
+    if batch_minor:
         primal = jax.custom_batching.custom_vmap(primal)
 
         @primal.def_vmap
@@ -198,7 +248,7 @@ def _primal_run(model: AbstractModel, samples: Any, state: Any, unroll: int | No
         """Under every vmap, the same batch axes for the primal's and the derivative rule's outputs (JAX takes
         a custom JVP's output axes from one and combines them with the other's): when the model is batch-minor,
         every output batched if any argument is, along axis 0 (as the custom_vmap rule batches them)."""
-        if not model.batch_minor():
+        if not batch_minor:
             return outputs
         flag = _any_nan(args)
         return jax.tree_util.tree_map(lambda leaf: _batched_like_the_rule(flag, leaf), outputs)

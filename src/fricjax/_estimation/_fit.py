@@ -23,7 +23,7 @@ import optax
 from .._data._record import FrictionData
 from .._models._base import AbstractModel
 from .._smoothing import Smooth, exact, is_concrete, with_smoothing
-from .._validation import nonnegative_float, optional, positive_int, seed_value
+from .._validation import nonnegative_float, nonnegative_int, optional, positive_int, seed_value
 from ._loop import Search, batched_losses, run_stage
 from ._losses import AbstractLoss, SimulationLoss
 from ._problem import (
@@ -156,7 +156,7 @@ def fit(
                 f"fj.ParameterScaling, fj.Separable, fj.EarlyStopping, fj.Tolerance), got {type(strategy).__name__}."
             )
     strategies = [*_keyword_strategies(scaling, multistart, continuation, separable, patience, tolerance), *strategies]
-    val_loss_fn = loss.validation_loss() if validation_burn_in is None else SimulationLoss(burn_in=validation_burn_in)
+    val_loss_fn = loss.validation_loss() if validation_burn_in is None else _burn_in_loss(loss, validation_burn_in)
     if validation is not None and getattr(val_loss_fn, "burn_in", 0) >= validation.length:
         raise ValueError(
             f"fit: the validation burn-in ({getattr(val_loss_fn, 'burn_in', 0)} samples) leaves nothing to score "
@@ -291,6 +291,15 @@ def fit(
 # ----------------------------------------------------------------------------------------------------------------
 # helpers
 # ----------------------------------------------------------------------------------------------------------------
+
+
+def _burn_in_loss(loss: AbstractLoss, burn_in: Any) -> SimulationLoss:
+    """The free-run validation loss with `burn_in` samples not scored; a `SimulationLoss`'s simulator options carry
+    over (they change how the loop runs, and the values by round-off: the fit scores training and validation alike)."""
+    burn_in = nonnegative_int(burn_in, "validation_burn_in", "fit")
+    if isinstance(loss, SimulationLoss):
+        return SimulationLoss(burn_in=burn_in, derivatives=loss.derivatives, batching=loss.batching)
+    return SimulationLoss(burn_in=burn_in)
 
 
 def _keyword_strategies(

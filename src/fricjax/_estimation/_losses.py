@@ -18,7 +18,7 @@ from jaxtyping import Array, Float
 from .._constraints import unwrap
 from .._data._record import FrictionData
 from .._models._base import feeds_back
-from .._simulate import run, split_time_signals
+from .._simulate import check_options, run, split_time_signals
 
 
 class AbstractLoss(eqx.Module):
@@ -54,19 +54,29 @@ class SimulationLoss(AbstractLoss):
     measured force. The first `burn_in` samples are simulated but not scored (they let an unknown initial
     state settle).
 
-    **Arguments:** `burn_in` samples not scored (default 0); `normalise` divide by std(force) (default True).
+    **Arguments:** `burn_in` samples not scored (default 0); `normalise` divide by std(force) (default True);
+    `derivatives`, `batching`: how the free run is differentiated and batched (`fj.simulate`'s options; speed
+    only, e.g. `SimulationLoss(derivatives="tangent")`).
     """
 
     burn_in: int = eqx.field(static=True, default=0)
     normalise: bool = eqx.field(static=True, default=True)
+    derivatives: str = eqx.field(static=True, default="auto")
+    batching: str = eqx.field(static=True, default="auto")
 
     def __check_init__(self) -> None:
         if self.burn_in < 0:
             raise ValueError(f"SimulationLoss: `burn_in` must be >= 0, got {self.burn_in}.")
+        check_options(None, self.derivatives, self.batching, "SimulationLoss")
+
+    def validation_loss(self) -> AbstractLoss:
+        return SimulationLoss(burn_in=self.burn_in, batching=self.batching)
 
     def residuals(self, model: Any, extra: Any, data: FrictionData) -> Array:
         model = unwrap(model)
-        _, force = run(model, model.samples(data.motion), model.init_state())
+        _, force = run(
+            model, model.samples(data.motion), model.init_state(), derivatives=self.derivatives, batching=self.batching
+        )
         return (force - data.force)[self.burn_in :] / self._scale(data)
 
 
@@ -108,18 +118,21 @@ class MultipleShootingLoss(AbstractLoss):
     mismatches (each state leaf divided by its RMS over the segments). The first segment starts from the
     model's own initial state. Samples beyond the last whole segment are not scored.
 
-    **Arguments:** `segment_length` L (>= 2); `continuity_weight` (default 1.0); `normalise`.
+    **Arguments:** `segment_length` L (>= 2); `continuity_weight` (default 1.0); `normalise`; `derivatives` as
+    `SimulationLoss` (the segments' free runs).
     """
 
     segment_length: int = eqx.field(static=True)
     continuity_weight: float = eqx.field(static=True, default=1.0)
     normalise: bool = eqx.field(static=True, default=True)
+    derivatives: str = eqx.field(static=True, default="auto")
 
     def __check_init__(self) -> None:
         if self.segment_length < 2:
             raise ValueError(f"MultipleShootingLoss: `segment_length` must be >= 2, got {self.segment_length}.")
         if self.continuity_weight < 0:
             raise ValueError(f"MultipleShootingLoss: `continuity_weight` must be >= 0, got {self.continuity_weight}.")
+        check_options(None, self.derivatives, "auto", "MultipleShootingLoss")
 
     def _segments(self, model: Any, data: FrictionData) -> tuple[Any, Any, Array, int]:
         """The model's per-step samples of the whole record, its K segments as a function of a segment's
@@ -153,7 +166,9 @@ class MultipleShootingLoss(AbstractLoss):
         _, (segments, rebuild), force, count = self._segments(model, data)
         first = model.init_state()
         starts = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([jnp.asarray(a)[None], b]), first, extra)
-        finals, predicted = jax.vmap(lambda state, part: run(model, rebuild(part), state))(starts, segments)
+        finals, predicted = jax.vmap(
+            lambda state, part: run(model, rebuild(part), state, derivatives=self.derivatives)
+        )(starts, segments)
         errors = ((predicted - force) / self._scale(data)).reshape(-1)
         gaps = []
         for final, start in zip(jax.tree_util.tree_leaves(finals), jax.tree_util.tree_leaves(extra), strict=True):

@@ -61,17 +61,20 @@ class AbstractModel(eqx.Module):
         return state
 
     def tangent_gradients(self) -> bool:
-        """Whether `fj.simulate` differentiates this model's free run through the tangent-linear recurrence
-        (a custom JVP of the scan: per-step state Jacobians computed in parallel over time, then one small linear
-        scan; reverse mode transposes it) instead of the scan's own derivative. The derivatives are the same to
-        round-off; the choice is speed only. False by default; `fj.TangentGradients(model)` switches it on."""
+        """Whether `fj.simulate(..., derivatives="auto")` differentiates this model's free run through the
+        tangent-linear recurrence (a custom JVP of the scan: per-step state Jacobians computed in parallel over time,
+        then one small linear scan; reverse mode transposes it) instead of the scan's own derivative. The
+        derivatives are the same to round-off; the choice is speed only, and belongs to the driver
+        (`derivatives="tangent"`). False for every model; True only for the older `fj.TangentGradients` wrapper."""
         return False
 
     def batch_minor(self) -> bool:
-        """Whether `fj.simulate`'s free run, batched by `jax.vmap` and not differentiated, keeps the batch as the
-        last (minor) axis of the loop's arrays and writes its outputs in `(batch, time)` order directly
-        (`fricjax._simulate._batch_minor_scan`) instead of vmap's own batching. Speed only (faster for a state
-        that is a vector of elements, as Maxwell-slip's; benchmarks/README.md); derivatives are unchanged."""
+        """Whether this model supports the batch-minor layout: `fj.simulate`'s free run, batched by `jax.vmap` and
+        not differentiated, keeps the batch as the last (minor) axis of the loop's arrays and writes its outputs in
+        `(batch, time)` order directly (`fricjax._simulate._batch_minor_scan`) instead of vmap's own batching. The
+        driver chooses (`fj.simulate(..., batching="auto" | "batch_minor" | "vmap")`; "auto" uses it where declared).
+        Speed only (faster for a state that is a vector of elements, as Maxwell-slip's; benchmarks/README.md);
+        derivatives are unchanged."""
         return False
 
     @abc.abstractmethod

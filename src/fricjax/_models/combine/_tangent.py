@@ -8,7 +8,9 @@ from .._base import AbstractFrictionModel, feeds_back
 
 
 class TangentGradients(AbstractFrictionModel):
-    """`model`, differentiated through the tangent-linear recurrence (`AbstractModel.tangent_gradients`).
+    """`model`, differentiated through the tangent-linear recurrence: the older form of
+    `fj.simulate(model, motion, derivatives="tangent")` / `fj.SimulationLoss(derivatives="tangent")`, kept so that
+    code written for it runs unchanged (the choice belongs to the driver, not to the model: prefer the option).
 
     The outputs and the derivatives are those of `model` (to round-off, tested); only their cost changes. For the
     free run `fj.simulate` then computes the per-step Jacobians `A_k = df/ds` (state) and `C_k = dg/ds` (output)

@@ -16,10 +16,10 @@ import optax
 
 from ..._constraints import Positive
 from ..._estimation._fit import fit, levenberg_marquardt
+from ..._estimation._losses import SimulationLoss
 from ..._estimation._solution import FitResult
 from ..._estimation._strategies import Continuation, MultiStart, ParameterScaling
 from ..._models.combine._sensor import SensorDrift
-from ..._models.combine._tangent import TangentGradients
 from ..._models.physics._gms import GMS
 from ..._models.physics._lugre import LuGre
 from ..._models.physics._maxwell_slip import MaxwellSlip
@@ -114,13 +114,14 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
     record: from the wrong end the fit settles in a flat curve (small vs and delta) that costs ~2x in test NMSE, and
     which end is wrong depends on the record (the default mixed record: the slow one). The end of the Adam stage does
     not tell them apart, the polished models' validation loss does. `gms_starts` starts are split between the two ends
-    (at least one each). Only first-order derivatives: the Adam stage trains the model wrapped in `TangentGradients`
-    (chosen when the scan's own reverse pass cost ~20x the forward pass; with fricjax's XLA setting both cost 3-5x, and
-    the wrapper stays so that the documented results hold), and both stages fit the offset with the other parameters
-    (`separable=` would nest a forward Jacobian inside each derivative: slower to compile and run, no more accurate
-    here). The viscous coefficient, which starts at 0, moves on the scale `0.1 Fc / v_fast` (a viscous force of 10 % of
-    the Coulomb level at the fast end) instead of 1 N s/m (with `Fc / v_fast` the sliding record's fit stopped at 1.7x
-    the noise floor). The second end reuses the first's compiled programs (benchmarks/README.md).
+    (at least one each). Only first-order derivatives: the Adam stage differentiates the free run through the
+    tangent-linear recurrence (`SimulationLoss(derivatives="tangent")`, chosen when the scan's own reverse pass cost
+    ~20x the forward pass; with fricjax's XLA setting both cost 3-5x, and the choice stays so that the documented
+    results hold), and both stages fit the offset with the other parameters (`separable=` would nest a forward
+    Jacobian inside each derivative: slower to compile and run, no more accurate here). The viscous coefficient, which
+    starts at 0, moves on the scale `0.1 Fc / v_fast` (a viscous force of 10 % of the Coulomb level at the fast end)
+    instead of 1 N s/m (with `Fc / v_fast` the sliding record's fit stopped at 1.7x the noise floor). The second end
+    reuses the first's compiled programs (benchmarks/README.md).
     """
 
     def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
@@ -132,12 +133,14 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         per_end = max(settings.gms_starts // 2, 1)
         results, wall_time = [], 0.0
         adam, lm = optax.adam(3e-2), levenberg_marquardt()  # one solver object each: the second end reuses the jit
+        tangent = SimulationLoss(derivatives="tangent")
         for vs in (scales.vs, scales.v_fast):
             begin = _with_stribeck_velocity(start, vs)
             coarse = fit(
-                _with_friction(begin, TangentGradients(_friction(begin))),  # the documented results' derivative path
+                begin,
                 train,
-                scaling=ParameterScaling({f"{prefix}model.sigma2": viscous_scale}),
+                loss=tangent,  # the documented results' derivative path
+                scaling=ParameterScaling({f"{prefix}sigma2": viscous_scale}),
                 validation=validation,
                 validation_burn_in=split.train_end,
                 solver=adam,
@@ -147,7 +150,6 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
                 seed=seed,
                 progress=progress,
             )
-            coarse = dataclasses.replace(coarse, model=_with_friction(coarse.model, _friction(coarse.model).model))
             polished = fit(
                 coarse.model,
                 train,
