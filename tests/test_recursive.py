@@ -160,6 +160,7 @@ def test_recursive_fit_equals_batch_least_squares_and_tracks_a_change():
     start = _dnlrx(np.zeros((2, 3)))
     paths = ("force_map.theta", "force_map.c")
     result = fj.recursive_fit(start, data, paths, p0=1e14)
+    assert isinstance(result, fj.Solution) and result.code == "successful" and result.message
     batch = fj.solve_linear(
         start,
         eqx.tree_at(

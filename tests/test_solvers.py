@@ -245,3 +245,16 @@ def test_least_squares_steps_optimistix_as_optimistix_does():
     with pytest.raises(fj.FitFailed, match="diverged") as info:  # NaN from the start: the start comes back
         fj.least_squares(lambda p, _: jnp.log(p), -y0 - 1.0, throw=True)
     np.testing.assert_array_equal(info.value.solution.model, -y0 - 1.0)
+
+
+def test_every_estimation_entry_point_returns_a_solution():
+    """One result type: the identifications' results are `fj.Solution`s with their own fields added."""
+    for result_type in (
+        fj.KernelNARXResult,
+        fj.PolynomialNARXResult,
+        fj.LocalModelResult,
+        fj.WaveletNARXResult,
+        fj.RecursiveFitResult,
+    ):
+        assert issubclass(result_type, fj.Solution), result_type
+    assert fj.FitResult is fj.Solution

@@ -26,6 +26,7 @@ when two run at once, as a QR's orthogonal factor and the eigendecomposition tha
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Sequence
 from typing import Any, Literal, NamedTuple
@@ -43,6 +44,7 @@ from .._models.blackbox._regressors import NARXRegressors
 from .._simulate import simulate
 from .._smoothing import AbstractSmoothing
 from ._regressor_rows import teacher_forced_rows
+from ._solution import Solution
 
 KERNELS = ("polynomial", "exponential")
 SOLVERS = ("direct", "cg", "nystrom")
@@ -78,8 +80,9 @@ class KernelNARXCandidate(NamedTuple):
     free_run_nmse: float
 
 
-class KernelNARXResult(NamedTuple):
-    """What `identify_kernel_narx` returns.
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class KernelNARXResult(Solution):
+    """A `fj.Solution` (result code, message, `summary()`) of `identify_kernel_narx`, with:
 
     - `model`: the identified `fj.KernelNARX` (the chosen candidate).
     - `ridge`: its ridge (regularisation) parameter rho.
@@ -89,7 +92,6 @@ class KernelNARXResult(NamedTuple):
     - `solver_steps`: conjugate-gradient iterations of the chosen solve (None for `"direct"`, `"nystrom"`).
     """
 
-    model: KernelNARX
     ridge: float
     train_nmse: float
     validation_nmse: float
@@ -308,7 +310,18 @@ def identify_kernel_narx(
         with np.errstate(invalid="ignore", over="ignore"):
             score = float(100 * np.mean((prediction - measured) ** 2) / np.var(measured))
         candidate = candidates[chosen] = candidate._replace(free_run_nmse=score if np.isfinite(score) else np.inf)
-    return KernelNARXResult(model, candidate.ridge, train_nmse, candidate.free_run_nmse, tuple(candidates), steps)
+    return KernelNARXResult(
+        model=model,
+        message=f"the candidate with the lowest validation score of {len(candidates)} (ridge {candidate.ridge:g}); "
+        "its coefficients by regularised least squares",
+        train_loss=train_nmse / 100.0,
+        val_loss=candidate.free_run_nmse / 100.0,
+        ridge=candidate.ridge,
+        train_nmse=train_nmse,
+        validation_nmse=candidate.free_run_nmse,
+        candidates=tuple(candidates),
+        solver_steps=steps,
+    )
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -10,8 +10,9 @@ local model "is unable to extrapolate the trend in the force time series"; their
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
-from typing import Any, Literal, NamedTuple
+from typing import Any, Literal
 
 import equinox as eqx
 import jax
@@ -25,11 +26,13 @@ from .._models.blackbox._regressors import PlayOperators
 from .._models.combine._sensor import SensorDrift
 from .._simulate import simulate
 from ._regressor_rows import play_states, teacher_forced_rows
+from ._solution import Solution
 from ._sweep import stack_models
 
 
-class LocalModelResult(NamedTuple):
-    """What `identify_local_model` returns.
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class LocalModelResult(Solution):
+    """A `fj.Solution` (result code, message, `summary()`) of `identify_local_model`, with:
 
     - `model`: the best `LocalModel`, its training set the whole training record (from `burn_in` on); with
       `drift=True` wrapped in `fj.SensorDrift(model, rate)` (the local model then holds the detrended forces).
@@ -40,7 +43,6 @@ class LocalModelResult(NamedTuple):
     - `best`: the chosen `(embedding, delay, neighbours)`.
     """
 
-    model: Any
     scores: np.ndarray
     rates: np.ndarray
     embedding: tuple[int, ...]
@@ -227,7 +229,18 @@ def identify_local_model(
     )
     if drift:
         model = SensorDrift(model, rate)
-    return LocalModelResult(model, scores, rates, grids["embedding"], grids["delay"], grids["neighbours"], best)
+    return LocalModelResult(
+        model=model,
+        message=f"(embedding, delay, neighbours) = {best}: the lowest validation free-run NMSE of {scores.size} "
+        "configurations",
+        val_loss=float(scores[i, j, l]) / 100.0,
+        scores=scores,
+        rates=rates,
+        embedding=grids["embedding"],
+        delay=grids["delay"],
+        neighbours=grids["neighbours"],
+        best=best,
+    )
 
 
 @eqx.filter_jit

@@ -7,8 +7,9 @@ implementation of the package), and the coefficients are their least-squares sol
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
-from typing import Any, Literal, NamedTuple
+from typing import Any, Literal
 
 import numpy as np
 
@@ -18,10 +19,12 @@ from .._models.blackbox._regressors import NARXRegressors
 from .._models.combine._sensor import SensorDrift
 from ._linear import TermSelection, select_terms
 from ._regressor_rows import teacher_forced_rows
+from ._solution import Solution
 
 
-class PolynomialNARXResult(NamedTuple):
-    """What `identify_polynomial_narx` returns.
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class PolynomialNARXResult(Solution):
+    """A `fj.Solution` (result code, message, `summary()`) of `identify_polynomial_narx`, with:
 
     - `model`: the identified `PolynomialNARX` (its terms in the order they were selected), wrapped in
       `fj.SensorDrift` when a `drift` was identified with it.
@@ -30,7 +33,6 @@ class PolynomialNARXResult(NamedTuple):
     - `candidates`: every candidate monomial, as exponent tuples over the regressor vector.
     """
 
-    model: PolynomialNARX | SensorDrift
     selection: TermSelection
     candidates: Terms
 
@@ -154,4 +156,10 @@ def identify_polynomial_narx(
     model: PolynomialNARX | SensorDrift = PolynomialNARX(regressors, terms, selection.coefficients, selection.intercept)
     if drift is not None:
         model = SensorDrift(model, float(selection.fixed_coefficients[0]), tau)
-    return PolynomialNARXResult(model, selection, candidates)
+    return PolynomialNARXResult(
+        model=model,
+        message=f"{len(terms)} of {len(candidates)} candidate terms chosen by forward orthogonal regression "
+        f"({criterion}); coefficients by least squares",
+        selection=selection,
+        candidates=candidates,
+    )

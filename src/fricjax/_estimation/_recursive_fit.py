@@ -11,8 +11,9 @@ temperature). With forgetting 1 the final estimate is the batch least-squares on
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -23,14 +24,16 @@ from .._data._record import FrictionData
 from .._simulate import simulate
 from .._systems._recursive import RecursiveLeastSquares, RegressionData
 from ._problem import _where
+from ._solution import Solution
 
 
-class RecursiveFitResult(NamedTuple):
-    """What `recursive_fit` returns: `model` with the final estimate; `theta` `(T, P)`, the estimate after every
-    sample (flattened in tree order of the selected fields); `prediction` `(T,)` [N], the a-priori one-step
-    prediction of the force (with the estimate before the sample); `regression`, the `fj.RegressionData`."""
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class RecursiveFitResult(Solution):
+    """A `fj.Solution` (result code, message, `summary()`) of `recursive_fit`, with: `model` with the final
+    estimate; `theta` `(T, P)`, the estimate after every sample (flattened in tree order of the selected fields);
+    `prediction` `(T,)` [N], the a-priori one-step prediction of the force (with the estimate before the sample);
+    `regression`, the `fj.RegressionData`."""
 
-    model: Any
     theta: np.ndarray
     prediction: np.ndarray
     regression: RegressionData
@@ -98,4 +101,10 @@ def recursive_fit(
     out = simulate(estimator, regression)
     theta = out["theta"]
     fitted = eqx.combine(unravel(theta[-1]), rest)
-    return RecursiveFitResult(fitted, np.asarray(theta), np.asarray(out["prediction"] + f0), regression)
+    return RecursiveFitResult(
+        model=fitted,
+        message=f"recursive least squares ({method}) over {data.length} samples; the model holds the final estimate",
+        theta=np.asarray(theta),
+        prediction=np.asarray(out["prediction"] + f0),
+        regression=regression,
+    )

@@ -100,7 +100,9 @@ def parameter_unit(path: str) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class Solution:
-    """What a fit returns (`fj.fit`; `FitResult` is the same class under its former name).
+    """What a fit returns (`fj.fit`, `fj.least_squares`; `FitResult` is the same class under its former name), and
+    the base of what every identification of the estimation layer returns (`fj.identify_kernel_narx`, ...: their
+    results are `Solution`s with the family's own fields added).
 
     - `model`: the fitted model (smoothing as at the end of the fit); `exact_model` is `fj.exact(model)`.
     - `result`: a `fj.RESULTS` item (`code` is its name: `successful`, `max_steps`, `early_stopped`, `diverged`,
@@ -116,16 +118,16 @@ class Solution:
     """
 
     model: Any
-    result: Any
-    message: str
-    history: dict[str, np.ndarray]
-    train_loss: float
-    val_loss: float
-    exact_val_loss: float
-    evaluations: int
-    wall_time: float
-    num_starts: int
-    best_start: int
+    result: Any = "successful"
+    message: str = ""
+    history: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    train_loss: float = float("nan")
+    val_loss: float = float("nan")
+    exact_val_loss: float = float("nan")
+    evaluations: int = 0
+    wall_time: float = 0.0
+    num_starts: int = 1
+    best_start: int = 0
     std: Any = None
     extra: Any = None
 
@@ -165,8 +167,9 @@ class Solution:
     def summary(self, max_parameters: int = 20) -> str:
         """A short human-readable report: result, losses, and at most `max_parameters` parameter lines (arrays of
         more than 8 entries are summarised by shape and range)."""
+        effort = f" after {self.evaluations} steps in {self.wall_time:.2f} s" if self.evaluations else ""
         lines = [
-            f"fit: {self.code} after {self.evaluations} steps in {self.wall_time:.2f} s: {self.message}",
+            f"{type(self).__name__}: {self.code}{effort}: {self.message}",
             f"train loss {self.train_loss:.4g}, validation loss {self.val_loss:.4g} (exact {self.exact_val_loss:.4g})",
         ]
         rows = self.parameter_table()

@@ -11,8 +11,9 @@ loss=fj.SimulationLoss())` (see its docstring).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
-from typing import Any, Literal, NamedTuple
+from typing import Any, Literal
 
 import equinox as eqx
 import numpy as np
@@ -23,10 +24,12 @@ from .._models.blackbox._wavelet import WaveletNARX
 from .._smoothing import AbstractSmoothing
 from ._linear import LstsqResult, TermSelection, lstsq, select_terms
 from ._regressor_rows import teacher_forced_rows
+from ._solution import Solution
 
 
-class WaveletNARXResult(NamedTuple):
-    """What `identify_wavelet_narx` returns.
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class WaveletNARXResult(Solution):
+    """A `fj.Solution` (result code, message, `summary()`) of `identify_wavelet_narx`, with:
 
     - `model`: the identified `WaveletNARX` (wavelets, then scaling functions, each in the order selected).
     - `selection`: the `TermSelection` of the orthogonal-least-squares choice of units (`select_terms`, with the
@@ -39,7 +42,6 @@ class WaveletNARXResult(NamedTuple):
       `model.features` and then the offset).
     """
 
-    model: WaveletNARX
     selection: TermSelection
     centres: np.ndarray
     dilations: np.ndarray
@@ -215,7 +217,14 @@ def identify_wavelet_narx(
         regressors, center=center, Q=Q, L=coefficients[:m], a=coefficients[m : m + kw], b=b, c=c,
         s=coefficients[m + kw : -1], beta=beta, gamma=gamma, d=coefficients[-1],
     )  # fmt: skip
-    return WaveletNARXResult(model, selection, centres, dilations, solution)
+    return WaveletNARXResult(
+        model=model,
+        message=f"{len(selected)} units chosen by orthogonal least squares; every linear coefficient by least squares",
+        selection=selection,
+        centres=centres,
+        dilations=dilations,
+        fit=solution,
+    )
 
 
 @eqx.filter_jit
