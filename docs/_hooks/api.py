@@ -79,7 +79,14 @@ SECTIONS = (
     Section(
         "linear.md",
         "Least squares and term selection",
-        ("_estimation._linear", "_estimation._ensemble_fit", "_estimation._polynomial_narx", "_estimation"),
+        (
+            "_estimation._lstsq",
+            "_estimation._covariance",
+            "_estimation._term_selection",
+            "_estimation._ensemble_fit",
+            "_estimation._polynomial_narx",
+            "_estimation",
+        ),
         "One linear-algebra kernel: least squares, covariance, forward orthogonal term selection (ERR / PRESS), "
         "and the identification functions built on it.",
     ),

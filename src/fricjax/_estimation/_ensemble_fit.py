@@ -19,7 +19,8 @@ from .._models._base import AbstractFrictionModel
 from .._models.combine._ensemble import DEPRECATED_FIT, WeightedEnsemble, _as_members
 from .._simulate import simulate
 from .._smoothing import is_concrete
-from ._linear import lstsq, select_terms
+from ._lstsq import lstsq
+from ._term_selection import select_terms
 
 
 def fit_weights(

@@ -17,9 +17,9 @@ from .._constraints import unwrap
 from .._models.blackbox._polynomial import PolynomialNARX, Terms, evaluate_monomials, monomial_terms
 from .._models.blackbox._regressors import NARXRegressors
 from .._models.combine._sensor import SensorDrift
-from ._linear import TermSelection, select_terms
 from ._regressor_rows import teacher_forced_rows
 from ._solution import Solution
+from ._term_selection import TermSelection, select_terms
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -17,8 +17,9 @@ import numpy as np
 from .._constraints import AbstractUnwrappable, Fixed, trainable_filter, unwrap
 from .._data._record import FrictionData
 from .._simulate import run, simulate
-from ._linear import lstsq, parameter_std
+from ._covariance import parameter_std
 from ._losses import AbstractLoss, SimulationLoss
+from ._lstsq import lstsq
 from ._strategies import submodels, where_from_path
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -22,9 +22,10 @@ from .._constraints import unwrap
 from .._models.blackbox._regressors import NARXRegressors
 from .._models.blackbox._wavelet import WaveletNARX
 from .._smoothing import AbstractSmoothing
-from ._linear import LstsqResult, TermSelection, lstsq, select_terms
+from ._lstsq import LstsqResult, lstsq
 from ._regressor_rows import teacher_forced_rows
 from ._solution import Solution
+from ._term_selection import TermSelection, select_terms
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -28,9 +28,10 @@ from jaxtyping import Array, Float
 from .._data._emps import EMPSRecord
 from .._data._preprocessing import butter_filtfilt
 from .._estimation._fit import fit, levenberg_marquardt
-from .._estimation._linear import lstsq, select_terms
+from .._estimation._lstsq import lstsq
 from .._estimation._solution import FitResult
 from .._estimation._strategies import ParameterScaling
+from .._estimation._term_selection import select_terms
 from .._models.combine._hybrid import HybridFriction
 from .._smoothing import Smooth, with_smoothing
 from .._systems._emps import EMPSPlant, simulate_closed_loop

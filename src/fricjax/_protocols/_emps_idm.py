@@ -29,7 +29,8 @@ from numpy.typing import ArrayLike
 
 from .._data._emps import EMPSRecord
 from .._data._preprocessing import _positive_int, _positive_scalar, butter_filtfilt, central_difference, decimate
-from .._estimation._linear import LstsqResult, covariance, lstsq
+from .._estimation._covariance import covariance
+from .._estimation._lstsq import LstsqResult, lstsq
 from .._models.physics._static import AbstractStaticFriction, BoPavelescu, Coulomb, CoulombViscous, Threlfall, Tustin
 from .._smoothing import AbstractSmoothing, Exact
 from .._systems._emps import EMPSPlant
