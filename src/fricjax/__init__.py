@@ -102,9 +102,9 @@ from ._data._preprocessing import normalise as normalise
 from ._data._record import FrictionData as FrictionData
 from ._data._record import concatenate as concatenate
 from ._data._tribometer import TribometerData as TribometerData
-from ._data._tribometer import default_tribometer_model as default_tribometer_model
 from ._data._tribometer import make_tribometer as make_tribometer
-from ._data._tribometer import model_parameters as model_parameters
+from ._data._tribometer_model import default_tribometer_model as default_tribometer_model
+from ._data._tribometer_model import model_parameters as model_parameters
 from ._estimation._covariance import covariance as covariance
 from ._estimation._covariance import parameter_std as parameter_std
 from ._estimation._ensemble_fit import ForwardSelection as ForwardSelection

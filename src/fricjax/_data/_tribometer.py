@@ -5,6 +5,10 @@ displacement on the moving block, a laser interferometer measures it (quantised,
 force cell measures the friction force (noisy, with a slow trend from charge leakage). The friction force is
 simulated by a known ("true") fricjax model from the *true* displacement, so a fitted model can be scored
 against the noise-free force and its parameters against the true ones.
+
+This module is the sensor model and the record: `make_tribometer` adds the sensor effects to the true force and
+displacement and assembles `TribometerData` (splits, truth, data card). The excitation and the regimes are in
+`_tribometer_excitation`, the true model and its scales in `_tribometer_model`.
 """
 
 from __future__ import annotations
@@ -14,214 +18,33 @@ import math
 import os
 import pathlib
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._constraints import parameter_arrays, unwrap
-from .._inputs import Motion, MotionSample
+from .._inputs import Motion
 from .._models._base import AbstractFrictionModel
-from .._models.physics._dahl import Dahl
-from .._models.physics._gms import GMS
-from .._models.physics._lugre import LuGre
-from .._models.physics._maxwell_slip import MaxwellSlip, SpringForces
-from .._models.physics._stribeck import ExponentialStribeck
 from .._simulate import simulate
 from ._differentiators import al_alaoui_derivative
 from ._record import FrictionData
-
-# ---------------------------------------------------------------------------------------------------------------
-# Regimes and the excitation
-
-
-class _Regime(NamedTuple):
-    low: float  # smallest displacement amplitude, in units of the breakaway displacement
-    high: float  # largest displacement amplitude, same units
-    minor: float  # amplitude of the fast component relative to the slow one (minor loops when > 1 / 3.7)
-    description: str
-
-
-REGIMES: dict[str, _Regime] = {
-    "presliding": _Regime(
-        0.02,
-        0.6,
-        0.35,
-        "pre-sliding: displacement amplitude 0.02-0.6 x the breakaway displacement; the weakest element never "
-        "slips, so there is no gross sliding and the peak force stays below the breakaway force",
-    ),
-    "mixed": _Regime(
-        0.1,
-        4.0,
-        0.3,
-        "mixed: displacement amplitude 0.1-4 x the breakaway displacement; pre-sliding stretches with "
-        "excursions into gross sliding",
-    ),
-    "sliding": _Regime(
-        15.0,
-        30.0,
-        0.12,
-        "gross sliding: displacement amplitude 15-30 x the breakaway displacement; sticking only shortly "
-        "after the velocity reversals",
-    ),
-}
-
-# the carrier: a slow component, a fast one (minor loops) and a weak faster one (frequencies in Hz, x jitter)
-_CARRIER_HZ = 4.0
-_CARRIER_RATIOS = (1.0, 3.7, 8.3)
-# the amplitude modulation: two slow sines with incommensurate frequencies [Hz]
-_ENVELOPE_HZ = (0.45, 1.15)
-_FADE_IN_S = 0.1
+from ._tribometer_excitation import REGIMES, _excitation
+from ._tribometer_model import (
+    _breakaway_displacement,
+    _breakaway_force,
+    _offset,
+    default_tribometer_model,
+    model_parameters,
+    slipping_elements,
+)
 
 # default sensor effects
 _FORCE_NOISE_REL = 0.0075  # of the clean force's peak-to-peak range
 _DRIFT_REL = -0.03  # total drift at the end of the record, of the clean force's peak-to-peak range
 _POSITION_QUANTISATION = 1e-9  # m: a laser interferometer's resolution (Renishaw, parlitz2004 §II-B)
 _POSITION_NOISE_STD = 1e-9  # m: vibration and air-path noise of the interferometer
-
-
-def default_tribometer_model() -> GMS:
-    """The default true model of `make_tribometer`: an exact GMS, N = 4, for a small dry steel contact.
-
-    `ExponentialStribeck(Fc=1.0 N, Fs=1.4 N, vs=1e-3 m/s, delta=1)` (worden2007 eq. 5),
-    `k = [1.4e5, 1.12e5, 8.4e4, 5.6e4] N/m`, `alpha = [0.1, 0.2, 0.3, 0.4]`, `C = 20 N/s`, `sigma2 = 10 N·s/m`.
-    The element breakaway displacements `alpha_i Fs / k_i` are 1, 2.5, 5 and 10 um (the pre-sliding range of a
-    dry contact, Lampaert et al. 2003); the initial pre-sliding stiffness is `sum k_i = 3.92e5 N/m`.
-    """
-    return GMS(
-        ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3, delta=1.0),
-        k=[1.4e5, 1.12e5, 8.4e4, 5.6e4],
-        alpha=[0.1, 0.2, 0.3, 0.4],
-        C=20.0,
-        sigma2=10.0,
-    )
-
-
-class _Excitation(NamedTuple):
-    x: np.ndarray
-    v: np.ndarray
-    frequencies_hz: list[float]
-    amplitudes: list[float]
-    envelope_hz: list[float]
-    envelope_m: tuple[float, float]
-
-
-def _excitation(rng: np.random.Generator, t: np.ndarray, scale: float, regime: _Regime) -> _Excitation:
-    """An amplitude-modulated multi-sine displacement [m] and its analytic velocity [m/s], from rest at t = 0.
-
-    `x(t) = fade(t) * env(t) * m(t) / max|m|`, with `m` the sum of three sines (the slow carrier, a component
-    3.7 x faster whose velocity exceeds the carrier's when `minor > 0.27`, so the velocity reverses inside a
-    half-cycle and minor loops appear, and a weak one 8.3 x faster), `env` an amplitude modulation between
-    `low` and `high` breakaway displacements built from two slow sines (so loops grow and shrink, with nested
-    reversals: non-local memory), and `fade` a raised cosine over the first 0.1 s (the rig starts at rest).
-    """
-    jitter = rng.uniform(0.9, 1.1)
-    freqs = [_CARRIER_HZ * jitter * r * (rng.uniform(0.97, 1.03) if i else 1.0) for i, r in enumerate(_CARRIER_RATIOS)]
-    amps = [1.0, regime.minor, regime.minor / 4.0]
-    phases = rng.uniform(0.0, 2.0 * np.pi, size=len(freqs))
-    env_freqs = [f * rng.uniform(0.9, 1.1) for f in _ENVELOPE_HZ]
-    env_phases = rng.uniform(0.0, 2.0 * np.pi, size=2)
-
-    m = sum(a * np.sin(2 * np.pi * f * t + p) for a, f, p in zip(amps, freqs, phases, strict=True))
-    dm = sum(a * 2 * np.pi * f * np.cos(2 * np.pi * f * t + p) for a, f, p in zip(amps, freqs, phases, strict=True))
-    peak = np.max(np.abs(m))
-    m, dm = m / peak, dm / peak
-
-    # e in [0, 1]: mean of two slow sines; squared so that small loops take more of the time
-    u = 0.5 + 0.25 * sum(np.sin(2 * np.pi * f * t + p) for f, p in zip(env_freqs, env_phases, strict=True))
-    du = 0.25 * sum(2 * np.pi * f * np.cos(2 * np.pi * f * t + p) for f, p in zip(env_freqs, env_phases, strict=True))
-    low, high = regime.low * scale, regime.high * scale
-    env = low + (high - low) * u**2
-    denv = (high - low) * 2.0 * u * du
-
-    ramp = np.clip(t / _FADE_IN_S, 0.0, 1.0)
-    fade = 0.5 * (1.0 - np.cos(np.pi * ramp))
-    dfade = np.where(t < _FADE_IN_S, 0.5 * np.pi / _FADE_IN_S * np.sin(np.pi * ramp), 0.0)
-
-    x = fade * env * m
-    v = dfade * env * m + fade * denv * m + fade * env * dm
-    return _Excitation(x, v, freqs, amps, env_freqs, (low, high))
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# What the regimes are measured against
-
-
-def _breakaway_displacement(model: AbstractFrictionModel) -> float:
-    """The displacement scale [m] over which `model` goes from sticking to gross sliding.
-
-    GMS: `max_i alpha_i s(0) / k_i` (the weakest element's breakaway); Maxwell-slip: `max_i Delta_i`; LuGre:
-    `s(0) / sigma0` (the bristle deflection at the static force); Dahl: `Fc / sigma0`. Other models have no
-    pre-sliding scale: pass `breakaway_displacement=` to `make_tribometer`.
-    """
-    p = unwrap(model)
-    if isinstance(p, GMS):
-        return float(jnp.max(p.alpha * p.stribeck(0.0) / p.k))
-    if isinstance(p, MaxwellSlip):
-        return float(jnp.max(p.thresholds))
-    if isinstance(p, LuGre):
-        return float(p.stribeck(0.0) / p.sigma0)
-    if isinstance(p, Dahl):
-        return float(p.Fc / p.sigma0)
-    raise ValueError(
-        f"make_tribometer: {type(model).__name__} has no pre-sliding displacement scale to set the regime's "
-        "amplitude from; pass `breakaway_displacement=` (metres), e.g. 1e-5."
-    )
-
-
-def _breakaway_force(model: AbstractFrictionModel) -> float | None:
-    """The static (breakaway) force [N]: `s(0)` for GMS / LuGre, `Fc` for Dahl, `sum k_i Delta_i` for an LR/NLR
-    Maxwell-slip model; `None` where the model has none."""
-    p = unwrap(model)
-    if isinstance(p, (GMS, LuGre)):
-        return float(p.stribeck(0.0))
-    if isinstance(p, Dahl):
-        return float(p.Fc)
-    if isinstance(p, MaxwellSlip) and isinstance(p.force_map, SpringForces):
-        return float(jnp.sum(p.force_map.k * p.thresholds))
-    return None
-
-
-def _offset(model: AbstractFrictionModel) -> float:
-    p = unwrap(model)
-    offset = getattr(p, "offset", None)
-    if offset is None and isinstance(p, MaxwellSlip):
-        offset = p.force_map.offset
-    return 0.0 if offset is None else float(offset)
-
-
-class _SlipIndicator(AbstractFrictionModel):
-    """Wraps a GMS or Maxwell-slip model: the same state, and as output 1.0 per element where it slips (GMS: its
-    slip indicator; Maxwell-slip: the clip is active), so `simulate` gives the slip pattern `(T, N)`."""
-
-    model: GMS | MaxwellSlip
-
-    @property
-    def requires(self) -> frozenset[str]:  # type: ignore[override]
-        return self.model.requires
-
-    def init_state(self) -> Any:
-        return self.model.init_state()
-
-    def step(self, state: Any, sample: MotionSample) -> tuple[Any, Array]:
-        new_state, _ = self.model.step(state, sample)
-        if isinstance(self.model, GMS):
-            return new_state, new_state.slipping  # type: ignore[union-attr]
-        slipping = jnp.abs(state.delta + sample.dx) > unwrap(self.model.thresholds)
-        return new_state, slipping.astype(sample.dx.dtype)
-
-
-def slipping_elements(model: AbstractFrictionModel, motion: Motion) -> np.ndarray | None:
-    """Which elements of a GMS or Maxwell-slip `model` slip at each sample of `motion`: bool `(T, N)`.
-
-    Re-simulates the model's state from rest. `None` for models without elements (LuGre, Dahl, static curves).
-    For a smooth model an element counts as slipping when its slip weight exceeds 1/2.
-    """
-    if not isinstance(model, (GMS, MaxwellSlip)):
-        return None
-    return np.asarray(simulate(_SlipIndicator(model), motion)) > 0.5
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -546,25 +369,6 @@ def make_tribometer(
         sensor_force=jnp.asarray(sensor),
         card=card,
     )
-
-
-def model_parameters(model: eqx.Module) -> dict[str, Any]:
-    """The physical parameter values of `model` (constraint wrappers resolved) as plain floats / lists, keyed by
-    their path (`"stribeck.Fc"`, `"k"`, ...), rounded to 12 significant digits (6 for float32).
-
-    ```python
-    >>> import fricjax as fj
-    >>> fj.model_parameters(fj.Dahl(sigma0=1e5, Fc=1.0))["sigma0"]
-    100000.0
-    ```
-    """
-    out: dict[str, Any] = {}
-    for key, value in parameter_arrays(unwrap(model)).items():
-        # round away the last-digit noise of the log / softmax reparametrisations (1e5 -> 100000.00000000003)
-        digits = 12 if value.dtype == np.float64 else 6
-        rounded = [float(f"{v:.{digits}g}") for v in value.reshape(-1).tolist()]
-        out[key] = rounded[0] if value.ndim == 0 else np.reshape(rounded, value.shape).tolist()
-    return out
 
 
 def _positive(name: str, value: Any, unit: str) -> float:
