@@ -102,6 +102,8 @@ SECTIONS = (
         (
             "_systems",
             "_protocols._emps_idm",
+            "_protocols._emps_idm_data",
+            "_protocols._emps_plateaus",
             "_protocols._emps_open_loop",
             "_protocols._emps_hybrid",
             "_protocols._emps_bgbm",

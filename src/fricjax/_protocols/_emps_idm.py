@@ -1,4 +1,4 @@
-"""The EMPS benchmark: the reference IDIM preprocessing and the inverse-dynamic-model (IDM) fits.
+"""The EMPS benchmark: the inverse-dynamic-model (IDM) fits of static friction laws (IDIM-LS).
 
 The Electro-Mechanical Positioning System (Janot, Gautier & Brunot 2019, *Data Set and Reference Models of
 EMPS*, nonlinearbenchmark.org) is a ball-screw axis under a PD position controller, logged at 1 kHz. Its
@@ -6,224 +6,32 @@ inverse dynamic model (emps-ensemble paper, eq. 1) is
 
     tau = M q'' + F_f(q') + offset,    tau = gtau * vir,
 
-linear in `M` and in the friction amplitudes. `emps_idm_data` applies the reference IDIM preprocessing (the
-benchmark's `Script_IDIM_LS.m`, description §3.1-3.4) and `fit_emps_idm` fits the eight friction laws of the
-emps-ensemble paper (Coulomb + viscous, Threlfall, Tustin, Bo-Pavelescu; symmetric and asymmetric): laws
-linear in their parameters by ordinary least squares exactly as IDIM-LS (reproducing the published estimates,
-standard deviations, condition number and relative errors to every printed digit), the others by separable
-least squares (linear coefficients solved exactly for each value of the nonlinear ones, which are found by a
-bounded global-then-local search). `emps_plateau_forces` reads the friction characteristic off a record's
-constant-velocity plateaus, with no model.
+linear in `M` and in the friction amplitudes. On the data of the reference IDIM preprocessing (`emps_idm_data`,
+`_emps_idm_data`), `fit_emps_idm` fits the eight friction laws of the emps-ensemble paper (Coulomb + viscous,
+Threlfall, Tustin, Bo-Pavelescu; symmetric and asymmetric): laws linear in their parameters by ordinary least
+squares exactly as IDIM-LS (reproducing the published estimates, standard deviations, condition number and
+relative errors to every printed digit), the others by separable least squares (linear coefficients solved
+exactly for each value of the nonlinear ones, which are found by a bounded global-then-local search). The
+model-free reading of the friction off the plateaus is `emps_plateau_forces` (`_emps_plateaus`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import equinox as eqx
 import numpy as np
 import scipy.optimize
-from numpy.typing import ArrayLike
 
 from .._data._emps import EMPSRecord
-from .._data._preprocessing import _positive_int, _positive_scalar, butter_filtfilt, central_difference, decimate
 from .._estimation._covariance import covariance
 from .._estimation._lstsq import LstsqResult, lstsq
 from .._models.physics._static import AbstractStaticFriction, BoPavelescu, Coulomb, CoulombViscous, Threlfall, Tustin
 from .._smoothing import AbstractSmoothing, Exact
 from .._systems._emps import EMPSPlant
-
-# ---------------------------------------------------------------------------------------------------------------
-# IDIM preprocessing
-
-
-class EMPSIDMData(eqx.Module):
-    """The signals of the IDM regression, filtered and differentiated, at the *raw* rate, plus the decimation.
-
-    IDIM (Janot et al. 2019, §3.2) decimates each column of the observation matrix, after computing it at the
-    raw rate: nonlinear columns such as `sign(q')` must be built from the raw-rate velocity and decimated
-    afterwards (building them from a decimated velocity raises the relative error of the reference model from
-    4.08 % to 5.96 %). So this record keeps the raw-rate signals and `decimate` applies the parallel filter.
-
-    **Fields:** `q` [m], `qd` [m/s], `qdd` [m/s^2] (Butterworth-filtered position and its central
-    differences), `tau` the drive force [N], all of shape `(T',)` (the first `drop` samples removed); `dt` the
-    raw sample time [s]; `decimation` the factor (1: no decimation); `name` of the source record.
-    """
-
-    q: np.ndarray
-    qd: np.ndarray
-    qdd: np.ndarray
-    tau: np.ndarray
-    dt: float
-    decimation: int = eqx.field(static=True)
-    name: str = eqx.field(static=True)
-
-    def decimate(self, column: np.ndarray) -> np.ndarray:
-        """Apply the parallel decimation filter to one raw-rate column (MATLAB `decimate`, aligned at the end)."""
-        if self.decimation == 1:
-            return np.array(column, dtype=np.float64)
-        return decimate(np.asarray(column, dtype=np.float64), self.decimation)
-
-    def decimated(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """`(q, qd, qdd, tau)` decimated, at the regression rate (sample time `dt * decimation`)."""
-        return tuple(self.decimate(x) for x in (self.q, self.qd, self.qdd, self.tau))  # type: ignore[return-value]
-
-
-def emps_idm_data(
-    record: EMPSRecord,
-    cutoff_hz: float = 100.0,
-    decimation: int = 10,
-    drop: int = 49,
-    *,
-    order: int = 4,
-) -> EMPSIDMData:
-    """The reference IDIM preprocessing of an EMPS record (Janot et al. 2019, §3.1-3.4, `Script_IDIM_LS.m`).
-
-    1. `qm` is low-pass filtered by a Butterworth filter of order `order` (4) at `cutoff_hz` (100 Hz), forwards
-       and backwards (`butter_filtfilt`, MATLAB padding).
-    2. `qd` and `qdd` are central differences of the filtered position and of `qd` (`central_difference`).
-    3. The first `drop` samples (49: MATLAB's `n_border = 50`, 1-based) are removed from every signal, to skip
-       the filter's start-up transient.
-    4. The regression columns are later decimated by `decimation` (10; `EMPSIDMData.decimate`), which leaves
-       2480 samples at 100 Hz on EMPS.
-
-    **Arguments:** `record` an `EMPSRecord`; `cutoff_hz` [Hz]; `decimation` (integer >= 1); `drop` (integer
-    >= 0, raw samples); `order` of the Butterworth filter.
-
-    **Returns:** an `EMPSIDMData`.
-    """
-    if not isinstance(record, EMPSRecord):
-        raise TypeError(f"`record` must be an EMPSRecord (from load_emps), got {type(record).__name__}.")
-    decimation = _positive_int(decimation, "decimation")
-    if isinstance(drop, bool) or not isinstance(drop, (int, np.integer)) or drop < 0:
-        raise ValueError(f"`drop` must be a non-negative integer number of samples, got {drop!r}.")
-    if record.length - drop < 8 * decimation:
-        raise ValueError(
-            f"`drop={drop}` leaves {record.length - drop} samples of {record.name}, too few to decimate by "
-            f"{decimation}; lower `drop` or `decimation`."
-        )
-    q = butter_filtfilt(record.qm, record.dt, cutoff_hz, order)
-    qd = central_difference(q, record.dt)
-    qdd = central_difference(qd, record.dt)
-    keep = slice(int(drop), None)
-    return EMPSIDMData(
-        q=q[keep],
-        qd=qd[keep],
-        qdd=qdd[keep],
-        tau=np.asarray(record.force, dtype=np.float64)[keep],
-        dt=record.dt,
-        decimation=decimation,
-        name=record.name,
-    )
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Friction read off the constant-velocity plateaus (no model)
-
-EMPS_PLATEAU_VELOCITIES = (0.0825, 0.1247, -0.0825, -0.1247)
-"""The constant velocities [m/s] of the EMPS reference trajectory (both benchmark files)."""
-
-
-class EMPSPlateau(NamedTuple):
-    """The drive force on one constant-velocity plateau of an EMPS record.
-
-    `velocity` [m/s]; `force` the mean drive force `gtau * vir` [N] over the plateau's samples (with zero
-    acceleration it balances the friction plus the offset at that velocity); `samples` how many; `force_per_part`
-    the mean in each of `parts` equal stretches of the record (NaN where a stretch has none of its samples).
-    """
-
-    velocity: float
-    force: float
-    samples: int
-    force_per_part: tuple[float, ...]
-
-
-def emps_plateau_forces(
-    record: EMPSRecord,
-    velocities: Sequence[float] = EMPS_PLATEAU_VELOCITIES,
-    *,
-    tolerance: float = 3e-3,
-    max_accel: float = 0.05,
-    cutoff_hz: float = 20.0,
-    parts: int = 4,
-    where: ArrayLike | None = None,
-) -> list[EMPSPlateau]:
-    """The friction force at the trajectory's constant velocities, measured without a model.
-
-    On a plateau of constant velocity the acceleration is zero, so the drive force balances the friction (and the
-    offset): the mean of `record.force` over the plateau is the friction characteristic at that velocity, as a
-    Stribeck-curve experiment measures it. The velocity and acceleration are central differences of the position
-    low-passed at `cutoff_hz` (4th-order Butterworth, zero phase, `butter_filtfilt`); a sample belongs to the
-    plateau of velocity `v` when its velocity is within `tolerance` [m/s] of `v` and its acceleration below
-    `max_accel` [m/s^2] in magnitude (and `where` allows it). Comparing two records' plateaus tells whether they
-    hold the same friction (on EMPS they do not: benchmarks/README.md, "EMPS: the two records' friction").
-
-    **Arguments:** `record` an `EMPSRecord`; `velocities` [m/s] (default: the EMPS trajectory's four);
-    `tolerance` [m/s] and `max_accel` [m/s^2] (> 0); `cutoff_hz` [Hz] (> 0, below the Nyquist frequency);
-    `parts` (integer >= 1) stretches of the record for the drift over time; `where` an optional boolean mask of
-    shape `(T,)`, the samples that may count (e.g. away from the PULSES file's pulses).
-
-    **Returns:** one `EMPSPlateau` per velocity, in the given order.
-
-    **Raises:** `TypeError` for a record that is not an `EMPSRecord`, a non-numeric setting or velocity, or a
-    non-boolean `where`; `ValueError` for a
-    non-positive setting, non-finite signals or velocities, a mask of the wrong shape, or a velocity with no
-    sample on the record (name, and the fix: another velocity, a wider `tolerance` or a larger `max_accel`).
-
-    ```python
-    >>> import fricjax as fj
-    >>> train = fj.load_emps("../shared/data/emps/DATA_EMPS.mat")  # doctest: +SKIP
-    >>> [round(p.force, 2) for p in fj.emps_plateau_forces(train)]  # doctest: +SKIP
-    [34.31, 40.7, -40.26, -50.57]
-    ```
-    """
-    if not isinstance(record, EMPSRecord):
-        raise TypeError(f"`record` must be an EMPSRecord (from load_emps), got {type(record).__name__}.")
-    parts = _positive_int(parts, "parts")
-    tolerance = _positive_scalar(tolerance, "tolerance", "m/s")
-    max_accel = _positive_scalar(max_accel, "max_accel", "m/s^2")
-    cutoff_hz = _positive_scalar(cutoff_hz, "cutoff_hz", "Hz")
-    try:
-        levels = np.atleast_1d(np.asarray(velocities, dtype=np.float64))
-    except (TypeError, ValueError):
-        raise TypeError(f"`velocities` must be plateau velocities in m/s (numbers), got {velocities!r}.") from None
-    if levels.ndim != 1 or levels.size == 0 or not np.all(np.isfinite(levels)):
-        raise ValueError(f"`velocities` must be finite plateau velocities in m/s, got {velocities!r}.")
-    for name in ("qm", "force"):
-        if not np.all(np.isfinite(np.asarray(getattr(record, name)))):
-            raise ValueError(f"emps_plateau_forces: `record.{name}` of {record.name} contains NaN or inf.")
-    allowed = np.ones(record.length, dtype=bool)
-    if where is not None:
-        allowed = np.asarray(where)
-        if allowed.dtype != bool:
-            raise TypeError(f"`where` must be a boolean mask (e.g. `pulses == 0`), got dtype {allowed.dtype}.")
-        if allowed.shape != (record.length,):
-            raise ValueError(
-                f"`where` must be a boolean mask of shape ({record.length},), one entry per sample of {record.name}; "
-                f"got shape {allowed.shape}."
-            )
-    q = butter_filtfilt(record.qm, record.dt, cutoff_hz, 4)
-    qd = central_difference(q, record.dt)
-    qdd = central_difference(qd, record.dt)
-    force = np.asarray(record.force, dtype=np.float64)
-    in_part = [np.arange(record.length) * parts // record.length == k for k in range(parts)]
-    out = []
-    for level in (float(v) for v in levels):
-        on = allowed & (np.abs(qd - level) < tolerance) & (np.abs(qdd) < max_accel)
-        if not on.any():
-            raise ValueError(
-                f"emps_plateau_forces: no sample of {record.name} moves at {level} m/s (within {tolerance} m/s, "
-                f"|acceleration| < {max_accel} m/s^2); give the record's plateau velocities, a wider `tolerance` "
-                "or a larger `max_accel`."
-            )
-        per_part = tuple(float(force[sel].mean()) if sel.any() else np.nan for sel in (on & p for p in in_part))
-        out.append(
-            EMPSPlateau(velocity=level, force=float(force[on].mean()), samples=int(on.sum()), force_per_part=per_part)
-        )
-    return out
-
+from ._emps_idm_data import EMPSIDMData, emps_idm_data
 
 # ---------------------------------------------------------------------------------------------------------------
 # IDM fit
