@@ -3,6 +3,10 @@
 The checks run on Python values at the entry points (`fj.fit`, `fj.sweep`, the command line, constructors), once,
 never inside a traced computation. Every function returns the value it accepted, converted (an `np.int64` becomes an
 `int`), so a caller writes `steps = positive_int(steps, "steps", "fit")`.
+
+Messages read `"{where}: `{name}` must be {requirement} {hint}, got {value!r}."`: `where` is the function (or class)
+as the user calls it, `hint` optional words after the requirement, such as `"(samples)"`. The command line passes
+`where=""` and the option as `name` (`"--steps"`): its own prefix names the command.
 """
 
 from __future__ import annotations
@@ -10,10 +14,16 @@ from __future__ import annotations
 import hashlib
 import math
 import numbers
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 __all__ = [
     "finite_float",
+    "fraction",
+    "integer",
+    "integers",
+    "is_integer",
+    "is_real",
     "nonnegative_float",
     "nonnegative_int",
     "optional",
@@ -22,55 +32,107 @@ __all__ = [
     "seed_value",
 ]
 
+_T = TypeVar("_T")
 
-def _is_integer(value: Any) -> bool:
+
+def is_integer(value: Any) -> bool:
+    """Whether `value` is an integer (`int`, `np.int64`, ...) and not a bool: for arguments that take an integer or
+    something else (a sequence of them, a name)."""
     return isinstance(value, numbers.Integral) and not isinstance(value, bool)
 
 
-def _is_real(value: Any) -> bool:
+def is_real(value: Any) -> bool:
+    """Whether `value` is a real number (`int`, `float`, `np.float32`, ...) and not a bool."""
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
-def positive_int(value: Any, name: str, where: str) -> int:
+def _fail(value: Any, name: str, where: str, requirement: str, hint: str) -> ValueError:
+    prefix = f"{where}: " if where else ""
+    words = f"{requirement} {hint}" if hint else requirement
+    return ValueError(f"{prefix}`{name}` must be {words}, got {value!r}.")
+
+
+def _integer_requirement(minimum: int | None, maximum: int | None, hint: str) -> str:
+    if minimum is not None and maximum is not None:
+        return f"an integer in {minimum}..{maximum}"
+    if minimum == 1:  # with a hint, the hint is the example
+        return "a positive integer" if hint else "a positive integer (1, 2, ...)"
+    if minimum is not None:
+        return f"an integer >= {minimum}"
+    if maximum is not None:
+        return f"an integer <= {maximum}"
+    return "an integer"
+
+
+def integer(
+    value: Any, name: str, where: str, *, minimum: int | None = None, maximum: int | None = None, hint: str = ""
+) -> int:
+    """`value` as an `int` in `minimum..maximum` (both included; either may be left out); bools, floats and strings
+    are refused."""
+    if not is_integer(value) or (minimum is not None and value < minimum) or (maximum is not None and value > maximum):
+        raise _fail(value, name, where, _integer_requirement(minimum, maximum, hint), hint)
+    return int(value)
+
+
+def positive_int(value: Any, name: str, where: str, *, hint: str = "") -> int:
     """`value` as an `int` >= 1; bools, floats and strings are refused."""
-    if not _is_integer(value) or value < 1:
-        raise ValueError(f"{where}: `{name}` must be a positive integer (1, 2, ...), got {value!r}.")
-    return int(value)
+    return integer(value, name, where, minimum=1, hint=hint)
 
 
-def nonnegative_int(value: Any, name: str, where: str) -> int:
+def nonnegative_int(value: Any, name: str, where: str, *, hint: str = "") -> int:
     """`value` as an `int` >= 0; bools, floats and strings are refused."""
-    if not _is_integer(value) or value < 0:
-        raise ValueError(f"{where}: `{name}` must be an integer >= 0, got {value!r}.")
-    return int(value)
+    return integer(value, name, where, minimum=0, hint=hint)
 
 
-def finite_float(value: Any, name: str, where: str) -> float:
+def integers(value: Any, name: str, where: str, *, minimum: int = 1, hint: str = "") -> tuple[int, ...]:
+    """An integer >= `minimum` or a non-empty sequence of them (a grid of sizes), as a tuple of `int`s."""
+    values = (value,) if is_integer(value) else value
+    try:
+        out = tuple(values)
+    except TypeError:
+        out = ()
+    if not out or not all(is_integer(v) and v >= minimum for v in out):
+        one = "a positive integer" if minimum == 1 else f"an integer >= {minimum}"
+        raise _fail(value, name, where, f"{one} or a non-empty sequence of them", hint)
+    return tuple(int(v) for v in out)
+
+
+def finite_float(value: Any, name: str, where: str, *, hint: str = "") -> float:
     """`value` as a finite `float`; bools, NaN and infinities are refused."""
-    if not _is_real(value) or not math.isfinite(float(value)):
-        raise ValueError(f"{where}: `{name}` must be a finite number, got {value!r}.")
+    if not is_real(value) or not math.isfinite(float(value)):
+        raise _fail(value, name, where, "a finite number", hint)
     return float(value)
 
 
-def nonnegative_float(value: Any, name: str, where: str) -> float:
+def nonnegative_float(value: Any, name: str, where: str, *, hint: str = "") -> float:
     """`value` as a finite `float` >= 0 (a tolerance, a spread)."""
-    value = finite_float(value, name, where)
+    value = finite_float(value, name, where, hint=hint)
     if value < 0:
-        raise ValueError(f"{where}: `{name}` must be >= 0, got {value!r}.")
+        raise _fail(value, name, where, ">= 0", hint)
     return value
 
 
-def positive_float(value: Any, name: str, where: str) -> float:
+def positive_float(value: Any, name: str, where: str, *, hint: str = "") -> float:
     """`value` as a finite `float` > 0 (a learning rate, a width)."""
-    value = finite_float(value, name, where)
+    value = finite_float(value, name, where, hint=hint)
     if not value > 0:
-        raise ValueError(f"{where}: `{name}` must be > 0, got {value!r}.")
+        raise _fail(value, name, where, "> 0", hint)
     return value
 
 
-def optional(check: Any, value: Any, name: str, where: str) -> Any:
-    """`None`, or `check(value, name, where)`."""
-    return None if value is None else check(value, name, where)
+def fraction(value: Any, name: str, where: str, *, hint: str = "") -> float:
+    """`value` as a `float` in [0, 1) (a probability, a discrete-time pole)."""
+    if not is_real(value) or not 0 <= float(value) < 1:
+        raise _fail(value, name, where, "a number in [0, 1)", hint)
+    return float(value)
+
+
+def optional(
+    check: Callable[..., _T], value: Any, name: str, where: str, *, hint: str = "", **options: Any
+) -> _T | None:
+    """`None`, or `check(value, name, where, **options)`, whose message then says "or None" (before `hint`):
+    `optional(positive_int, max_terms, "max_terms", "select_terms", hint="(no limit)")`."""
+    return None if value is None else check(value, name, where, hint=f"or None {hint}".rstrip(), **options)
 
 
 def seed_value(value: Any, name: str, where: str) -> int:
@@ -80,8 +142,8 @@ def seed_value(value: Any, name: str, where: str) -> int:
     (negative, or 2**32 and above) are reduced by a hash of their decimal digits, so that different seeds stay
     different with overwhelming probability.
     """
-    if not _is_integer(value):
-        raise ValueError(f"{where}: `{name}` must be an integer (any size), got {value!r}.")
+    if not is_integer(value):
+        raise _fail(value, name, where, "an integer (any size)", "")
     value = int(value)
     if 0 <= value < 2**32:
         return value
