@@ -14,11 +14,11 @@ from typing import Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from ._constraints import unwrap
 from ._models._base import AbstractModel, feeds_back
+from ._validation import positive_int
 
 # Loop unrolling of the scan: measured by benchmarks/simulate.py on the 2-core CPU (see benchmarks/README.md).
 DEFAULT_UNROLL = 2
@@ -109,11 +109,9 @@ def simulate(
         )
     model.check_inputs(inputs)
     if horizon is not None:
-        if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or horizon < 1:
-            raise ValueError(f"simulate: `horizon` must be an integer >= 1 (steps ahead), got {horizon!r}.")
+        horizon = positive_int(horizon, "horizon", "simulate", hint="(steps ahead)")
         if measured is None:
             raise ValueError("simulate: `horizon` needs the measured outputs: pass `measured=` (teacher forcing).")
-        horizon = int(horizon)
     check_options(model, derivatives, batching)
     if measured is not None:  # arrays, never static Python values, under the jit
         measured = jax.tree_util.tree_map(jnp.asarray, measured)

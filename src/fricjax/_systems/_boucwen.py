@@ -21,12 +21,12 @@ from typing import Any, ClassVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array
 
 from .._constraints import Parameter, ParamLike, model_dtype, positive, real, unwrap
 from .._inputs import InputRecord
 from .._models._base import AbstractSystem
+from .._validation import positive_int
 
 # the benchmark's published parameters (Noël & Schoukens 2016)
 BENCHMARK_PARAMETERS = {
@@ -103,12 +103,9 @@ class BoucWen(AbstractSystem):
         self.gamma = real(gamma, "gamma", dtype, scalar=True)
         self.delta = real(delta, "delta", dtype, scalar=True)
         self.nu = positive(nu, "nu", dtype, scalar=True)
-        if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
-            raise ValueError(
-                f"BoucWen: `substeps` must be an integer >= 1 (RK4 steps per sample; 20 is 15 kHz at 750 Hz), "
-                f"got {substeps!r}."
-            )
-        self.substeps = int(substeps)
+        self.substeps = positive_int(
+            substeps, "substeps", "BoucWen", hint="(RK4 steps per sample; 20 is 15 kHz at 750 Hz)"
+        )
 
     @classmethod
     def benchmark(cls, substeps: int = 20) -> BoucWen:

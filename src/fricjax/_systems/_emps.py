@@ -49,6 +49,7 @@ from .._models.combine._hybrid import HybridFriction
 from .._models.physics._static import AbstractStaticFriction
 from .._simulate import simulate
 from .._smoothing import is_concrete
+from .._validation import nonnegative_int, positive_int
 
 
 class EMPSPlant(eqx.Module):
@@ -164,7 +165,7 @@ class EMPSOpenLoop(AbstractSystem):
         _check_plant(plant)
         self.plant = plant
         self.gtau = _scalar(gtau, "gtau", None, unit="N/V", positive_only=True)
-        self.substeps = _substeps(substeps)
+        self.substeps = _substeps(substeps, "EMPSOpenLoop")
 
     def init_state(self) -> tuple[Array, Array]:
         zero = jnp.zeros((), jnp.result_type(self.gtau))
@@ -213,7 +214,7 @@ class EMPSClosedLoop(AbstractSystem):
         self.kp = _scalar(kp, "kp", None, unit="1/s", positive_only=True)
         self.kv = _scalar(kv, "kv", None, unit="V s/m", positive_only=True)
         self.vmax = _scalar(vmax, "vmax", None, unit="V", positive_only=True)
-        self.substeps = _substeps(substeps)
+        self.substeps = _substeps(substeps, "EMPSClosedLoop")
 
     def init_state(self) -> tuple[Array, Array, Array, Array]:
         return self.rest_state(jnp.zeros((), jnp.result_type(self.gtau)))
@@ -256,10 +257,8 @@ def _scalar(value: ArrayLike, name: str, dtype: Any, *, unit: str, positive_only
     return array
 
 
-def _substeps(value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"`substeps` must be an integer >= 1 (integration steps per sample), got {value!r}.")
-    return int(value)
+def _substeps(value: Any, where: str) -> int:
+    return positive_int(value, "substeps", where, hint="(integration steps per sample)")
 
 
 def _check_plant(plant: Any) -> None:
@@ -313,7 +312,7 @@ def simulate_open_loop(
         _scalar(gtau, "gtau", dtype, unit="N/V", positive_only=True),
         _scalar(q0, "q0", dtype, unit="m", positive_only=False),
         _scalar(qd0, "qd0", dtype, unit="m/s", positive_only=False),
-        _substeps(substeps),
+        _substeps(substeps, "simulate_open_loop"),
     )
 
 
@@ -377,7 +376,7 @@ def simulate_closed_loop(
         _scalar(kp, "kp", dtype, unit="1/s", positive_only=True),
         _scalar(kv, "kv", dtype, unit="V s/m", positive_only=True),
         _scalar(vmax, "vmax", dtype, unit="V", positive_only=True),
-        _substeps(substeps),
+        _substeps(substeps, "simulate_closed_loop"),
     )
     state0 = system.rest_state(
         _scalar(q0, "q0", dtype, unit="m", positive_only=False),
@@ -403,8 +402,7 @@ def emps_open_loop_rmse_mm(y_true: ArrayLike, y_sim: ArrayLike, *, skip: int = 2
     y_true, y_sim = jnp.asarray(y_true), jnp.asarray(y_sim)
     if y_true.shape != y_sim.shape:
         raise ValueError(f"`y_true` and `y_sim` must have the same shape, got {y_true.shape} and {y_sim.shape}.")
-    if isinstance(skip, bool) or not isinstance(skip, (int, np.integer)) or skip < 0:
-        raise ValueError(f"`skip` must be a non-negative integer number of samples, got {skip!r}.")
+    skip = nonnegative_int(skip, "skip", "emps_open_loop_rmse_mm", hint="(samples)")
     if y_true.ndim < 1 or y_true.shape[-1] <= skip:
         raise ValueError(
             f"the records have {y_true.shape[-1] if y_true.ndim else 0} samples, not more than `skip={skip}`; "

@@ -25,12 +25,12 @@ from typing import Any, ClassVar
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array
 
 from .._constraints import Parameter, ParamLike, model_dtype, positive, unwrap
 from .._inputs import MotionSample
 from .._models._base import AbstractFrictionModel, AbstractSystem
+from .._validation import positive_int
 
 
 class OscillatorState(eqx.Module):
@@ -83,14 +83,13 @@ class HystereticOscillator(AbstractSystem):
                 f"HystereticOscillator: the element {type(element).__name__} needs {unsupported}, which the "
                 "oscillator does not provide (it gives x, v, dx and a of the displacement)."
             )
-        if isinstance(substeps, bool) or not isinstance(substeps, (int, np.integer)) or substeps < 1:
-            raise ValueError(f"HystereticOscillator: `substeps` must be an integer >= 1, got {substeps!r}.")
+        substeps = positive_int(substeps, "substeps", "HystereticOscillator", hint="(integration steps per sample)")
         dtype = model_dtype(m, c, k)
         self.m = positive(m, "m", dtype, scalar=True)
         self.c = positive(c, "c", dtype, scalar=True)
         self.k = positive(k, "k", dtype, scalar=True)
         self.element = element
-        self.substeps = int(substeps)
+        self.substeps = substeps
 
     def init_state(self) -> OscillatorState:
         p = unwrap(self)

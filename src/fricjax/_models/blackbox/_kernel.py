@@ -29,6 +29,7 @@ from jaxtyping import Array, Float
 
 from ..._constraints import Fixed, FixedScalar, as_float_array, unwrap
 from ..._inputs import Motion
+from ..._validation import nonnegative_int, positive_int
 from ._narx import AbstractNARX, unit_mask_field
 from ._regressors import NARXRegressors, fixed_array
 
@@ -76,11 +77,7 @@ class PolynomialKernel(AbstractKernel):
     degree: int = eqx.field(static=True)
 
     def __init__(self, degree: int = 3):
-        if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or degree < 1:
-            raise ValueError(
-                f"PolynomialKernel: `degree` (D of (1 + <u, v>)^D) must be an integer >= 1, got {degree!r}."
-            )
-        self.degree = int(degree)
+        self.degree = positive_int(degree, "degree", "PolynomialKernel", hint="(D of (1 + <u, v>)^D)")
 
     def __call__(self, u: Any, v: Any) -> Array:
         return self.profile(jnp.dot(as_float_array(u), as_float_array(v)))
@@ -264,10 +261,7 @@ def volterra_kernels(model: KernelNARX, order: int, *, physical: bool = False) -
     """
     if not isinstance(model, KernelNARX):
         raise TypeError(f"volterra_kernels: `model` must be an fj.KernelNARX, got {type(model).__name__}.")
-    if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or order < 0:
-        raise ValueError(
-            f"volterra_kernels: `order` must be an integer >= 0 (the highest kernel wanted), got {order!r}."
-        )
+    order = nonnegative_int(order, "order", "volterra_kernels", hint="(the highest kernel wanted)")
     size = model.regressors.size
     if order > len(string.ascii_letters) - 1 or size**order > _MAX_KERNEL_ENTRIES:
         raise ValueError(

@@ -38,6 +38,7 @@ from jaxtyping import Array, Float, Int
 from ..._constraints import Fixed, FixedScalar, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import is_concrete
+from ..._validation import integer, nonnegative_int, optional, positive_int
 from .._base import AbstractFrictionModel
 from ._regressors import NARXRegressors, NARXState, fixed_array
 
@@ -146,23 +147,15 @@ class LocalModel(AbstractFrictionModel):
         count = int(np.shape(points_array)[0])
         self.points = fixed_array(points_array, (count, dims), "points", owner)
         self.forces = fixed_array(forces, (count,), "forces", owner)
-        if (
-            isinstance(neighbours, bool)
-            or not isinstance(neighbours, (int, np.integer))
-            or not 1 <= neighbours <= count
-        ):
-            raise ValueError(
-                f"{owner}: `neighbours` must be an integer in 1..{count} (the training points), got {neighbours!r}."
-            )
-        self.neighbours = int(neighbours)
+        self.neighbours = integer(
+            neighbours, "neighbours", owner, minimum=1, maximum=count, hint="(the training points)"
+        )
         self.columns = Fixed(jnp.asarray(index, jnp.int32))
         self.metric = _weights(np.ones(dims) if metric is None else metric, (dims,), "metric", owner)
         mask = np.ones(self.neighbours) if neighbour_mask is None else neighbour_mask
         self.neighbour_mask = _weights(mask, (self.neighbours,), "neighbour_mask", owner, nonzero=True)
-        rank = dims if rank is None else rank
-        if isinstance(rank, bool) or not isinstance(rank, (int, np.integer)) or rank < 0:
-            raise ValueError(f"{owner}: `rank` must be an integer >= 0 or None (no limit), got {rank!r}.")
-        self.rank = Fixed(jnp.asarray(int(rank), jnp.int32))
+        rank = optional(nonnegative_int, rank, "rank", owner, hint="(no limit)")
+        self.rank = Fixed(jnp.asarray(dims if rank is None else rank, jnp.int32))
         if is_concrete(rcond) and not (np.ndim(rcond) == 0 and np.isfinite(rcond) and 0 <= rcond < 1):
             raise ValueError(
                 f"{owner}: `rcond` (the relative singular-value threshold) must be in [0, 1), got {rcond!r}."
@@ -203,25 +196,16 @@ class LocalModel(AbstractFrictionModel):
         other arguments are the constructor's.
         """
         where = "LocalModel.from_data"
-        embedding = _positive_int(embedding, "embedding", where)
-        delay = _positive_int(delay, "delay", where)
-        output_delay = _positive_int(output_delay, "output_delay", where)
-        if (
-            isinstance(output_embedding, bool)
-            or not isinstance(output_embedding, (int, np.integer))
-            or output_embedding < 0
-        ):
-            raise ValueError(f"{where}: `output_embedding` must be an integer >= 0, got {output_embedding!r}.")
+        embedding = positive_int(embedding, "embedding", where)
+        delay = positive_int(delay, "delay", where)
+        output_delay = positive_int(output_delay, "output_delay", where)
+        output_embedding = nonnegative_int(output_embedding, "output_embedding", where)
         input_lags = (embedding - 1) * delay
         output_lags = 1 + (output_embedding - 1) * output_delay if output_embedding else 0
         regressors = NARXRegressors.from_data(data, signals, input_lags, output_lags, plays=plays)
         columns = delay_columns(regressors, embedding, delay, output_embedding, output_delay)
         burn_in = max(input_lags, output_lags) if burn_in is None else burn_in
-        if isinstance(burn_in, bool) or not isinstance(burn_in, (int, np.integer)) or not 0 <= burn_in < data.length:
-            raise ValueError(
-                f"{where}: `burn_in` must be an integer in 0..{data.length - 1} (samples of the record), "
-                f"got {burn_in!r}."
-            )
+        burn_in = integer(burn_in, "burn_in", where, minimum=0, maximum=data.length - 1, hint="(samples of the record)")
         if regressors.num_plays and play_states is None:
             raise ValueError(
                 f"{where}: with `plays`, pass the play operators' states along `data` (a recursion over time, which "
@@ -286,10 +270,9 @@ class LocalModel(AbstractFrictionModel):
                 f"LocalModel.predict: `targets` must have shape ({count},) or ({count}, C), one row per training "
                 f"point, got {values.shape}."
             )
-        if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
-            raise ValueError(f"LocalModel.predict: `batch_size` must be a positive integer, got {batch_size!r}.")
+        batch_size = positive_int(batch_size, "batch_size", "LocalModel.predict")
         flat = query.reshape(-1, dims)
-        batch = min(int(batch_size), max(flat.shape[0], 1))
+        batch = min(batch_size, max(flat.shape[0], 1))
         out = _predict_many(p, flat, values.reshape(count, -1), batch)
         return out.reshape(query.shape[:-1] + values.shape[1:])
 
@@ -400,12 +383,6 @@ def _weights(value: Any, shape: tuple[int, ...], name: str, owner: str, nonzero:
             f"{owner}: `{name}` must be >= 0{' with at least one entry > 0' if nonzero else ''}, got {concrete!r}."
         )
     return fixed
-
-
-def _positive_int(value: Any, name: str, where: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{where}: `{name}` must be a positive integer, got {value!r}.")
-    return int(value)
 
 
 def _regressor_names(regressors: NARXRegressors) -> list[str]:

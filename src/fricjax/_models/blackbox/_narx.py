@@ -20,6 +20,7 @@ from jaxtyping import Array, Float
 
 from ..._constraints import Fixed, Positive, as_float_array, unwrap
 from ..._inputs import MotionSample
+from ..._validation import positive_int
 from .._base import AbstractFrictionModel
 from ._regressors import NARXRegressors, NARXState, fixed_array
 
@@ -71,12 +72,6 @@ def _linear_part(theta: Any, regressors: NARXRegressors, name: str) -> Array | N
 
 def _linear(theta: Array | None, phi: Array) -> Array | float:
     return 0.0 if theta is None else jnp.dot(theta, phi)
-
-
-def _check_width(width: Any, name: str, what: str = "width") -> int:
-    if isinstance(width, bool) or not isinstance(width, (int, np.integer)) or width < 1:
-        raise ValueError(f"{name}: `{what}` must be a positive integer, got {width!r}.")
-    return int(width)
 
 
 def _normal(key: Array, shape: tuple[int, ...], std: float) -> Array:
@@ -140,7 +135,7 @@ class MLPNARX(AbstractNARX):
     ) -> MLPNARX:
         """Random weights: `W ~ N(0, 1/P)`, `b ~ N(0, 0.1)`, `d ~ N(0, 0.1/width)`, `d0 = 0`; `linear=True` adds
         the linear part (`theta = 0`)."""
-        width = _check_width(width, "MLPNARX.init")
+        width = positive_int(width, "width", "MLPNARX.init")
         k1, k2, k3 = jax.random.split(key, 3)
         size = regressors.size
         return cls(
@@ -267,7 +262,7 @@ class GSNN(AbstractNARX):
     ) -> GSNN:
         """Random weights (`w ~ N(0, 1/P)`, `c ~ N(0, 0.1/P)`), `b = 0`, denominators near 1, output `d ~ N(0,
         0.1/J)`; `linear=True` adds the linear part (`theta = 0`)."""
-        units = _check_width(units, "GSNN.init", "units")
+        units = positive_int(units, "units", "GSNN.init")
         if denominator not in _DENOMINATORS:
             raise ValueError(f"GSNN: `denominator` must be one of {sorted(_DENOMINATORS)}, got {denominator!r}.")
         size = regressors.size

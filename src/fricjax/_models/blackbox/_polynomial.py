@@ -23,6 +23,7 @@ from jaxtyping import Array, Float
 
 from ..._constraints import Fixed, as_float_array, unwrap
 from ..._inputs import Motion
+from ..._validation import positive_int
 from ._narx import AbstractNARX, unit_mask_field
 from ._regressors import NARXRegressors
 
@@ -42,21 +43,13 @@ def monomial_terms(size: int, degree: int, *, constant: bool = False) -> Terms:
     ((1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
     ```
     """
-    _check_degree(degree, "monomial_terms")
-    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
-        raise ValueError(f"monomial_terms: `size` (the number of variables) must be a positive integer, got {size!r}.")
+    degree = positive_int(degree, "degree", "monomial_terms", hint="(the largest total degree of a monomial)")
+    size = positive_int(size, "size", "monomial_terms", hint="(the number of variables)")
     terms = []
-    for d in range(0 if constant else 1, int(degree) + 1):
+    for d in range(0 if constant else 1, degree + 1):
         for combination in itertools.combinations_with_replacement(range(size), d):
             terms.append(tuple(int(np.sum(np.asarray(combination) == i)) for i in range(size)))
     return tuple(terms)
-
-
-def _check_degree(degree: Any, where: str) -> None:
-    if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or degree < 1:
-        raise ValueError(
-            f"{where}: `degree` (the largest total degree of a monomial) must be an integer >= 1, got {degree!r}."
-        )
 
 
 def _factor_index(terms: Terms, size: int) -> np.ndarray:

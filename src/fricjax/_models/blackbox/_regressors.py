@@ -37,6 +37,7 @@ from jaxtyping import Array, Float
 from ..._constraints import Fixed, FixedScalar, as_float_array, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
+from ..._validation import nonnegative_int
 from .._base import AbstractFrictionModel
 
 SIGNALS = ("x", "v", "a", "dx")
@@ -161,13 +162,10 @@ class NARXRegressors(eqx.Module):
             raise ValueError(f"NARXRegressors: unknown signals {unknown}; choose from {list(SIGNALS)}.")
         if len(set(signals)) != len(signals):
             raise ValueError(f"NARXRegressors: `signals` repeats a name: {signals}.")
-        for name, value in (("input_lags", input_lags), ("output_lags", output_lags)):
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-                raise ValueError(f"NARXRegressors: `{name}` must be an integer >= 0, got {value!r}.")
         n = len(signals)
         self.signals = signals
-        self.input_lags = int(input_lags)
-        self.output_lags = int(output_lags)
+        self.input_lags = nonnegative_int(input_lags, "input_lags", "NARXRegressors")
+        self.output_lags = nonnegative_int(output_lags, "output_lags", "NARXRegressors")
         self.input_mean = _fixed(np.zeros(n) if input_mean is None else input_mean, (n,), "input_mean")
         self.input_scale = _fixed(np.ones(n) if input_scale is None else input_scale, (n,), "input_scale", True)
         self.output_mean = _fixed(output_mean, (), "output_mean")

@@ -15,6 +15,7 @@ from jaxtyping import Array, Float
 from ..._constraints import Fixed, FixedScalar, as_float_array, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact
+from ..._validation import nonnegative_int, positive_int
 from .._base import AbstractFrictionModel
 from ._regressors import fixed_array, record_statistics
 
@@ -128,8 +129,7 @@ class RecurrentNetwork(AbstractFrictionModel):
         `w_ij` scaled to `spectral_radius`, biases `N(0, 0.2)`, input weights `N(0, input_weight)`, readout 0.
         Solve the readout by least squares before training: `fj.fit(model, data, train=("theta", "theta0"),
         separable=("theta", "theta0"))`."""
-        if isinstance(elements, bool) or not isinstance(elements, (int, np.integer)) or elements < 1:
-            raise ValueError(f"RecurrentNetwork.init: `elements` must be a positive integer, got {elements!r}.")
+        elements = positive_int(elements, "elements", "RecurrentNetwork.init")
         if not 0 < connectivity <= 1:
             raise ValueError(f"RecurrentNetwork.init: `connectivity` must be in (0, 1], got {connectivity!r}.")
         n, m = int(elements), len(tuple(signals)) * len(tuple(delays))
@@ -187,8 +187,7 @@ class RecurrentNetwork(AbstractFrictionModel):
         thresholds = np.asarray(thresholds, dtype=float).reshape(-1)
         if thresholds.size == 0 or not np.all(thresholds > 0):
             raise ValueError(f"RecurrentNetwork.hysteretic: `thresholds` must be positive [m], got {thresholds!r}.")
-        if isinstance(static, bool) or not isinstance(static, (int, np.integer)) or static < 0:
-            raise ValueError(f"RecurrentNetwork.hysteretic: `static` must be an integer >= 0, got {static!r}.")
+        static = nonnegative_int(static, "static", "RecurrentNetwork.hysteretic")
         _, (dx_scale, v_scale), force_mean, force_scale = record_statistics(data, ("dx", "v"))
         k, n = thresholds.size, thresholds.size + int(static)
         connectivity = np.zeros((n, n))

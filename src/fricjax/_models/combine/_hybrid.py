@@ -28,6 +28,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ..._constraints import Fixed, FixedScalar, ParamLike, as_float_array, unwrap
 from ..._inputs import MotionSample
+from ..._validation import positive_int
 from ..blackbox._regressors import fixed_array
 from ..physics._static import AbstractStaticFriction
 
@@ -133,18 +134,17 @@ class HybridFriction(AbstractStaticFriction):
     ) -> HybridFriction:
         """The law with a zero residual: `W ~ N(0, 1/P)`, `b ~ N(0, 1)`, `d = 0` (so the hybrid equals `law`
         and training starts from the physics). `width`: hidden tanh units (>= 1)."""
-        if isinstance(width, bool) or not isinstance(width, (int, np.integer)) or width < 1:
-            raise ValueError(f"HybridFriction.init: `width` must be a positive integer (hidden units), got {width!r}.")
+        width = positive_int(width, "width", "HybridFriction.init", hint="(hidden units)")
         size = len(_check_inputs(inputs))
         dtype = jnp.result_type(float)
         k1, k2 = jax.random.split(key)
-        W = jax.random.normal(k1, (int(width), size), dtype) / np.sqrt(size)
-        b = jax.random.normal(k2, (int(width),), dtype)
+        W = jax.random.normal(k1, (width, size), dtype) / np.sqrt(size)
+        b = jax.random.normal(k2, (width,), dtype)
         return cls(
             law,
             W,
             b,
-            jnp.zeros((int(width),), dtype),
+            jnp.zeros((width,), dtype),
             inputs=inputs,
             center=center,
             scale=scale,
