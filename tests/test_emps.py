@@ -395,7 +395,7 @@ def test_plateau_forces_errors():
         emps_plateau_forces(record, cutoff_hz=None)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="`velocities` must be finite"):
         emps_plateau_forces(record, (0.1, np.nan))
-    with pytest.raises(ValueError, match="`parts` must be >= 1"):
+    with pytest.raises(ValueError, match="`parts` must be a positive integer"):
         emps_plateau_forces(record, parts=0)
     with pytest.raises(ValueError, match="`where` must be a boolean mask of shape"):
         emps_plateau_forces(record, where=np.ones(10, dtype=bool))

@@ -13,7 +13,6 @@ digit. `scipy.signal.decimate` differs in both respects (it pads more and keeps 
 from __future__ import annotations
 
 import functools
-import operator
 from collections.abc import Mapping
 from typing import Any, Literal
 
@@ -21,6 +20,8 @@ import equinox as eqx
 import numpy as np
 import scipy.signal as ss
 from jaxtyping import ArrayLike
+
+from .._validation import is_integer, nonnegative_int, positive_int
 
 
 def _as_signal(signal: ArrayLike, name: str, *, axis: int = -1, min_length: int = 1) -> np.ndarray:
@@ -62,16 +63,15 @@ def _positive_scalar(value: Any, name: str, unit: str) -> float:
     return number
 
 
-def _positive_int(value: Any, name: str) -> int:
-    if isinstance(value, bool):
-        raise TypeError(f"`{name}` must be an integer, got {value!r}.")
+def _positive_int(value: Any, name: str, where: str = "") -> int:
+    """`positive_int`, except that a value that is no integer at all is a TypeError here, as for the signals of
+    these NumPy functions. (`where` is left out by the EMPS IDM protocol.)"""
     try:
-        number = operator.index(value)
-    except TypeError:
-        raise TypeError(f"`{name}` must be an integer, got {value!r} ({type(value).__name__}).") from None
-    if number < 1:
-        raise ValueError(f"`{name}` must be >= 1, got {number}.")
-    return number
+        return positive_int(value, name, where)
+    except ValueError as error:
+        if is_integer(value):
+            raise
+        raise TypeError(str(error)) from None
 
 
 def butter_filtfilt(
@@ -113,16 +113,14 @@ def butter_filtfilt(
     """
     dt = _positive_scalar(dt, "dt", "seconds")
     cutoff_hz = _positive_scalar(cutoff_hz, "cutoff_hz", "Hz")
-    order = _positive_int(order, "order")
+    order = _positive_int(order, "order", "butter_filtfilt")
     nyquist = 0.5 / dt
     if cutoff_hz >= nyquist:
         raise ValueError(
             f"`cutoff_hz` = {cutoff_hz} Hz is at or above the Nyquist frequency 1/(2 dt) = {nyquist} Hz; "
             "choose a lower cut-off."
         )
-    padlen = 3 * order if padlen is None else int(padlen)
-    if padlen < 0:
-        raise ValueError(f"`padlen` must be >= 0, got {padlen}.")
+    padlen = 3 * order if padlen is None else nonnegative_int(padlen, "padlen", "butter_filtfilt")
     x = _as_signal(signal, "signal", axis=axis, min_length=padlen + 1)
     b, a = ss.butter(order, cutoff_hz / nyquist)
     return ss.filtfilt(b, a, x, axis=axis, padtype="odd", padlen=padlen)
@@ -210,8 +208,8 @@ def decimate(
     (100,)
     ```
     """
-    factor = _positive_int(factor, "factor")
-    order = _positive_int(order, "order")
+    factor = _positive_int(factor, "factor", "decimate")
+    order = _positive_int(order, "order", "decimate")
     ripple_db = _positive_scalar(ripple_db, "ripple_db", "dB")
     if align not in ("end", "start"):
         raise ValueError(f"`align` must be 'end' (MATLAB) or 'start' (SciPy), got {align!r}.")

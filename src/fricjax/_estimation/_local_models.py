@@ -25,6 +25,7 @@ from .._models.blackbox._local import KINDS, LocalModel, delay_columns
 from .._models.blackbox._regressors import PlayOperators
 from .._models.combine._sensor import SensorDrift
 from .._simulate import simulate
+from .._validation import integer, integers
 from ._regressor_rows import play_states, teacher_forced_rows
 from ._solution import Solution
 from ._sweep import stack_models
@@ -119,8 +120,10 @@ def identify_local_model(
     ```
     """
     where = "identify_local_model"
-    grids = {name: _grid(value, name, where) for name, value in (("embedding", embedding), ("delay", delay))}
-    grids["neighbours"] = _grid(neighbours, "neighbours", where)
+    grids = {
+        name: integers(value, name, where)
+        for name, value in (("embedding", embedding), ("delay", delay), ("neighbours", neighbours))
+    }
     if kind not in KINDS:
         raise ValueError(f"{where}: `kind` must be 'constant' or 'linear', got {kind!r}.")
     if not isinstance(drift, bool):
@@ -133,15 +136,14 @@ def identify_local_model(
             f"{where}: `drift=True` needs a model without fed-back forces (its prediction is then linear in the "
             "training forces); set output_embedding=0, or drift=False."
         )
-    if (
-        isinstance(validation_burn_in, bool)
-        or not isinstance(validation_burn_in, (int, np.integer))
-        or not 0 <= validation_burn_in < validation.length
-    ):
-        raise ValueError(
-            f"{where}: `validation_burn_in` must be an integer in 0..{validation.length - 1} (samples of the "
-            f"validation record), got {validation_burn_in!r}."
-        )
+    validation_burn_in = integer(
+        validation_burn_in,
+        "validation_burn_in",
+        where,
+        minimum=0,
+        maximum=validation.length - 1,
+        hint="(samples of the validation record)",
+    )
 
     # one maximal structure: the largest input and output lags of the grid
     input_lags = max((m - 1) * tau for m in grids["embedding"] for tau in grids["delay"])
@@ -277,16 +279,3 @@ def _drift_rates(measured: np.ndarray, predicted: np.ndarray, lever: np.ndarray)
     residual = measured - predicted
     denominator = np.sum(np.square(lever), axis=-1)
     return np.where(denominator > 0, np.sum(residual * lever, axis=-1) / np.where(denominator > 0, denominator, 1), 0)
-
-
-def _grid(value: Any, name: str, where: str) -> tuple[int, ...]:
-    values = (value,) if isinstance(value, (int, np.integer)) and not isinstance(value, bool) else value
-    try:
-        out = tuple(values)
-    except TypeError:
-        out = ()
-    if not out or any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1 for v in out):
-        raise ValueError(
-            f"{where}: `{name}` must be a positive integer or a non-empty sequence of them, got {value!r}."
-        )
-    return tuple(int(v) for v in out)

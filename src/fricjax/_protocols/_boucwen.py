@@ -21,6 +21,7 @@ from .._data._boucwen import BoucWenRecord
 from .._estimation._losses import AbstractLoss
 from .._simulate import simulate
 from .._systems._boucwen import boucwen_inputs
+from .._validation import nonnegative_int, optional, positive_int
 
 BOUCWEN_STEADY_PERIODS = 3
 """Periods of the test multisine simulated before (and including) the scored one."""
@@ -42,12 +43,9 @@ class BoucWenLoss(AbstractLoss):
     validation_burn_in: int | None = eqx.field(static=True, default=None)
 
     def __check_init__(self) -> None:
-        for name in ("burn_in", "validation_burn_in"):
-            value = getattr(self, name)
-            if value is None and name == "validation_burn_in":
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-                raise ValueError(f"BoucWenLoss: `{name}` must be an integer >= 0 (samples not scored), got {value!r}.")
+        hint = "(samples not scored)"
+        nonnegative_int(self.burn_in, "burn_in", "BoucWenLoss", hint=hint)
+        optional(nonnegative_int, self.validation_burn_in, "validation_burn_in", "BoucWenLoss", hint=hint)
 
     def validation_loss(self) -> BoucWenLoss:
         """Free run scored after `validation_burn_in` samples."""
@@ -81,8 +79,7 @@ class BoucWenScores(NamedTuple):
 def boucwen_rmse(model: Any, record: BoucWenRecord, *, periods: int = 1) -> tuple[float, np.ndarray]:
     """Free-run RMSE [m] of `model` on `record`: the force repeated `periods` times from rest, the last repeat
     scored (`periods=1`: the record as it is, from rest). Returns `(rmse, prediction of the scored part)`."""
-    if isinstance(periods, bool) or not isinstance(periods, (int, np.integer)) or periods < 1:
-        raise ValueError(f"boucwen_rmse: `periods` must be an integer >= 1, got {periods!r}.")
+    periods = positive_int(periods, "periods", "boucwen_rmse")
     u = np.tile(np.asarray(record.u), periods)
     predicted = np.asarray(simulate(model, boucwen_inputs(u, record.dt, periodic=periods > 1)))[-record.length :]
     return float(np.sqrt(np.mean((predicted - np.asarray(record.y)) ** 2))), predicted

@@ -36,6 +36,7 @@ from .._estimation._least_squares import least_squares
 from .._models._base import AbstractModel
 from .._simulate import run
 from .._systems._emps import EMPSPlant, emps_open_loop_rmse_mm
+from .._validation import fraction, nonnegative_int, positive_int
 from ._emps_hybrid import _split
 from ._emps_open_loop import INIT_WINDOW, _check_plant, _check_record, predict_emps_open_loop, score_emps_open_loop
 
@@ -200,11 +201,9 @@ def fit_emps_bgbm(
     inputs = tuple(inputs)
     if not inputs or any(name not in ERROR_MODEL_INPUTS for name in inputs) or len(set(inputs)) != len(inputs):
         raise ValueError(f"`inputs` must be distinct names from {ERROR_MODEL_INPUTS}, got {inputs!r}.")
-    for name, value, low in (("order", order, 0), ("steps", steps, 1)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-            raise ValueError(f"`{name}` must be an integer >= {low}, got {value!r}.")
-    if not (isinstance(pole, (int, float)) and 0.0 <= pole < 1.0):
-        raise ValueError(f"`pole` must be a start pole in [0, 1) (e.g. 0.95), got {pole!r}.")
+    order = nonnegative_int(order, "order", "fit_emps_bgbm")
+    steps = positive_int(steps, "steps", "fit_emps_bgbm")
+    pole = fraction(pole, "pole", "fit_emps_bgbm", hint="(the start pole, e.g. 0.95)")
     train, val = _split(record, validation, INIT_WINDOW)
 
     sim = predict_emps_open_loop(plant, train)

@@ -51,6 +51,7 @@ from .._inputs import InputRecord
 from .._models.physics._static import AbstractStaticFriction, CoulombViscous
 from .._smoothing import Smooth, with_smoothing
 from .._systems._emps import EMPSPlant, EMPSSimulation, _open_loop, emps_open_loop_rmse_mm
+from .._validation import integer, optional, positive_int
 from ._emps_idm import EMPSIDMResult, fit_emps_idm
 
 INIT_WINDOW = 20
@@ -128,22 +129,13 @@ class EMPSOpenLoopLoss(AbstractLoss):
     segment_length: int | None = eqx.field(static=True, default=None)
 
     def __check_init__(self) -> None:
-        if _bad_int(self.init_window) or self.init_window < 2:
-            raise ValueError(f"EMPSOpenLoopLoss: `init_window` must be an integer >= 2, got {self.init_window!r}.")
-        if _bad_int(self.degree) or not 1 <= self.degree < self.init_window:
-            raise ValueError(
-                f"EMPSOpenLoopLoss: `degree` must be an integer in [1, init_window - 1 = {self.init_window - 1}] "
-                f"(the initial-state polynomial), got {self.degree!r}."
-            )
-        if _bad_int(self.substeps) or self.substeps < 1:
-            raise ValueError(f"EMPSOpenLoopLoss: `substeps` must be an integer >= 1, got {self.substeps!r}.")
-        if self.segment_length is not None and (
-            _bad_int(self.segment_length) or self.segment_length <= self.init_window
-        ):
-            raise ValueError(
-                f"EMPSOpenLoopLoss: `segment_length` must be None or an integer > init_window = {self.init_window}, "
-                f"got {self.segment_length!r}."
-            )
+        where = "EMPSOpenLoopLoss"
+        window = integer(self.init_window, "init_window", where, minimum=2)
+        degree_hint = "(of the initial-state polynomial, below init_window)"
+        integer(self.degree, "degree", where, minimum=1, maximum=window - 1, hint=degree_hint)
+        positive_int(self.substeps, "substeps", where)
+        length_hint = "(samples, more than init_window)"
+        optional(integer, self.segment_length, "segment_length", where, minimum=window + 1, hint=length_hint)
 
     def validation_loss(self) -> EMPSOpenLoopLoss:
         """The free run over the whole record (the official criterion): `self` unless segmented."""
@@ -181,10 +173,6 @@ class EMPSOpenLoopLoss(AbstractLoss):
         if count == 1:
             return one(qm[:used], vir[:used])
         return jax.vmap(one)(qm[:used].reshape(count, length), vir[:used].reshape(count, length)).reshape(-1)
-
-
-def _bad_int(value: Any) -> bool:
-    return isinstance(value, bool) or not isinstance(value, (int, np.integer))
 
 
 def _check_record(record: Any, name: str, window: int) -> None:

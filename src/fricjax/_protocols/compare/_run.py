@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from ..._estimation._serialise import save_model
+from ..._validation import nonnegative_int
 from ._emps_table import emps_table
 from ._ensembles import add_ensembles
 from ._figures import plot_prediction_errors, plot_test_loops
@@ -105,8 +106,11 @@ def run_compare(
     unknown = [m for m in models if m not in MODEL_NAMES]
     if unknown:
         raise CompareError(f"--models: unknown model {unknown[0]!r}; choose from {', '.join(MODEL_NAMES)}")
-    if init_window is not None and init_window < 0:
-        raise CompareError(f"--init-window must be >= 0 samples, got {init_window}")
+    if init_window is not None:  # None: the option not given
+        try:
+            init_window = nonnegative_int(init_window, "--init-window", "", hint="(samples)")
+        except ValueError as error:
+            raise CompareError(str(error)) from None
     settings = FitSettings(
         steps=steps,
         gms_elements=gms_elements,

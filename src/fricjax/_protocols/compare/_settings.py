@@ -9,6 +9,7 @@ import dataclasses
 import numpy as np
 
 from ..._data._record import FrictionData
+from ..._validation import nonnegative_float, positive_int
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,10 +86,12 @@ class FitSettings:
     def __post_init__(self) -> None:
         if self.drift not in ("linear", "leaky", "none"):
             raise CompareError(f"--drift must be linear, leaky or none, got {self.drift!r}")
-        for name in ("steps", "gms_elements", "maxwell_elements", "gms_starts", "neural_steps"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise CompareError(f"--{name.replace('_', '-')} must be a positive integer, got {value!r}")
+        try:  # the command line's options, named as the user typed them (its error line names the command)
+            for name in ("steps", "gms_elements", "maxwell_elements", "gms_starts", "neural_steps"):
+                object.__setattr__(self, name, positive_int(getattr(self, name), f"--{name.replace('_', '-')}", ""))
+            object.__setattr__(self, "tolerance", nonnegative_float(self.tolerance, "tolerance", "FitSettings"))
+        except ValueError as error:
+            raise CompareError(str(error)) from None
 
 
 RESULT_CODES = {
