@@ -19,6 +19,7 @@ from .._models._base import AbstractFrictionModel
 from .._models.combine._ensemble import DEPRECATED_FIT, WeightedEnsemble, _as_members
 from .._simulate import simulate
 from .._smoothing import is_concrete
+from .._validation import optional, positive_int
 from ._lstsq import lstsq
 from ._term_selection import select_terms
 
@@ -151,10 +152,7 @@ def select_forward(
     members = _as_members(members, "select_forward")
     if criterion not in ("press", "rss"):
         raise ValueError(f"select_forward: `criterion` must be 'press' or 'rss', got {criterion!r}.")
-    if max_members is None:
-        max_members = len(members)
-    if isinstance(max_members, bool) or not isinstance(max_members, (int, np.integer)) or max_members < 1:
-        raise ValueError(f"select_forward: `max_members` must be a positive integer or None, got {max_members!r}.")
+    max_members = optional(positive_int, max_members, "max_members", "select_forward", hint="(all)")
     forces, target = _design(members, data, predictions, "select_forward")
     if not (is_concrete(forces) and is_concrete(target)):
         raise ValueError("select_forward: selection is a greedy loop on values; call it outside jit / vmap.")

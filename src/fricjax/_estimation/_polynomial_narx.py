@@ -17,6 +17,7 @@ from .._constraints import unwrap
 from .._models.blackbox._polynomial import PolynomialNARX, Terms, evaluate_monomials, monomial_terms
 from .._models.blackbox._regressors import NARXRegressors
 from .._models.combine._sensor import SensorDrift
+from .._validation import is_real, nonnegative_int, positive_int
 from ._regressor_rows import teacher_forced_rows
 from ._solution import Solution
 from ._term_selection import TermSelection, select_terms
@@ -109,17 +110,12 @@ def identify_polynomial_narx(
         regressors = NARXRegressors.from_data(data, signals, input_lags, output_lags)
     elif not isinstance(regressors, NARXRegressors):
         raise TypeError(f"{where}: `regressors` must be an fj.NARXRegressors or None, got {type(regressors).__name__}.")
-    if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or degree < 1:
-        raise ValueError(
-            f"{where}: `degree` (the largest total degree of a monomial) must be an integer >= 1, got {degree!r}."
-        )
+    degree = positive_int(degree, "degree", where, hint="(the largest total degree of a monomial)")
     if not isinstance(intercept, bool):
         raise TypeError(f"{where}: `intercept` must be True or False, got {intercept!r}.")
     lag = max(regressors.input_lags, regressors.output_lags)
-    burn_in = lag if burn_in is None else burn_in
-    if isinstance(burn_in, bool) or not isinstance(burn_in, (int, np.integer)) or burn_in < 0:
-        raise ValueError(f"{where}: `burn_in` must be an integer >= 0 (samples), got {burn_in!r}.")
-    candidates = monomial_terms(regressors.size, int(degree), constant=not intercept)
+    burn_in = lag if burn_in is None else nonnegative_int(burn_in, "burn_in", where, hint="(samples)")
+    candidates = monomial_terms(regressors.size, degree, constant=not intercept)
     wanted = len(candidates) if max_terms is None else min(int(max_terms), len(candidates))
     rows = data.length - burn_in
     if rows <= wanted + 1:
@@ -129,11 +125,7 @@ def identify_polynomial_narx(
             f"more than {wanted + 1} are needed. Pass a longer record, or lower `degree`, the lags or `max_terms`."
         )
 
-    if (
-        drift is not None
-        and drift != "linear"
-        and not (isinstance(drift, (float, int, np.floating, np.integer)) and not isinstance(drift, bool) and drift > 0)
-    ):
+    if drift is not None and drift != "linear" and not (is_real(drift) and drift > 0):
         raise ValueError(
             f"{where}: `drift` must be None, 'linear' or a positive time constant tau [s] (leaky drift), got {drift!r}."
         )

@@ -22,6 +22,7 @@ from .._constraints import unwrap
 from .._models.blackbox._regressors import NARXRegressors
 from .._models.blackbox._wavelet import WaveletNARX
 from .._smoothing import AbstractSmoothing
+from .._validation import nonnegative_int, optional, positive_int
 from ._lstsq import LstsqResult, lstsq
 from ._regressor_rows import teacher_forced_rows
 from ._solution import Solution
@@ -146,11 +147,10 @@ def identify_wavelet_narx(
         raise TypeError(f"{where}: `regressors` must be an fj.NARXRegressors or None, got {type(regressors).__name__}.")
     elif plays is not None or smoothing is not None:
         raise ValueError(f"{where}: give `plays` / `smoothing` to the `regressors` you pass, not separately.")
-    units = _count(units, "units", where, 0, "the number of units to select")
-    levels = _count(levels, "levels", where, 1, "the number of dyadic dilation levels")
-    candidates = _count(candidates, "candidates", where, 1, "the number of candidate centres")
-    if components is not None:
-        components = _count(components, "components", where, 1, "the most principal components the units see")
+    units = nonnegative_int(units, "units", where, hint="(the number of units to select)")
+    levels = positive_int(levels, "levels", where, hint="(the number of dyadic dilation levels)")
+    candidates = positive_int(candidates, "candidates", where, hint="(the number of candidate centres)")
+    components = optional(positive_int, components, "components", where, hint="(the most principal components)")
     m = regressors.size
     chosen_inputs = _nonlinear_indices(nonlinear, m, where)
     if not isinstance(whiten, bool):
@@ -158,9 +158,7 @@ def identify_wavelet_narx(
     if criterion not in ("err", "press"):
         raise ValueError(f"{where}: `criterion` must be 'err' or 'press', got {criterion!r}.")
     lag = max(regressors.input_lags, regressors.output_lags)
-    burn_in = lag if burn_in is None else burn_in
-    if isinstance(burn_in, bool) or not isinstance(burn_in, (int, np.integer)) or burn_in < 0:
-        raise ValueError(f"{where}: `burn_in` must be an integer >= 0 (samples), got {burn_in!r}.")
+    burn_in = lag if burn_in is None else nonnegative_int(burn_in, "burn_in", where, hint="(samples)")
     rows_count = data.length - burn_in
     needed = m + units + 2
     if rows_count < max(needed, candidates):
@@ -232,12 +230,6 @@ def identify_wavelet_narx(
 def _teacher_forced(regressors: NARXRegressors, samples: Any, force: Any) -> Any:
     """The teacher-forced regressor rows, compiled as one program (not op by op)."""
     return teacher_forced_rows(regressors, samples, force)
-
-
-def _count(value: Any, name: str, where: str, least: int, what: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
-        raise ValueError(f"{where}: `{name}` ({what}) must be an integer >= {least}, got {value!r}.")
-    return int(value)
 
 
 def _template(regressors: NARXRegressors, q: int) -> WaveletNARX:

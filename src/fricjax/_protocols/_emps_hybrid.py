@@ -35,6 +35,7 @@ from .._estimation._term_selection import select_terms
 from .._models.combine._hybrid import HybridFriction
 from .._smoothing import Smooth, with_smoothing
 from .._systems._emps import EMPSPlant, simulate_closed_loop
+from .._validation import nonnegative_int, positive_float
 from ._emps_open_loop import (
     EMPSOpenLoopLoss,
     _check_plant,
@@ -172,13 +173,11 @@ def fit_emps_hybrid(
         raise TypeError(f"`loss` must be an EMPSOpenLoopLoss, got {type(loss).__name__}.")
     _check_record(record, "record", loss.init_window)
     _check_plant(physics)
-    if not (isinstance(eps, (int, float, np.floating)) and not isinstance(eps, bool) and np.isfinite(eps) and eps > 0):
-        raise ValueError(f"`eps` must be a positive smoothing width in m/s (e.g. 1e-4), got {eps!r}.")
-    for name, value in (("steps", steps), ("lm_steps", lm_steps)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-            raise ValueError(f"`{name}` must be a non-negative integer number of solver steps, got {value!r}.")
+    eps = positive_float(eps, "eps", "fit_emps_hybrid", hint="(a smoothing width in m/s, e.g. 1e-4)")
+    steps = nonnegative_int(steps, "steps", "fit_emps_hybrid", hint="(solver steps)")
+    lm_steps = nonnegative_int(lm_steps, "lm_steps", "fit_emps_hybrid", hint="(solver steps)")
     train, val = _split(record, validation, loss.init_window)
-    smooth: Any = with_smoothing(physics, Smooth(float(eps)))
+    smooth: Any = with_smoothing(physics, Smooth(eps))
     start = emps_hybrid_start(smooth, train, inputs, width, key=jax.random.PRNGKey(seed))
     freeze = _frozen(start, freeze_physics)
     scaling = ParameterScaling(scale={path: 1.0 for path in _NETWORK})
