@@ -19,6 +19,7 @@ from .._constraints import unwrap
 from .._data._record import FrictionData
 from .._models._base import feeds_back
 from .._simulate import check_options, run, split_time_signals
+from .._validation import integer, nonnegative_float, nonnegative_int
 
 
 class AbstractLoss(eqx.Module):
@@ -65,8 +66,7 @@ class SimulationLoss(AbstractLoss):
     batching: str = eqx.field(static=True, default="auto")
 
     def __check_init__(self) -> None:
-        if self.burn_in < 0:
-            raise ValueError(f"SimulationLoss: `burn_in` must be >= 0, got {self.burn_in}.")
+        nonnegative_int(self.burn_in, "burn_in", "SimulationLoss", hint="(samples not scored)")
         check_options(None, self.derivatives, self.batching, "SimulationLoss")
 
     def validation_loss(self) -> AbstractLoss:
@@ -95,8 +95,7 @@ class OneStepLoss(AbstractLoss):
     normalise: bool = eqx.field(static=True, default=True)
 
     def __check_init__(self) -> None:
-        if self.burn_in < 0:
-            raise ValueError(f"OneStepLoss: `burn_in` must be >= 0, got {self.burn_in}.")
+        nonnegative_int(self.burn_in, "burn_in", "OneStepLoss", hint="(samples not scored)")
 
     def residuals(self, model: Any, extra: Any, data: FrictionData) -> Array:
         if not feeds_back(model):
@@ -128,10 +127,8 @@ class MultipleShootingLoss(AbstractLoss):
     derivatives: str = eqx.field(static=True, default="auto")
 
     def __check_init__(self) -> None:
-        if self.segment_length < 2:
-            raise ValueError(f"MultipleShootingLoss: `segment_length` must be >= 2, got {self.segment_length}.")
-        if self.continuity_weight < 0:
-            raise ValueError(f"MultipleShootingLoss: `continuity_weight` must be >= 0, got {self.continuity_weight}.")
+        integer(self.segment_length, "segment_length", "MultipleShootingLoss", minimum=2, hint="(samples)")
+        nonnegative_float(self.continuity_weight, "continuity_weight", "MultipleShootingLoss")
         check_options(None, self.derivatives, "auto", "MultipleShootingLoss")
 
     def _segments(self, model: Any, data: FrictionData) -> tuple[Any, Any, Array, int]:
