@@ -28,6 +28,7 @@ from jaxtyping import Array, Float
 from .._inputs import Motion
 from .._models._base import AbstractFrictionModel
 from .._simulate import simulate
+from .._validation import nonnegative_int
 from ._differentiators import al_alaoui_derivative
 from ._record import FrictionData
 from ._tribometer_excitation import REGIMES, _excitation
@@ -205,8 +206,7 @@ def make_tribometer(
             f"make_tribometer: unknown `regime` {regime!r}; choose one of {', '.join(map(repr, REGIMES))}."
         )
     spec = REGIMES[regime]
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"make_tribometer: `seed` must be a non-negative integer, got {seed!r}.")
+    seed = nonnegative_int(seed, "seed", "make_tribometer")
     if model is None:
         model = default_tribometer_model()
     elif not isinstance(model, AbstractFrictionModel):

@@ -41,6 +41,8 @@ from .._models.blackbox._kernel import ExponentialKernel, KernelNARX
 from .._models.blackbox._regressors import NARXRegressors
 from .._simulate import simulate
 from .._smoothing import AbstractSmoothing
+from .._validation import integer as check_integer
+from .._validation import is_integer, optional, positive_float, positive_int
 from ._kernel_solvers import _block, _gram_times_jit, _kernel, _Rows, _solve, _Solved
 from ._solution import Solution
 
@@ -203,16 +205,8 @@ def identify_kernel_narx(
         ]
     if not (isinstance(tolerance, (int, float)) and np.isfinite(tolerance) and tolerance > 0):
         raise ValueError(f"{where}: `tolerance` (conjugate gradients, relative) must be > 0, got {tolerance!r}.")
-    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise ValueError(
-            f"{where}: `max_steps` (conjugate-gradient iterations) must be an integer >= 1, got {max_steps!r}."
-        )
-    if block_size is not None and (
-        isinstance(block_size, bool) or not isinstance(block_size, (int, np.integer)) or block_size < 1
-    ):
-        raise ValueError(
-            f"{where}: `block_size` (rows per block) must be a positive integer or None, got {block_size!r}."
-        )
+    max_steps = positive_int(max_steps, "max_steps", where, hint="(conjugate-gradient iterations)")
+    block_size = optional(positive_int, block_size, "block_size", where, hint="(rows per block)")
     kernel_params = list(degrees) if kernel == "polynomial" else [None]
     count = len(structures) * len(kernel_params) * (1 if kernel == "polynomial" else len(widths)) * len(ridges)
     if validation is None and count > 1:
@@ -223,15 +217,10 @@ def identify_kernel_narx(
     if validation is not None:
         if not isinstance(validation, FrictionData):
             raise TypeError(f"{where}: `validation` must be an fj.FrictionData, got {type(validation).__name__}.")
-        if (
-            isinstance(validation_burn_in, bool)
-            or not isinstance(validation_burn_in, (int, np.integer))
-            or not 0 <= validation_burn_in < validation.length
-        ):
-            raise ValueError(
-                f"{where}: `validation_burn_in` must be an integer in [0, {validation.length}) (samples of the "
-                f"validation record simulated but not scored), got {validation_burn_in!r}."
-            )
+        validation_burn_in = check_integer(
+            validation_burn_in, "validation_burn_in", where, minimum=0, maximum=validation.length - 1,
+            hint="(samples of the validation record simulated but not scored)",
+        )  # fmt: skip
 
     best: tuple[float, Any] | None = None
     candidates: list[KernelNARXCandidate] = []
@@ -323,17 +312,9 @@ def _grid(value: Any, name: str, where: str, *, integer: bool = False, minimum: 
         raise ValueError(f"{where}: `{name}` is an empty sequence; give one value or a grid of them.")
     for v in values:
         if integer:
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < minimum:
-                raise ValueError(
-                    f"{where}: `{name}` must be an integer >= {int(minimum)} (or a sequence of them), got {v!r}."
-                )
-        elif (
-            isinstance(v, bool)
-            or not isinstance(v, (int, float, np.floating, np.integer))
-            or not np.isfinite(v)
-            or v <= 0
-        ):
-            raise ValueError(f"{where}: `{name}` must be a number > 0 (or a sequence of them), got {v!r}.")
+            check_integer(v, name, where, minimum=int(minimum), hint="(or a sequence of them)")
+        else:
+            positive_float(v, name, where, hint="(or a sequence of them)")
     return tuple(int(v) for v in values) if integer else tuple(float(v) for v in values)
 
 
@@ -343,7 +324,7 @@ def _landmarks(landmarks: Any, solver: str, rows: int, seed: int, where: str) ->
         return None
     if landmarks is None:
         landmarks = min(rows, 1000 if solver == "nystrom" else 500)
-    if isinstance(landmarks, (int, np.integer)) and not isinstance(landmarks, bool):
+    if is_integer(landmarks):
         count = int(landmarks)
         if count == 0 and solver == "cg":
             return None

@@ -27,6 +27,7 @@ from .._constraints import unwrap
 from .._data._record import FrictionData
 from .._models.blackbox._kernel import AbstractKernel, ExponentialKernel, KernelNARX, PolynomialKernel
 from .._models.blackbox._regressors import NARXRegressors
+from .._validation import nonnegative_int
 from ._regressor_rows import teacher_forced_rows
 
 # the memory [bytes] of one block of kernel rows in the matrix-free products
@@ -56,8 +57,7 @@ class _Rows(NamedTuple):
     ) -> _Rows:
         lag = max(regs.input_lags, regs.output_lags)
         start = (lag if burn_default else 0) if burn_in is None else burn_in
-        if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:
-            raise ValueError(f"{where}: `burn_in` must be an integer >= 0 (samples), got {burn_in!r}.")
+        start = nonnegative_int(start, "burn_in", where, hint="(samples)")
         if data.length - start < 2:
             raise ValueError(
                 f"{where}: too few samples: {data.length} in the record, {data.length - start} after the burn-in of "

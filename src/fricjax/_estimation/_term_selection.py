@@ -15,6 +15,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Float
 
 from .._smoothing import is_concrete
+from .._validation import positive_int
 from ._lstsq import _as_arrays, lstsq
 
 
@@ -110,8 +111,7 @@ def select_terms(
     n, m = X.shape
     if max_terms is None:
         max_terms = m
-    if isinstance(max_terms, bool) or not isinstance(max_terms, (int, np.integer)) or max_terms < 1:
-        raise ValueError(f"select_terms: `max_terms` must be a positive integer or None, got {max_terms!r}.")
+    max_terms = positive_int(max_terms, "max_terms", "select_terms", hint="or None")
     if not isinstance(intercept, bool):
         raise TypeError(f"select_terms: `intercept` must be True or False, got {intercept!r}.")
 

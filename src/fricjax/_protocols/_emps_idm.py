@@ -31,6 +31,7 @@ from .._estimation._lstsq import LstsqResult, lstsq
 from .._models.physics._static import AbstractStaticFriction, BoPavelescu, Coulomb, CoulombViscous, Threlfall, Tustin
 from .._smoothing import AbstractSmoothing, Exact
 from .._systems._emps import EMPSPlant
+from .._validation import integer
 from ._emps_idm_data import EMPSIDMData, emps_idm_data
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -290,8 +291,7 @@ def fit_emps_idm(
         )
     if not isinstance(asymmetric, bool):
         raise TypeError(f"`asymmetric` must be True or False, got {asymmetric!r}.")
-    if isinstance(grid, bool) or not isinstance(grid, (int, np.integer)) or grid < 3:
-        raise ValueError(f"`grid` must be an integer >= 3 (grid points per nonlinear parameter), got {grid!r}.")
+    grid = integer(grid, "grid", "", minimum=3, hint="(grid points per nonlinear parameter)")
     spec = _SPECS[law]
     bounds = _check_bounds(spec, bounds)
     preprocessing = {"cutoff_hz": cutoff_hz, "decimation": decimation, "drop": drop}

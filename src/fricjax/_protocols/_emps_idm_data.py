@@ -10,6 +10,7 @@ import numpy as np
 
 from .._data._emps import EMPSRecord
 from .._data._preprocessing import _positive_int, butter_filtfilt, central_difference, decimate
+from .._validation import nonnegative_int
 
 # ---------------------------------------------------------------------------------------------------------------
 # IDIM preprocessing
@@ -73,8 +74,7 @@ def emps_idm_data(
     if not isinstance(record, EMPSRecord):
         raise TypeError(f"`record` must be an EMPSRecord (from load_emps), got {type(record).__name__}.")
     decimation = _positive_int(decimation, "decimation")
-    if isinstance(drop, bool) or not isinstance(drop, (int, np.integer)) or drop < 0:
-        raise ValueError(f"`drop` must be a non-negative integer number of samples, got {drop!r}.")
+    drop = nonnegative_int(drop, "drop", "", hint="(samples)")
     if record.length - drop < 8 * decimation:
         raise ValueError(
             f"`drop={drop}` leaves {record.length - drop} samples of {record.name}, too few to decimate by "
