@@ -13,7 +13,7 @@ PACKAGE = ROOT / "src" / "fricjax"
 
 # the layers of DESIGN.md, lowest first: a module may import only from its own layer or lower ones
 LAYERS = [
-    {"_xla_flags", "_lapack_threads", "_smoothing", "_constraints", "_inputs", "_metrics", "_validation"},
+    {"_xla_flags", "_lapack_threads", "_version", "_smoothing", "_constraints", "_inputs", "_metrics", "_validation"},
     {"_models"},
     {"_simulate"},
     {"_systems", "_data"},
@@ -43,8 +43,9 @@ def _imports(path: pathlib.Path, deferred: bool = False) -> set[str]:
         elif isinstance(node, ast.ImportFrom) and node.level > 0:
             base = package[: len(package) - node.level + 1]
             target = ".".join([*base, *([node.module] if node.module else [])])
-            if node.module is None:  # from . import x
+            if node.module is None:  # from . import x: the module x, or an attribute of the package itself
                 found.update(f"{target}.{alias.name}" for alias in node.names)
+                found.add(target)
             else:
                 found.add(target)
         elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("fricjax"):

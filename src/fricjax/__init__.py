@@ -8,9 +8,6 @@ from . import _xla_flags as _xla_flags  # isort: skip
 
 # and the OpenBLAS behind JAX's CPU LAPACK calls on one thread (XLA's pool provides the parallelism)
 from . import _lapack_threads as _lapack_threads  # isort: skip
-from importlib.metadata import PackageNotFoundError as _PackageNotFoundError
-from importlib.metadata import version as _version
-
 from ._constraints import AbstractUnwrappable as AbstractUnwrappable
 from ._constraints import Fixed as Fixed
 from ._constraints import Positive as Positive
@@ -74,11 +71,9 @@ from ._smoothing import Smooth as Smooth
 from ._smoothing import exact as exact
 from ._smoothing import safe_div as safe_div
 from ._smoothing import with_smoothing as with_smoothing
+from ._version import fricjax_version as _fricjax_version
 
-try:
-    __version__ = _version("fricjax")
-except _PackageNotFoundError:  # pragma: no cover - running from a source tree
-    __version__ = "0.0.0"
+__version__ = _fricjax_version()
 
 from . import compare as compare  # noqa: E402 - the public `fj.compare` namespace
 from ._cli import main as main  # noqa: E402 - the command line, callable: fj.main(["compare", ...])

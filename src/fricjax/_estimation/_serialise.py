@@ -41,6 +41,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._version import fricjax_version
+
 MAGIC = b"fricjax-model\n"
 FORMAT = "fricjax-model"
 FORMAT_VERSION = 1
@@ -85,10 +87,10 @@ def save_model(path: str | pathlib.Path, model: Any) -> None:
     -2.0
     ```
     """
-    from .. import __version__
-
     path = pathlib.Path(path)
-    header = {"format": FORMAT, "format_version": FORMAT_VERSION, "fricjax": __version__, "tree": _describe(model)}
+    header = {
+        "format": FORMAT, "format_version": FORMAT_VERSION, "fricjax": fricjax_version(), "tree": _describe(model)
+    }  # fmt: skip
     try:
         header_bytes = json.dumps(header, separators=(",", ":")).encode("utf-8")
     except ValueError as err:  # e.g. a string with a lone surrogate

@@ -22,7 +22,7 @@ from .._models.physics._stribeck import ExponentialStribeck
 from .._plot import plot_loops
 from .._simulate import simulate
 from .._smoothing import Smooth, with_smoothing
-from .compare._output import fricjax_version
+from .._version import fricjax_version
 
 
 def demo_motion(duration: float = 8.0, dt: float = 1e-3, frequency: float = 1.0) -> Any:

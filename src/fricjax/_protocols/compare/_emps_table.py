@@ -12,8 +12,9 @@ import numpy as np
 
 from ..._data._emps import load_emps
 from ..._models.physics._static import BoPavelescu, CoulombViscous, Threlfall, Tustin
+from ..._version import fricjax_version
 from .._emps_idm import fit_emps_idm
-from ._output import fricjax_version, strict_json, versions, write_atomic
+from ._output import strict_json, versions, write_atomic
 from ._settings import CompareError
 
 

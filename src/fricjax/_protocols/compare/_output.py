@@ -77,16 +77,6 @@ def _jsonable(value: Any) -> Any:
     return str(value)
 
 
-def fricjax_version() -> str:
-    """The installed fricjax's version (`fj.__version__`; 0.0.0 in a source tree that is not installed)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("fricjax")
-    except PackageNotFoundError:  # pragma: no cover - running from a source tree
-        return "0.0.0"
-
-
 def versions() -> dict[str, str]:
     """The versions of Python and of the libraries behind the numbers of a report."""
     import platform

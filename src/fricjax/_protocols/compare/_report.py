@@ -12,7 +12,8 @@ import numpy as np
 
 from ..._constraints import parameter_arrays, unwrap
 from ..._smoothing import exact
-from ._output import fricjax_version, versions
+from ..._version import fricjax_version
+from ._output import versions
 from ._records import LoadedRecord, Split, TestRecord
 from ._scoring import ModelScore, Score
 from ._settings import RESULT_CODES, FitSettings

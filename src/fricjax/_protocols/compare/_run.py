@@ -14,10 +14,11 @@ from typing import Any
 
 from ..._estimation._serialise import save_model
 from ..._validation import nonnegative_int
+from ..._version import fricjax_version
 from ._emps_table import emps_table
 from ._ensembles import add_ensembles
 from ._figures import plot_prediction_errors, plot_test_loops
-from ._output import check_writable, fricjax_version, strict_json
+from ._output import check_writable, strict_json
 from ._records import Split, TestRecord, load_record_spec, split_record, statistics_warnings
 from ._registry import MODEL_NAMES, PHYSICS_MODELS, default_models
 from ._report import compare_report, format_table
