@@ -128,3 +128,16 @@ def test_model_names_are_case_insensitive_and_long_labels_keep_the_table_aligned
     assert [line[61:67].strip() for line in lines] == ["params", "4", "3"]  # and the next one stays aligned
     assert lines[1][:60].rstrip() == "short" and lines[2][:60] == "x" * 60  # sorted by NMSE, labels whole
     assert "MAX/std" in lines[0]
+
+
+def test_string_parameters_are_refused_by_name():
+    with pytest.raises(TypeError, match="`Fc` must be a number"):
+        fj.ExponentialStribeck(Fc="1.0", Fs=1.5, vs=1e-3)
+    with pytest.raises(TypeError, match="`offset` must be a number"):
+        fj.Coulomb(Fc=1.0, offset="0.1")
+
+
+def test_tribometer_option_errors_name_the_option(capsys, tmp_path):
+    assert fj.main(["compare", "--data", "tribometer:mixed:speed=3", "--out", str(tmp_path), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "'speed=3'" in err and "{item" not in err and len(err.splitlines()) == 1, err

@@ -129,6 +129,7 @@ def positive(value: ParamLike, name: str, dtype: Any = None, *, scalar: bool = F
     `Fixed(value)` gives a fixed positive parameter (not trained)."""
     if isinstance(value, Fixed):
         return Fixed(positive(value.value, name, dtype, scalar=scalar))
+    _check_numeric(value, name)
     if scalar:
         _check_scalar(value, name)
     return Positive(value, name=name, dtype=dtype)
@@ -139,12 +140,20 @@ def real(value: ParamLike, name: str, dtype: Any = None, *, scalar: bool = False
     number with `scalar=True`). `Fixed(value)` gives a fixed real parameter (not trained)."""
     if isinstance(value, Fixed):
         return Fixed(real(value.value, name, dtype, scalar=scalar))  # type: ignore[return-value]
+    _check_numeric(value, name)
     if scalar:
         _check_scalar(value, name)
     value = as_float_array(value, dtype)
     if is_concrete(value) and not bool(np.all(np.isfinite(np.asarray(value)))):
         raise ValueError(f"`{name}` must be finite, got {np.asarray(value)!r}.")
     return value
+
+
+def _check_numeric(value: Any, name: str) -> None:
+    """Strings (also inside lists) are refused by name: NumPy would read "1.0" as a dtype or a string array."""
+    items = value if isinstance(value, (list, tuple)) else [value]
+    if any(isinstance(item, (str, bytes)) for item in items):
+        raise TypeError(f"`{name}` must be a number or an array of numbers, got {value!r}.")
 
 
 def _check_scalar(value: Any, name: str) -> None:

@@ -148,7 +148,7 @@ def load_record_spec(
             if key not in _TRIBOMETER_KEYS or not value:
                 raise CompareError(
                     f"{spec}: options are key=value pairs of {', '.join(_TRIBOMETER_KEYS)} (e.g. "
-                    "tribometer:mixed:seed=1,offset=0.3), got {item!r}"
+                    f"tribometer:mixed:seed=1,offset=0.3), got {item!r}"
                 )
             try:
                 options[key] = _TRIBOMETER_KEYS[key](value)
