@@ -79,5 +79,6 @@ def test_import_sets_scipys_openblas_to_one_thread_and_respects_the_users_choice
             assert _threads(**{variable: "2"}) == 2, variable
 
 
+@pytest.mark.slow  # a subprocess (~2 s): the fast tier stays well under 5 minutes
 def test_lapack_calls_running_side_by_side_in_a_scan_are_right():
     assert _run(SIDE_BY_SIDE) == "ok"

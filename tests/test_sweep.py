@@ -49,6 +49,7 @@ def regressors(data, input_mask=None, output_mask=None):
     )
 
 
+@pytest.mark.slow  # ~5 s; the fast tier stays well under 5 minutes
 def test_sweep_equals_each_configuration_alone():
     data = neural_record(SAMPLES)
     loss = fj.OneStepLoss()

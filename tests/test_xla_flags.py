@@ -75,6 +75,7 @@ def test_opting_out_leaves_xla_flags_alone_and_xla_its_default():
     assert own["flags"] == f"--xla_backend_extra_options={KEY}=1024" and not own["one_function"]
 
 
+@pytest.mark.slow  # a subprocess (~2 s): the fast tier stays well under 5 minutes
 def test_importing_fricjax_after_jax_started_warns_how_to_fix_it():
     out = _probe("", started=True)
     assert not out["one_function"]
