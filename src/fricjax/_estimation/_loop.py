@@ -84,7 +84,7 @@ def batched_losses(problem: Any, ys: Any, args: Any, batched_args: bool = False)
     return jax.vmap(both, in_axes=(0, 0 if batched_args else None))(ys, args)
 
 
-def _where_tree(condition: jax.Array, new: Any, old: Any) -> Any:
+def _where_tree(condition: Any, new: Any, old: Any) -> Any:
     """`where(condition, new, old)` leaf by leaf; a condition of shape (B,) selects along the leading batch axis."""
 
     def select(a: Any, b: Any) -> Any:
@@ -93,10 +93,6 @@ def _where_tree(condition: jax.Array, new: Any, old: Any) -> Any:
         return jnp.where(condition.reshape(condition.shape + (1,) * (jnp.ndim(a) - condition.ndim)), a, b)
 
     return jax.tree_util.tree_map(select, new, old)
-
-
-def where_tree(condition: Any, new: Any, old: Any) -> Any:
-    return _where_tree(jnp.asarray(condition), new, old)
 
 
 class Search:
@@ -130,7 +126,7 @@ class Search:
         self.diverged |= bad
         scores = self._scores(train, val)
         improved = scores < self.best_scores
-        self.best_ys = where_tree(improved, ys, self.best_ys)
+        self.best_ys = _where_tree(jnp.asarray(improved), ys, self.best_ys)
         self.best_scores = np.where(improved, scores, self.best_scores)
         self.stall = 0 if improved.any() else self.stall + 1
         history = self.history
