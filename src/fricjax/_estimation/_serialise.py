@@ -4,21 +4,25 @@ A model file holds, in this order:
 
 1. the magic line `fricjax-model\\n` (14 bytes);
 2. the length N of the header, an unsigned 64-bit little-endian integer (8 bytes);
-3. the header, N bytes of UTF-8 JSON: `{"format": "fricjax-model", "format_version": 1, "fricjax": <version>,
-   "tree": <node>}`, where a node is one of
+3. the header, N bytes of UTF-8 JSON: `{"format": "fricjax-model", "format_version": 2, "fricjax": <version>,
+   "checksum": "sha256", "tree": <node>}`, where a node is one of
    - `{"kind": "module", "module": ..., "qualname": ..., "static": {name: value}, "fields": {name: node}}` for
      an equinox Module (static values: numbers, strings, bools, None, and lists / `{"tuple": [...]}` of those),
    - `{"kind": "tuple" | "list", "items": [node, ...]}`, `{"kind": "dict", "items": [[key, node], ...]}`,
    - `{"kind": "none"}`, `{"kind": "array", "shape": [...], "dtype": "float64"}`,
    - `{"kind": "value", "value": ...}` for a Python bool / int / float / str leaf;
 4. the arrays, as `equinox.tree_serialise_leaves` writes them (one `.npy` record per array, in the order of
-   `jax.tree_util.tree_leaves`), up to the end of the file.
+   `jax.tree_util.tree_leaves`);
+5. the SHA-256 digest (32 bytes) of everything before it: header and arrays. Files of format version 1 (before
+   the checksum) end with the arrays, and still load.
 
 Loading rebuilds the skeleton from the header (instances made by `object.__new__` and `object.__setattr__`,
 as equinox's own unflattening does: no `__init__`, no `__check_init__`) and fills it with
 `equinox.tree_deserialise_leaves`, reading the `.npy` records with `allow_pickle=False`. Nothing from the file
 is executed or unpickled, and only allowed classes are instantiated: fricjax's own (their module starts with
-`fricjax.`) and those the caller passes in `classes=`.
+`fricjax.`) and those the caller passes in `classes=`. The checksum is verified before anything is read, and
+the loaded model is checked against its classes' invariants (`_model_checks`: shapes, dtypes, finite and
+positive values, transform names), as its constructors would have checked them.
 
 Why not pickle: unpickling runs code named by the file. Why not equinox serialisation alone: it loads into a
 skeleton of the model, which the caller would have to rebuild with the right hyperparameters; the JSON header
@@ -28,6 +32,8 @@ is that skeleton.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import io
 import json
 import os
 import pathlib
@@ -42,10 +48,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._version import fricjax_version
+from ._model_checks import check_loaded
 
 MAGIC = b"fricjax-model\n"
 FORMAT = "fricjax-model"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: a SHA-256 checksum at the end
+_DIGEST_SIZE = 32
 _LENGTH = struct.Struct("<Q")
 
 # dtypes an array in a model file may have (no object, string or structured dtypes)
@@ -64,7 +72,7 @@ def save_model(path: str | pathlib.Path, model: Any) -> None:
     `.npy` record per array, in `jax.tree_util.tree_leaves` order). The header is UTF-8 JSON with the format
     name and version, the fricjax version and the tree: for each equinox Module its class (module and
     qualname), its static fields and its children; tuples, lists, dicts and None as such; arrays by shape and
-    dtype; Python numbers and strings by value.
+    dtype; Python numbers and strings by value. The file ends with the SHA-256 digest of all that precedes it.
 
     The file is written to a temporary file in the same folder and then renamed over `path`, so a save that
     fails leaves an existing file at `path` untouched.
@@ -89,7 +97,8 @@ def save_model(path: str | pathlib.Path, model: Any) -> None:
     """
     path = pathlib.Path(path)
     header = {
-        "format": FORMAT, "format_version": FORMAT_VERSION, "fricjax": fricjax_version(), "tree": _describe(model)
+        "format": FORMAT, "format_version": FORMAT_VERSION, "fricjax": fricjax_version(), "checksum": "sha256",
+        "tree": _describe(model),
     }  # fmt: skip
     try:
         header_bytes = json.dumps(header, separators=(",", ":")).encode("utf-8")
@@ -97,10 +106,12 @@ def save_model(path: str | pathlib.Path, model: Any) -> None:
         raise ValueError(f"save_model: the model cannot be described as JSON ({err}).") from err
 
     def write(handle: IO[bytes]) -> None:
-        handle.write(MAGIC)
-        handle.write(_LENGTH.pack(len(header_bytes)))
-        handle.write(header_bytes)
-        eqx.tree_serialise_leaves(handle, model, filter_spec=_save_leaf)
+        hashing = _HashingWriter(handle)
+        hashing.write(MAGIC)
+        hashing.write(_LENGTH.pack(len(header_bytes)))
+        hashing.write(header_bytes)
+        eqx.tree_serialise_leaves(hashing, model, filter_spec=_save_leaf)
+        handle.write(hashing.digest.digest())
 
     _write_atomically(path, write)
 
@@ -122,8 +133,10 @@ def load_model(path: str | pathlib.Path, *, classes: Iterable[type] = ()) -> Any
 
     **Returns:** the saved model (or tree of models), with the same classes, static fields and array values.
 
-    Raises `ValueError` when the file is missing, is not a fricjax model file, is damaged, or names a class
-    that is neither fricjax's nor in `classes` (the message names the class).
+    Raises `ValueError` naming the file when it is missing, is not a fricjax model file, is damaged (its SHA-256
+    checksum does not match; files saved before checksums have none and still load), names a class that is
+    neither fricjax's nor in `classes`, or holds values its classes' constructors refuse (a shape, a dtype, a
+    non-finite or negative value, an unknown positivity transform: the message names the field).
 
     ```python
     >>> import pathlib, tempfile, fricjax as fj
@@ -138,27 +151,31 @@ def load_model(path: str | pathlib.Path, *, classes: Iterable[type] = ()) -> Any
     if not path.is_file():
         raise ValueError(f"load_model: no file at {path}.")
     try:
-        with path.open("rb") as handle:
-            header = _read_header(handle, path)
-            _check_header(header, path)
-            try:
-                like = _build(header["tree"], allowed, "model", path)
-            except RecursionError:
-                raise ValueError(
-                    f"load_model: {path} is damaged (its model description is nested too deeply)."
-                ) from None
-            try:
-                model = eqx.tree_deserialise_leaves(handle, like, filter_spec=_load_leaf)
-            except (ValueError, TypeError, RuntimeError, OSError, EOFError) as err:
-                cause: BaseException = err
-                while cause.__cause__ is not None:  # equinox wraps the error in one naming the leaf's path
-                    cause = cause.__cause__
-                detail = str(err) if cause is err else f"{err}: {cause}"
-                raise ValueError(f"load_model: {path} is damaged (reading its arrays: {detail}).") from err
-            if handle.read(1):
-                raise ValueError(f"load_model: {path} is damaged (unexpected data after the arrays).")
+        data = path.read_bytes()
     except OSError as err:
         raise ValueError(f"load_model: cannot read {path}: {err.strerror}.") from err
+    verified = len(data) > _DIGEST_SIZE and hashlib.sha256(data[:-_DIGEST_SIZE]).digest() == data[-_DIGEST_SIZE:]
+    header, start = _read_header(data, path)
+    _check_header(header, path, verified)
+    if header["format_version"] >= 2:
+        data = data[:-_DIGEST_SIZE]
+    try:
+        like = _build(header["tree"], allowed, "model", path)
+    except RecursionError:
+        raise ValueError(f"load_model: {path} is damaged (its model description is nested too deeply).") from None
+    handle = io.BytesIO(data)
+    handle.seek(start)
+    try:
+        model = eqx.tree_deserialise_leaves(handle, like, filter_spec=_load_leaf)
+    except (ValueError, TypeError, RuntimeError, OSError, EOFError) as err:
+        cause: BaseException = err
+        while cause.__cause__ is not None:  # equinox wraps the error in one naming the leaf's path
+            cause = cause.__cause__
+        detail = str(err) if cause is err else f"{err}: {cause}"
+        raise ValueError(f"load_model: {path} is damaged (reading its arrays: {detail}).") from err
+    if handle.read(1):
+        raise ValueError(f"load_model: {path} is damaged (unexpected data after the arrays).")
+    check_loaded(model, path)
     return model
 
 
@@ -251,11 +268,25 @@ def _save_leaf(handle: IO[bytes], leaf: Any) -> None:
         np.save(handle, array, allow_pickle=False)
 
 
+class _HashingWriter:
+    """A binary file-like object that writes through to `handle` and hashes what it writes (SHA-256)."""
+
+    def __init__(self, handle: IO[bytes]):
+        self.handle = handle
+        self.digest = hashlib.sha256()
+
+    def write(self, data: Any) -> int:
+        self.digest.update(data)
+        return self.handle.write(data)
+
+
 def _write_atomically(path: pathlib.Path, write: Callable[[IO[bytes]], None]) -> None:
     """Write through a temporary file in the target's folder, then rename it over the target (`os.replace`)."""
     if path.is_dir():
         raise ValueError(f"save_model: cannot write {path}: it is a folder; give a file name, e.g. {path / 'm.eqx'}.")
-    temporary = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
+    # a short name of its own (not the target's name plus a suffix, which would exceed the file system's limit of
+    # 255 bytes for a long but legal target name)
+    temporary = path.with_name(f".fj-{uuid.uuid4().hex[:12]}.tmp")
     try:
         # mode 0o666 less the umask, as for an ordinary new file (tempfile would make it 0o600)
         descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
@@ -279,26 +310,27 @@ def _write_atomically(path: pathlib.Path, write: Callable[[IO[bytes]], None]) ->
 # ----------------------------------------------------------------------------------------------------------------
 
 
-def _read_header(handle: IO[bytes], path: pathlib.Path) -> Any:
-    if handle.read(len(MAGIC)) != MAGIC:
+def _read_header(data: bytes, path: pathlib.Path) -> tuple[Any, int]:
+    """The parsed JSON header of a model file's contents, and the offset where its arrays start."""
+    if data[: len(MAGIC)] != MAGIC:
         raise ValueError(
             f"load_model: {path} is not a fricjax model file (it does not start with the line "
             f"{MAGIC.decode().strip()!r}); pickle files are never loaded."
         )
-    length_bytes = handle.read(_LENGTH.size)
-    if len(length_bytes) != _LENGTH.size:
+    start = len(MAGIC) + _LENGTH.size
+    if len(data) < start:
         raise ValueError(f"load_model: {path} is damaged (the header is cut short).")
-    (length,) = _LENGTH.unpack(length_bytes)
-    if length > os.fstat(handle.fileno()).st_size:
+    (length,) = _LENGTH.unpack(data[len(MAGIC) : start])
+    if length > len(data) - start:
         raise ValueError(f"load_model: {path} is damaged (header length {length} exceeds the file size).")
-    text = handle.read(length)
     try:
-        return json.loads(text.decode("utf-8"))
+        return json.loads(data[start : start + length].decode("utf-8")), start + length
     except (ValueError, RecursionError) as err:
         raise ValueError(f"load_model: {path} is damaged (its header is not valid JSON: {err}).") from err
 
 
-def _check_header(header: Any, path: pathlib.Path) -> None:
+def _check_header(header: Any, path: pathlib.Path, verified: bool) -> None:
+    """The format name and version; files of version 2 and later must match their checksum (`verified`)."""
     if not isinstance(header, dict) or header.get("format") != FORMAT or "tree" not in header:
         raise ValueError(f"load_model: {path} is damaged (its header lacks the format name or the model tree).")
     version = header.get("format_version")
@@ -308,6 +340,11 @@ def _check_header(header: Any, path: pathlib.Path) -> None:
         raise ValueError(
             f"load_model: {path} has format version {version}, newer than this fricjax reads ({FORMAT_VERSION}); "
             f"it was written by fricjax {header.get('fricjax')}: upgrade fricjax to load it."
+        )
+    if version >= 2 and (header.get("checksum") != "sha256" or not verified):
+        raise ValueError(
+            f"load_model: {path} is damaged: its contents do not match its SHA-256 checksum (the file was changed, "
+            "cut short or extended after it was saved); save the model again or restore the file from a copy."
         )
 
 
