@@ -7,11 +7,13 @@ import dataclasses
 import math
 import pathlib
 import re
+import sys
 from typing import Any
 
 import numpy as np
 
 from .._inputs import Motion
+from ._csv import CSVError, read_csv
 from ._record import FrictionData
 
 
@@ -126,7 +128,8 @@ def load_record(
     - `x` displacement [x unit], also `position`, `displacement`, `pos`; and/or `v` velocity [x unit per second],
       also `velocity`, `vel`. A missing `v` is derived by central differences, a missing `x` by zero-order hold;
     - `t` uniformly sampled time [s], also `time`; or `dt` the sample time [s] (one value, or a column of equal
-      values); or the `dt` argument, which wins over both (use it when `t` is rounded or absent).
+      values; with `t` too, they must agree); or the `dt` argument, which wins over both (use it when `t` is
+      rounded or absent). A zero, negative, non-finite or subnormal sample time is an error naming its column.
 
     Other columns and keys are ignored, as are NPZ keys that are not numeric (strings, metadata); an NPZ key
     holding a 2-D table under a column name is an error. Two columns with the same role (`x` and `position`)
@@ -137,7 +140,12 @@ def load_record(
     arguments win over the file's units. Without any, the file is SI (m, N, s). Displacement units: m, cm, mm,
     um (µm), nm, in; force units: N, kN, mN, uN (µN), lbf, kip; time units: s, ms, us (µs).
 
-    Errors are one line naming the file and the fix (`RecordError`, a ValueError).
+    **CSV files** are separated by `,`, `;` or tabs (found from the header and the first row; in `;` and tab
+    files a decimal comma is read as a point), may quote numbers (`"1.5"`), and are read in chunks: the memory
+    taken is about the table's (8 bytes per number of the columns used), not a multiple of the file's size.
+
+    Errors are one line naming the file and the fix, and the first offending line by its number (`RecordError`,
+    a ValueError).
 
     **Arguments:** `path` the file; `dt` the sample time [s]; `x_unit`, `force_unit` the file's units.
 
@@ -168,8 +176,8 @@ def read_record(
             dt = math.nan if isinstance(dt, bool) else float(dt)
         except (TypeError, ValueError):
             dt = math.nan
-        if not (math.isfinite(dt) and dt > 0):
-            raise RecordError(f"{path}: dt must be a positive finite sample time in seconds")
+        if not (math.isfinite(dt) and dt >= sys.float_info.min):  # subnormal: 1 / dt overflows
+            raise RecordError(f"{path}: dt must be a positive finite sample time in seconds, got {dt!r}")
     entries, units_entry = _read_table(path)
     columns: dict[str, str] = {}  # role -> the name as written in the file
     data: dict[str, np.ndarray] = {}  # role -> the values as written
@@ -208,32 +216,12 @@ def read_record(
         force=_resolve_unit(path, "force", declared["force"], force_unit),
     )
     if dt is None:
-        if "dt" in data:
-            dts = data["dt"]
-            if dts.size == 0 or not np.allclose(dts, dts[0], rtol=1e-9, atol=0):
-                raise RecordError(
-                    f"{path}: column 'dt' must hold one sample time (all rows equal); resample the record to a "
-                    "uniform rate first"
-                )
-            dt = float(dts[0]) * _TIME_UNITS[_resolve_unit(path, "t", declared["dt"], None)]
-        elif "t" in data:
-            steps = np.diff(data["t"])
-            if steps.size == 0 or not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
-                raise RecordError(
-                    f"{path}: column 't' must be uniformly sampled; if it is only rounded, give the sample time in "
-                    "seconds (dt= in load_record, --dt on the command line) or a column 'dt' holding it"
-                )
-            dt = float(steps[0]) * _TIME_UNITS[_resolve_unit(path, "t", declared["t"], None)]
-        else:
-            raise RecordError(
-                f"{path}: need a time column 't' (or time) or a sample-time column 'dt', or give the sample time in "
-                "seconds (dt= in load_record, --dt on the command line)"
-            )
-    force = data["force"] * units.force_factor
+        dt = _sample_time(path, data, columns, declared)
+    force = _scaled(data["force"], units.force_factor)
     if force.size < 100:
         raise RecordError(f"{path}: only {force.size} samples; need at least 100")
-    x = data["x"] * units.x_factor if "x" in data else None
-    v = data["v"] * units.x_factor if "v" in data else None
+    x = _scaled(data["x"], units.x_factor) if "x" in data else None
+    v = _scaled(data["v"], units.x_factor) if "v" in data else None
     try:
         if x is not None:
             motion = Motion(x=x, v=v, dt=dt) if v is not None else Motion.from_position(x, dt)
@@ -254,11 +242,14 @@ def _read_table(path: pathlib.Path) -> tuple[list[tuple[str, np.ndarray | None]]
         if suffix == ".npz":
             return _read_npz(path)
         if suffix == ".csv":
-            return _read_csv(path), None
+            return read_csv(path, lambda name: _split_unit(name)[0].lower() in _ROLE), None
     except RecordError:
         raise
+    except CSVError as err:
+        raise RecordError(str(err)) from None
     except Exception as err:  # noqa: BLE001 - any parse failure becomes one line
-        detail = " ".join(str(err).split())  # one line
+        detail = " ".join(str(err).split())  # one line, and short
+        detail = detail if len(detail) <= 200 else detail[:197] + "..."
         raise RecordError(f"{path}: cannot read the file ({type(err).__name__}: {detail})") from err
     raise RecordError(f"{path}: unsupported file type {suffix!r}; use .npz or .csv")
 
@@ -283,37 +274,64 @@ def _read_npz(path: pathlib.Path) -> tuple[list[tuple[str, np.ndarray | None]], 
     return entries, units
 
 
-def _read_csv(path: pathlib.Path) -> list[tuple[str, np.ndarray | None]]:
-    # the header is split here: genfromtxt(names=True) rewrites names ("x [um]" -> "x_um") and loses the units
-    raw = path.read_bytes()
-    try:
-        text = raw.decode("utf-8-sig")  # a byte-order mark (Excel's CSV export) is not part of the first name
-    except UnicodeDecodeError:
-        text = raw.decode("latin-1")  # an 8-bit export (µ as 0xB5); binary junk then fails below, in one line
-    lines = [line for line in text.splitlines() if line.strip()]
-    if not lines:
-        raise RecordError(f"{path}: the file is empty; give a header row and one row per sample")
-    names = [name.strip().strip("\"'").strip() for name in lines[0].lstrip("#").split(",")]
-    if all(_is_number(name) for name in names):
-        raise RecordError(f"{path}: the CSV needs a header row naming its columns (e.g. t,x,force)")
-    rows = [line for line in lines[1:] if not line.lstrip().startswith("#")]
-    if not rows:
-        raise RecordError(f"{path}: the CSV has a header but no data rows")
-    # unparsable fields become NaN, which the record's finiteness check then names
-    table = np.genfromtxt(rows, delimiter=",", dtype=float, ndmin=2)
-    if table.shape[1] != len(names):
-        raise RecordError(
-            f"{path}: cannot read the file (the header names {len(names)} columns, the rows hold {table.shape[1]})"
-        )
-    return [(name, table[:, k]) for k, name in enumerate(names)]
+def _sample_time(
+    path: pathlib.Path, data: dict[str, np.ndarray], columns: dict[str, str], declared: dict[str, list]
+) -> float:
+    """The sample time [s] from the columns 'dt' and / or 't' (which must agree when both are given)."""
+    seconds = {role: _TIME_UNITS[_resolve_unit(path, "t", declared[role], None)] for role in ("t", "dt")}
+    fix = "pass the sample time in seconds (dt= in load_record, --dt on the command line)"
+    dt = None
+    if "dt" in data:
+        dts = data["dt"] * seconds["dt"]
+        bad = np.flatnonzero(~(np.isfinite(dts) & (dts >= sys.float_info.min)))  # zero, negative, NaN, subnormal
+        if bad.size:
+            raise RecordError(
+                f"{path}: column {columns['dt']!r} holds {float(data['dt'][bad[0]])!r} in data row {bad[0] + 1}; "
+                f"the sample time must be a positive finite number of seconds: correct it or {fix}"
+            )
+        if not np.allclose(dts, dts[0], rtol=1e-9, atol=0):
+            raise RecordError(
+                f"{path}: column {columns['dt']!r} must hold one sample time (all rows equal); resample the record "
+                "to a uniform rate first"
+            )
+        dt = float(dts[0])
+    if "t" in data:
+        t = data["t"] * seconds["t"]
+        bad = np.flatnonzero(~np.isfinite(t))
+        if bad.size:
+            raise RecordError(f"{path}: column {columns['t']!r} holds {float(t[bad[0]])!r} in data row {bad[0] + 1}")
+        if dt is not None:  # both: the time `t` spans must be (rows - 1) * dt, to 0.1 % or to the rounding of `t`
+            span, expected = float(t[-1] - t[0]), (t.size - 1) * dt
+            rounding = min(2 * float(np.max(np.abs(np.diff(t) - dt))), 2 * dt) if t.size > 1 else 0.0
+            if not abs(span - expected) <= max(1e-3 * expected, rounding):
+                step = span / (t.size - 1) if t.size > 1 else math.nan
+                raise RecordError(
+                    f"{path}: columns {columns['t']!r} and {columns['dt']!r} disagree: {columns['t']!r} advances "
+                    f"{step:.6g} s per row, {columns['dt']!r} gives {dt:.6g} s; drop the wrong column or {fix}"
+                )
+            return dt
+        steps = np.diff(t)
+        if steps.size and not steps[0] >= sys.float_info.min:
+            raise RecordError(
+                f"{path}: column {columns['t']!r} must increase, but goes from {float(t[0])!r} to {float(t[1])!r} "
+                f"s in its first step; correct it or {fix}"
+            )
+        if steps.size == 0 or not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
+            raise RecordError(
+                f"{path}: column {columns['t']!r} must be uniformly sampled; if it is only rounded, {fix} or a "
+                "column 'dt' holding it"
+            )
+        return float(steps[0])
+    if dt is None:
+        raise RecordError(f"{path}: need a time column 't' (or time) or a sample-time column 'dt', or {fix}")
+    return dt
 
 
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
+def _scaled(values: np.ndarray, factor: float) -> np.ndarray:
+    """`values * factor`, in place (the arrays are the reader's own): a record is not copied for its units."""
+    if factor != 1.0:
+        values *= factor
+    return values
 
 
 def _split_unit(raw: str) -> tuple[str, str | None]:
