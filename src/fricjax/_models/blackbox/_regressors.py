@@ -39,6 +39,7 @@ from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from ..._validation import nonnegative_int
 from .._base import AbstractFrictionModel
+from .._state_maps import ClampMaps, held
 
 SIGNALS = ("x", "v", "a", "dx")
 """The `MotionSample` signals a NARX may take as inputs: displacement [m], velocity [m/s], acceleration
@@ -101,6 +102,19 @@ class PlayOperators(AbstractFrictionModel):
     def init_state(self) -> Array:
         thresholds = unwrap(self.thresholds)
         return jnp.zeros((self.num_plays,), thresholds.dtype)
+
+    def parallel_maps(self, samples: MotionSample) -> ClampMaps | None:
+        """Exact play operators: `p_i -> clip(p_i + dx / Delta_i, -1, 1)`, a clamp map (the time-parallel free
+        run); None for the smooth clip."""
+        if not isinstance(self.smoothing, Exact):
+            return None
+        thresholds = unwrap(self.thresholds)
+        length = samples.dx.shape[0]
+        return ClampMaps(
+            jnp.asarray(samples.dx, thresholds.dtype)[:, None] / thresholds,
+            held(-jnp.ones_like(thresholds), length),
+            held(jnp.ones_like(thresholds), length),
+        )
 
     def step(self, state: Array, sample: MotionSample) -> tuple[Array, Array]:
         state = advance_plays(state, sample.dx, unwrap(self.thresholds), self.smoothing)

@@ -12,12 +12,14 @@ from __future__ import annotations
 from typing import Any
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
 from ..._constraints import Parameter, ParamLike, model_dtype, positive, real, unwrap
 from ..._inputs import MotionSample
 from .._base import AbstractFrictionModel
+from .._state_maps import AffineMaps
 
 
 class SensorDriftState(eqx.Module):
@@ -81,6 +83,16 @@ class SensorDrift(AbstractFrictionModel):
         inner, force = unwrap(self.model).step(state.inner, sample)
         drift = self.drift(state.t)
         return SensorDriftState(inner, state.t + sample.dt, drift), force + drift
+
+    def parallel_maps(self, samples: MotionSample) -> SensorDriftState | None:
+        """The wrapped model's maps, the clock advanced by `dt` per sample (the time-parallel free run); the
+        drift of the last output does not enter `step`, so its map is the identity."""
+        inner = unwrap(self.model).parallel_maps(samples)
+        if inner is None:
+            return None
+        length = next(leaf for leaf in jax.tree_util.tree_leaves(samples) if jnp.ndim(leaf) > 0).shape[0]
+        one = jnp.ones((length,), jnp.result_type(float))
+        return SensorDriftState(inner, AffineMaps(one, one * samples.dt), AffineMaps(one, 0.0 * one))
 
     def tangent_gradients(self) -> bool:
         """As the wrapped model (the drift adds one smooth state)."""

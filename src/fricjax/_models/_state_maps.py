@@ -1,0 +1,94 @@
+"""State maps for the time-parallel free run: a model's step written as a map of its state, one per sample.
+
+When the map that takes a model's state across one sample belongs to a family closed under composition, the
+states after every sample are the prefix compositions of those maps applied to the initial state, and a prefix
+composition is what `jax.lax.associative_scan` computes in O(log T) depth (Blelloch 1990; for linear recurrences
+the parallel-scan form of Martin & Cundy 2018, for the time-parallel evaluation of sequential models Lim et al.
+2024, "DEER"). Two families cover fricjax's models:
+
+- `AffineMaps`: `s -> scale * s + shift`, elementwise: LuGre's bristle update (linear in `z` for the velocity held
+  over a sample, whatever the smoothing), the linear parts of models;
+- `ClampMaps`: `s -> min(max(s + shift, lower), upper)`: an exact Maxwell-slip element or play operator. A clamp
+  of a shifted clamp is again one: `clamp(clamp(s + a1, l1, h1) + a2, l2, h2) = clamp(s + a1 + a2, L, H)` with
+  `L = clamp(l1 + a2, l2, h2)`, `H = clamp(h1 + a2, l2, h2)`.
+
+A model declares its form by `AbstractModel.parallel_maps(samples)`: a pytree shaped like its state whose leaves
+are such maps, every array with the leading time axis. `fj.simulate(..., scan="parallel")` composes them and then
+evaluates the model's own `step` at every sample, in parallel, from the state entering it.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array
+
+
+class AbstractStateMaps(eqx.Module):
+    """Maps of one state array, one per sample along the leading axis (every field shaped `(T, *state.shape)`, or
+    broadcastable to it after the time axis). Subclasses define composition and application."""
+
+    @abc.abstractmethod
+    def then(self, later: Any) -> Any:
+        """The composition `later o self` (apply `self` first), elementwise over the leading axes."""
+
+    @abc.abstractmethod
+    def __call__(self, state: Array) -> Array:
+        """The maps applied to `state` (broadcast along the leading axes)."""
+
+
+class AffineMaps(AbstractStateMaps):
+    """`s -> scale * s + shift`, elementwise (`scale`, `shift` of the state's shape after the time axis)."""
+
+    scale: Array
+    shift: Array
+
+    def then(self, later: AffineMaps) -> AffineMaps:
+        return AffineMaps(later.scale * self.scale, later.scale * self.shift + later.shift)
+
+    def __call__(self, state: Array) -> Array:
+        return self.scale * state + self.shift
+
+
+class ClampMaps(AbstractStateMaps):
+    """`s -> min(max(s + shift, lower), upper)`, elementwise, with `lower <= upper`: a play operator, or an exact
+    elasto-slide element of deflection limits `+-Delta` driven by the displacement increments `shift`."""
+
+    shift: Array
+    lower: Array
+    upper: Array
+
+    def then(self, later: ClampMaps) -> ClampMaps:
+        def clamp(value: Array) -> Array:
+            return jnp.minimum(jnp.maximum(value, later.lower), later.upper)
+
+        return ClampMaps(self.shift + later.shift, clamp(self.lower + later.shift), clamp(self.upper + later.shift))
+
+    def __call__(self, state: Array) -> Array:
+        return jnp.minimum(jnp.maximum(state + self.shift, self.lower), self.upper)
+
+
+def is_state_maps(node: Any) -> bool:
+    """`is_leaf` for trees of state maps."""
+    return isinstance(node, AbstractStateMaps)
+
+
+def compose(earlier: Any, later: Any) -> Any:
+    """Elementwise composition of two trees of state maps (`later o earlier`): the operator of the associative
+    scan."""
+    return jax.tree_util.tree_map(lambda first, second: first.then(second), earlier, later, is_leaf=is_state_maps)
+
+
+def apply(maps: Any, state: Any) -> Any:
+    """A tree of state maps applied to the state tree it is shaped like."""
+    return jax.tree_util.tree_map(lambda m, s: m(jnp.asarray(s)), maps, state, is_leaf=is_state_maps)
+
+
+def held(value: Any, length: int) -> Array:
+    """`value` broadcast along a new leading time axis of `length` samples (a map field constant over time)."""
+    value = jnp.asarray(value)
+    return jnp.broadcast_to(value, (length, *value.shape))
