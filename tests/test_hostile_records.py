@@ -108,3 +108,36 @@ def test_requests_beyond_the_memory_are_refused_before_allocating():
     for duration in (1e9, 1e6):  # 2e12 and 2e9 samples: 800 TB and 800 GB
         with pytest.raises(ValueError, match=r"`duration` .* samples, which need about .* of memory, more than"):
             fj.make_tribometer("mixed", duration=duration)
+
+
+def extreme_record(scale: float) -> tuple[fj.Motion, np.ndarray]:
+    motion = fj.Motion.from_position(X, 1e-3)
+    clean = np.asarray(fj.simulate(fj.Coulomb(Fc=1.0, smoothing=fj.Smooth(1e-4)), motion))
+    return motion, scale * (clean + 0.01 * np.sin(K))
+
+
+@pytest.mark.parametrize("scale", [1e200, 1e-200])
+def test_huge_and_tiny_forces_score_as_the_record_in_newtons(scale):
+    """Forces of 1e200 N overflowed the variance (a loss of 0.0, "perfect"); 1e-200 N underflowed it."""
+    motion, force = extreme_record(1.0)
+    start = fj.Coulomb(Fc=0.5, smoothing=fj.Smooth(1e-4))
+    scaled_start = fj.Coulomb(Fc=0.5 * scale, offset=0.0, smoothing=fj.Smooth(1e-4))
+    loss = fj.SimulationLoss()  # every loss normalises by the same scaled standard deviation
+    reference = float(loss(start, None, fj.FrictionData(motion, force)))
+    value = float(loss(scaled_start, None, fj.FrictionData(motion, scale * force)))
+    assert reference > 0.01 and value == pytest.approx(reference, rel=1e-9)
+    prediction = np.asarray(fj.simulate(start, motion))
+    for metric in (fj.nmse, fj.nrmse, fj.max_error, fj.relative_error, fj.fit_percent):
+        expected = float(metric(force, prediction))
+        assert float(metric(scale * force, scale * prediction)) == pytest.approx(expected, rel=1e-9), metric.__name__
+    assert float(fj.rmse(scale * force, scale * prediction)) == pytest.approx(scale * float(fj.rmse(force, prediction)))
+
+
+@pytest.mark.slow  # a fit's compilation: 2-3 s
+def test_fits_of_huge_and_tiny_forces_report_the_same_loss():
+    motion, force = extreme_record(1.0)
+    losses = []
+    for scale in (1.0, 1e200, 1e-200):  # Fc in log space, the offset fixed: the same steps at any scale
+        start = fj.Coulomb(Fc=0.5 * scale, offset=fj.Fixed(0.0), smoothing=fj.Smooth(1e-4))
+        losses.append(fj.fit(start, fj.FrictionData(motion, scale * force), steps=5).train_loss)
+    assert losses[0] > 0.01 and losses[1:] == pytest.approx([losses[0]] * 2, rel=1e-9), losses

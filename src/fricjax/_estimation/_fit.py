@@ -21,6 +21,7 @@ import numpy as np
 import optax
 
 from .._data._record import FrictionData
+from .._metrics import scaled_std
 from .._models._base import AbstractModel
 from .._smoothing import Smooth, exact, is_concrete, with_smoothing
 from .._validation import nonnegative_float, nonnegative_int, optional, positive_int, seed_value
@@ -350,7 +351,7 @@ def _check_records(model: Any, data: Any, validation: Any, loss: Any) -> None:
                 model.check_inputs(record.motion)
     for name, record in (("data", data), ("validation", validation)):
         if isinstance(record, FrictionData) and getattr(loss, "normalise", False) and is_concrete(record.force):
-            if not float(np.std(np.asarray(record.force))) > 0:
+            if not float(scaled_std(np.asarray(record.force))) > 0:  # scaled: 1e-200 N is not constant
                 raise ValueError(
                     f"fit: the measured force of `{name}` is constant (std = 0), so the normalised loss (error / "
                     "std) is undefined; check the record, or use a loss with normalise=False."

@@ -17,6 +17,7 @@ from jaxtyping import Array, Float
 
 from .._constraints import unwrap
 from .._data._record import FrictionData
+from .._metrics import scaled_std
 from .._models._base import feeds_back
 from .._simulate import check_options, run, split_time_signals
 from .._validation import integer, nonnegative_float, nonnegative_int
@@ -47,7 +48,8 @@ class AbstractLoss(eqx.Module):
 
     def _scale(self, data: FrictionData) -> Array:
         normalise = getattr(self, "normalise", True)
-        return jnp.std(data.force) if normalise else jnp.ones((), data.force.dtype)
+        # scaled before squaring: forces of 1e200 N do not overflow the variance (a loss of 0.0)
+        return scaled_std(data.force) if normalise else jnp.ones((), data.force.dtype)
 
 
 class SimulationLoss(AbstractLoss):

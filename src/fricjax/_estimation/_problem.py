@@ -16,6 +16,7 @@ import numpy as np
 
 from .._constraints import AbstractUnwrappable, Fixed, trainable_filter, unwrap
 from .._data._record import FrictionData
+from .._metrics import scaled_std
 from .._simulate import run, simulate
 from ._covariance import parameter_std
 from ._losses import AbstractLoss, SimulationLoss
@@ -273,7 +274,7 @@ def gauss_newton_std(
 @eqx.filter_jit
 def _std_from_jacobian(params: Any, rest: Any, loss: AbstractLoss, extra: Any, data: FrictionData) -> Any:
     flat, unravel = jax.flatten_util.ravel_pytree(params)
-    scale = jnp.std(data.force) if getattr(loss, "normalise", False) else 1.0
+    scale = scaled_std(data.force) if getattr(loss, "normalise", False) else 1.0
 
     def residuals(theta: jax.Array) -> jax.Array:
         return loss.residuals(eqx.combine(unravel(theta), rest), extra, data) * scale
