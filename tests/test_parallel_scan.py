@@ -22,7 +22,8 @@ def _motion(length: int = 1500, seed: int = 0) -> fj.Motion:
     return fj.Motion.from_position(x, dt=1e-3)
 
 
-def _lugre(smoothing: fj.AbstractSmoothing = fj.Exact()) -> fj.LuGre:
+def _lugre(smoothing: fj.AbstractSmoothing | None = None) -> fj.LuGre:
+    smoothing = fj.Exact() if smoothing is None else smoothing
     stribeck = fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3, delta=2.0)
     return fj.LuGre(stribeck, sigma0=1e5, sigma1=300.0, sigma2=0.4, offset=0.1, z0=2e-6, smoothing=smoothing)
 

@@ -88,6 +88,12 @@ def apply(maps: Any, state: Any) -> Any:
     return jax.tree_util.tree_map(lambda m, s: m(jnp.asarray(s)), maps, state, is_leaf=is_state_maps)
 
 
+def shaped_like(state: Any, maps: list[AbstractStateMaps]) -> Any:
+    """The maps, one per leaf of `state` in its flattening order, arranged as `state` is (the return value of
+    `parallel_maps`)."""
+    return jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(state), maps)
+
+
 def held(value: Any, length: int) -> Array:
     """`value` broadcast along a new leading time axis of `length` samples (a map field constant over time)."""
     value = jnp.asarray(value)

@@ -149,7 +149,7 @@ def _simulate(
                 )
     state = model.init_state() if state0 is None else state0
     if horizon is None or horizon == 1:
-        options = {"derivatives": derivatives, "batching": batching, "scan": scan}
+        options: dict[str, Any] = {"derivatives": derivatives, "batching": batching, "scan": scan}
         return run(model, samples, state, measured, unroll=unroll, **options)[1]
     if horizon >= length or not feeds_back(model):  # nothing is fed back within reach: the free run
         return run(model, samples, state, unroll=unroll, derivatives=derivatives, batching=batching, scan=scan)[1]

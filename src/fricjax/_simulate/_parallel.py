@@ -33,7 +33,7 @@ PREFIX = "doubling"
 def on_accelerator() -> bool:
     """Whether computations run on an accelerator by default (the default device, or JAX's first device, is not
     a CPU): decided when a program is traced."""
-    device = jax.config.jax_default_device
+    device = getattr(jax.config, "jax_default_device", None)
     if device is None:
         return jax.default_backend() != "cpu"
     platform = device if isinstance(device, str) else getattr(device, "platform", "cpu")

@@ -37,6 +37,7 @@ from jaxtyping import Array, Float, Int
 
 from ..._constraints import Fixed, FixedScalar, unwrap
 from ..._inputs import MotionSample
+from ..._lapack_threads import thin_svd
 from ..._smoothing import is_concrete
 from ..._validation import integer, nonnegative_int, optional, positive_int
 from .._base import AbstractFrictionModel
@@ -323,7 +324,9 @@ def nearest(distance: Float[Array, " N"], k: int) -> Array:
 def tpcr(matrix: Float[Array, "K D"], target: Float[Array, "K C"], rank: Any, rcond: Any) -> Float[Array, "D C"]:
     """Truncated principal component regression: the least-squares solution `a` of `matrix a ~ target` through
     the SVD `matrix = U S V^T`, keeping the singular values `s_j > max(rcond, eps max(K, D)) s_1` with index
-    `j < rank` (others set to zero in the pseudoinverse, parlitz2004 §III-F)."""
+    `j < rank` (others set to zero in the pseudoinverse, parlitz2004 §III-F). The SVD is LAPACK's, one
+    neighbourhood per call however the queries are batched (`thin_svd`: batched calls can deadlock XLA's CPU
+    thread pool)."""
     u, s, vt = jnp.linalg.svd(matrix, full_matrices=False)
     floor = jnp.maximum(rcond, jnp.finfo(matrix.dtype).eps * max(matrix.shape)) * s[0]
     keep = (s > floor) & (jnp.arange(s.shape[0]) < rank)

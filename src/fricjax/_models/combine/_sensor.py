@@ -84,7 +84,7 @@ class SensorDrift(AbstractFrictionModel):
         drift = self.drift(state.t)
         return SensorDriftState(inner, state.t + sample.dt, drift), force + drift
 
-    def parallel_maps(self, samples: MotionSample) -> SensorDriftState | None:
+    def parallel_maps(self, samples: MotionSample) -> Any:
         """The wrapped model's maps, the clock advanced by `dt` per sample (the time-parallel free run); the
         drift of the last output does not enter `step`, so its map is the identity."""
         inner = unwrap(self.model).parallel_maps(samples)
@@ -92,7 +92,8 @@ class SensorDrift(AbstractFrictionModel):
             return None
         length = next(leaf for leaf in jax.tree_util.tree_leaves(samples) if jnp.ndim(leaf) > 0).shape[0]
         one = jnp.ones((length,), jnp.result_type(float))
-        return SensorDriftState(inner, AffineMaps(one, one * samples.dt), AffineMaps(one, 0.0 * one))
+        clock, last = AffineMaps(one, one * samples.dt), AffineMaps(one, 0.0 * one)
+        return SensorDriftState(inner, clock, last)  # type: ignore[arg-type]  # maps in the state's places
 
     def tangent_gradients(self) -> bool:
         """As the wrapped model (the drift adds one smooth state)."""

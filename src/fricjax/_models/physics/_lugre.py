@@ -14,7 +14,7 @@ from ..._constraints import Parameter, ParamLike, model_dtype, positive, real, u
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._base import AbstractFrictionModel
-from .._state_maps import AffineMaps
+from .._state_maps import AffineMaps, shaped_like
 from ._stribeck import AbstractStribeck
 
 
@@ -118,13 +118,13 @@ class LuGre(AbstractFrictionModel):
         devices: 5.4-5.5x a numba trajectory's throughput; benchmarks/README.md)."""
         return True
 
-    def parallel_maps(self, samples: MotionSample) -> LuGreState:
+    def parallel_maps(self, samples: MotionSample) -> Any:
         """The bristle update is affine in `z` for the velocity held over a sample (`relax`), with any smoothing:
         `z_k = exp(-h_k) z_k-1 + v_k dt phi1(h_k)`, `h_k = rate_k dt` (the time-parallel free run)."""
         p = unwrap(self)
         v_step = samples.dx / samples.dt
         h = p.sigma0 * p.smoothing.abs(v_step) / p.stribeck(v_step) * samples.dt
-        return LuGreState(z=AffineMaps(jnp.exp(-h), v_step * samples.dt * phi1(h)))
+        return shaped_like(self.init_state(), [AffineMaps(jnp.exp(-h), v_step * samples.dt * phi1(h))])
 
     def init_state(self) -> LuGreState:
         return LuGreState(z=jnp.asarray(unwrap(self.z0)))

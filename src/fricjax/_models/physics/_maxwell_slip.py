@@ -28,7 +28,7 @@ from ..._constraints import (
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact
 from .._base import AbstractFrictionModel
-from .._state_maps import AffineMaps, ClampMaps, held
+from .._state_maps import AffineMaps, ClampMaps, held, shaped_like
 
 
 class MaxwellSlipState(eqx.Module):
@@ -214,7 +214,7 @@ class MaxwellSlip(AbstractFrictionModel):
         """DNLRX(M, n, nx): estimated thresholds, FIR band `theta` (n+1, M), displacement FIR `c` (nx+1,)."""
         return cls(thresholds, FIRForces(theta, c, offset), **kwargs)
 
-    def parallel_maps(self, samples: MotionSample) -> MaxwellSlipState | None:
+    def parallel_maps(self, samples: MotionSample) -> Any:
         """Exact LR / NLR elements: `delta_i -> clip(delta_i + dx, -Delta_i, Delta_i)`, a clamp map (the
         time-parallel free run). None for the smooth clip (not closed under composition) and the FIR maps."""
         if not isinstance(self.smoothing, Exact) or self.force_map.dbar_lags or self.force_map.x_lags:
@@ -223,15 +223,15 @@ class MaxwellSlip(AbstractFrictionModel):
         length = samples.dx.shape[0]
         shape = (length, *thresholds.shape)
         state = self.init_state()
-        return MaxwellSlipState(
-            delta=ClampMaps(
-                jnp.broadcast_to(samples.dx[:, None], shape).astype(thresholds.dtype),
-                held(-thresholds, length),
-                held(thresholds, length),
-            ),
-            dbar_history=AffineMaps(held(jnp.ones_like(state.dbar_history), length), held(state.dbar_history, length)),
-            x_history=AffineMaps(held(jnp.ones_like(state.x_history), length), held(state.x_history, length)),
+        delta = ClampMaps(
+            jnp.broadcast_to(samples.dx[:, None], shape).astype(thresholds.dtype),
+            held(-thresholds, length),
+            held(thresholds, length),
         )
+        histories = [  # empty for LR / NLR
+            AffineMaps(held(jnp.ones_like(s), length), held(s, length)) for s in (state.dbar_history, state.x_history)
+        ]
+        return shaped_like(state, [delta, *histories])
 
     def init_state(self) -> MaxwellSlipState:
         thresholds = unwrap(self.thresholds)
