@@ -141,3 +141,17 @@ def test_tribometer_option_errors_name_the_option(capsys, tmp_path):
     assert fj.main(["compare", "--data", "tribometer:mixed:speed=3", "--out", str(tmp_path), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert "'speed=3'" in err and "{item" not in err and len(err.splitlines()) == 1, err
+
+
+@pytest.mark.slow  # the EMPS table's fits: about 13 s
+def test_emps_report_has_the_mode_of_the_other_outputs(data_dir, tmp_path, monkeypatch):
+    """`--data emps` wrote report.json with mode 0600 (tempfile.mkstemp's) where every other output is 0666 less the
+    umask (0644)."""
+    import os
+    import stat
+
+    monkeypatch.setenv("FRICJAX_DATA", str(data_dir))
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert fj.main(["compare", "--data", "emps", "--out", str(tmp_path)]) == 0
+    assert stat.S_IMODE((tmp_path / "report.json").stat().st_mode) == 0o666 & ~umask

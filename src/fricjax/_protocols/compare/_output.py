@@ -8,6 +8,7 @@ import json
 import os
 import pathlib
 import tempfile
+import uuid
 import warnings
 from typing import Any
 
@@ -32,8 +33,10 @@ def check_writable(out: pathlib.Path) -> None:
 
 
 def write_atomic(path: pathlib.Path, text: str) -> None:
-    """Write `text` to a temporary file beside `path`, then rename it over `path`."""
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    """Write `text` to a temporary file beside `path`, then rename it over `path`. The file gets the mode of any
+    new file (0o666 less the umask, as the other outputs), not `tempfile.mkstemp`'s 0o600."""
+    temporary = path.with_name(f".fj-{uuid.uuid4().hex[:12]}.tmp")  # short: a long `path.name` stays legal
+    handle = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
         with os.fdopen(handle, "w") as stream:
             stream.write(text)
