@@ -27,6 +27,7 @@ from .._smoothing import Smooth, exact, is_concrete, with_smoothing
 from .._validation import nonnegative_float, nonnegative_int, optional, positive_int, seed_value
 from ._loop import Search, batched_losses, run_stage
 from ._losses import AbstractLoss, SimulationLoss
+from ._placement import choose_device, to_device
 from ._problem import (
     Problem,
     Selector,
@@ -79,6 +80,7 @@ def fit(
     compute_std: bool = False,
     throw: bool = False,
     strategies: Sequence[AbstractStrategy] = (),
+    device: Any = "auto",
 ) -> Solution:
     """Fit the parameters of `model` to `data` by gradients through the simulator.
 
@@ -123,6 +125,10 @@ def fit(
       (which are the same strategies: `scaling=` is `fj.ParameterScaling`, `multistart=` `fj.MultiStart`,
       `continuation=` `fj.Continuation`, `separable=` `fj.Separable`, `patience=` `fj.EarlyStopping`,
       `tolerance=` `fj.Tolerance`).
+    - `device`: where the fit runs: `"auto"` (default) the host CPU for a single start of a model without a
+      time-parallel form (or on a short record) when the default device is an accelerator, the accelerator
+      otherwise (batched starts, long records of LuGre / Maxwell-slip); `"cpu"`, `"accelerator"`, a `jax.Device`;
+      `None`: JAX's default device. The choice is stated in `message`.
     - `throw`: raise `fj.FitFailed` (holding the `Solution`) when the fit diverged or its solver failed, instead
       of returning the failure.
 
@@ -141,6 +147,18 @@ def fit(
     1.0
     ```
     """
+    arguments = dict(locals())
+    if device is not None:
+        counts = [getattr(s, "count", 1) for s in (multistart, *strategies) if isinstance(s, MultiStart)]
+        batched = (isinstance(multistart, int) and multistart > 1) or any(count > 1 for count in counts)
+        target, reason = choose_device(model, data, device, batched)
+        if target is not None:  # the same fit, on `target`
+            arguments.update(
+                device=None, **{k: to_device(arguments[k], target) for k in ("model", "data", "validation")}
+            )
+            with jax.default_device(target):
+                solution = fit(**arguments)
+            return dataclasses.replace(solution, message=f"{solution.message} (on {target.platform}: {reason})")
     start_time = time.perf_counter()
     loss = SimulationLoss() if loss is None else loss
     if not isinstance(loss, AbstractLoss):
