@@ -19,7 +19,7 @@ LAYERS = [
     {"_systems", "_data"},
     {"_estimation"},
     {"_protocols", "_plot"},
-    {"_cli", "compare", "__init__", "__main__"},
+    {"_cli", "compare", "_public", "__init__", "__main__"},
 ]
 
 
@@ -44,13 +44,21 @@ def _imports(path: pathlib.Path, deferred: bool = False) -> set[str]:
             base = package[: len(package) - node.level + 1]
             target = ".".join([*base, *([node.module] if node.module else [])])
             if node.module is None:  # from . import x: the module x, or an attribute of the package itself
-                found.update(f"{target}.{alias.name}" for alias in node.names)
-                found.add(target)
+                for alias in node.names:
+                    found.add(f"{target}.{alias.name}")
+                    if not _is_module(f"{target}.{alias.name}"):
+                        found.add(target)
             else:
                 found.add(target)
         elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("fricjax"):
             found.add(node.module)
     return found
+
+
+def _is_module(name: str) -> bool:
+    """Whether the dotted `name` is a module or package of the source tree."""
+    path = PACKAGE.parent.joinpath(*name.split("."))
+    return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
 
 
 def _graph(deferred: bool = False) -> dict[str, set[str]]:
@@ -128,3 +136,27 @@ def test_public_names_have_docstrings():
         if not name.startswith("_") and callable(getattr(fj, name)) and not (getattr(fj, name).__doc__ or "").strip()
     ]
     assert not missing, missing
+
+
+def test_import_and_help_answer_before_jax_loads():
+    """`import fricjax` and `fricjax --help` import no JAX (the public names load on first use), so the command
+    line's help and argument errors answer at once; the first public name loads everything."""
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys, fricjax\n"
+        "assert 'jax' not in sys.modules, 'import fricjax imported jax'\n"
+        "import runpy\n"
+        "sys.argv = ['fricjax', 'compare', '--help']\n"
+        "try:\n"
+        "    runpy.run_module('fricjax', run_name='__main__')\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "assert 'jax' not in sys.modules, 'fricjax compare --help imported jax'\n"
+        "fricjax.LuGre\n"
+        "assert 'jax' in sys.modules and 'fricjax._estimation._fit' in sys.modules\n"
+    )
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "--device" in done.stdout

@@ -11,12 +11,11 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from ._protocols._demo import run_demo
-from ._protocols.compare._output import check_writable
-from ._protocols.compare._registry import MODEL_NAMES
-from ._protocols.compare._registry import PHYSICS_MODELS as DEFAULT_MODELS
-from ._protocols.compare._run import run_compare
-from ._protocols.compare._settings import CompareError
+from ._protocols.compare._names import MODEL_NAMES
+from ._protocols.compare._names import PHYSICS_MODELS as DEFAULT_MODELS
+
+# the protocols (and JAX) are imported in `main` once the arguments are parsed: `--help` and argument errors answer
+# before JAX loads
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -104,8 +103,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     compare.add_argument("--out", default="fricjax-compare", help="output folder (default: %(default)s)")
     compare.add_argument("--seed", type=int, default=0, help="seed for the synthetic data and multi-starts")
     compare.add_argument("--no-progress", action="store_true", help="no progress bars")
+    compare.add_argument(
+        "--device",
+        choices=("auto", "cpu", "gpu"),
+        default="auto",
+        help="where the fits run: auto (on a GPU machine, sequential work on the host CPU and batched work or long "
+        "records of models with a time-parallel form on the GPU; stated in the log), cpu, gpu (default: %(default)s)",
+    )
     args = parser.parse_args(argv)
     import jax
+
+    from ._protocols._demo import run_demo
+    from ._protocols.compare._output import check_writable
+    from ._protocols.compare._run import run_compare
+    from ._protocols.compare._settings import CompareError
 
     jax.config.update("jax_enable_x64", True)
     if args.command == "demo":
@@ -136,6 +147,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             out=args.out,
             seed=args.seed,
             progress=not args.no_progress,
+            device=args.device,
         )
         return 0
     except CompareError as err:

@@ -19,6 +19,7 @@ non-empty value. Only the CPU compiler reads the key (`xla::cpu::options`).
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 from collections.abc import MutableMapping
 
@@ -55,6 +56,8 @@ def add_small_while_loop_flag(environ: MutableMapping[str, str]) -> bool:
 def configure() -> None:
     """Called once by `import fricjax`: set the flag, and warn when JAX's backends already started without it."""
     if not add_small_while_loop_flag(os.environ):
+        return
+    if "jax" not in sys.modules:  # JAX not imported yet: its backends cannot have started (and importing it is slow)
         return
     try:
         from jax._src import xla_bridge  # private: only to tell whether the setting can still take effect

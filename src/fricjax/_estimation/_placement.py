@@ -10,6 +10,9 @@ therefore chooses per fit; `device="cpu"` / `"accelerator"` / a `jax.Device` for
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+from collections.abc import Iterator
 from typing import Any
 
 import equinox as eqx
@@ -25,6 +28,35 @@ DEVICES = ("auto", "cpu", "gpu", "accelerator")  # "gpu": the accelerator, by it
 # `device="auto"` keeps a single fit on the accelerator from this many samples on when the model has a
 # time-parallel form (below it, compiling for the GPU costs more than the CPU's whole fit; benchmarks/README.md)
 ACCELERATOR_MIN_LENGTH = 200_000
+
+
+# a device every `device="auto"` fit inside `forced_device(...)` takes (`fricjax compare --device gpu|cpu`)
+_FORCED: contextvars.ContextVar[Any] = contextvars.ContextVar("fricjax_forced_device", default=None)
+
+
+@contextlib.contextmanager
+def forced_device(device: Any) -> Iterator[None]:
+    """Within the block, JAX's default device is `device` (a `jax.Device`; None: unchanged) and every
+    `fj.fit(..., device="auto")` stays on it."""
+    if device is None:
+        yield
+        return
+    token = _FORCED.set(device)
+    try:
+        with jax.default_device(device):
+            yield
+    finally:
+        _FORCED.reset(token)
+
+
+def resolve_device(device: Any) -> Any:
+    """`"cpu"` / `"gpu"` / `"accelerator"` as a `jax.Device` (None: keep the default device, for `"auto"`)."""
+    check_device(device)
+    if device == "cpu":
+        return jax.devices("cpu")[0]
+    if device in ("gpu", "accelerator"):
+        return jax.devices()[0] if on_accelerator() else _accelerators()[0]
+    return device if isinstance(device, jax.Device) else None
 
 
 def check_device(device: Any, where: str = "fit") -> None:
@@ -51,6 +83,8 @@ def choose_device(model: Any, data: Any, device: Any, batched: bool) -> tuple[An
     starts) and for a model with a time-parallel form on a record of at least `ACCELERATOR_MIN_LENGTH` samples,
     else the host CPU. `"cpu"`, `"accelerator"`, a `jax.Device`: that device."""
     check_device(device)
+    if device == "auto" and _FORCED.get() is not None:
+        return None, "the device of the enclosing run"
     if device is None:
         return None, "JAX's default device"
     if isinstance(device, jax.Device):

@@ -8,15 +8,13 @@ from typing import Any
 
 from ..._models.combine._sensor import SensorDrift
 from ._blackbox_recipes import linear_in_parameters_models, neural_models
+from ._names import LINEAR_MODELS as LINEAR_MODELS
+from ._names import MODEL_NAMES as MODEL_NAMES
+from ._names import NEURAL_MODELS as NEURAL_MODELS
+from ._names import PHYSICS_MODELS as PHYSICS_MODELS
 from ._physics_recipes import physics_models
 from ._recipes import ModelSpec
 from ._settings import DataScales, FitSettings
-
-PHYSICS_MODELS = ("stribeck", "lugre", "gms", "nlr", "dnlrx")
-NEURAL_MODELS = ("mlp", "gsnn", "rnn", "avd")
-LINEAR_MODELS = ("narx", "kernel", "knn", "wavelet")
-MODEL_NAMES = PHYSICS_MODELS + NEURAL_MODELS + LINEAR_MODELS
-"""Every model `compare` can fit; the command line fits `PHYSICS_MODELS` unless told otherwise."""
 
 
 def default_models(settings: FitSettings | None = None) -> dict[str, ModelSpec]:

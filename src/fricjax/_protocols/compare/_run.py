@@ -12,6 +12,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from ..._estimation._placement import check_device, choose_device, forced_device, resolve_device
 from ..._estimation._serialise import save_model
 from ..._validation import nonnegative_int
 from ..._version import fricjax_version
@@ -35,10 +36,12 @@ def fit_and_score(
     seed: int = 0,
     progress: bool = True,
     log: Callable[[str], None] = print,
+    device: Any = "auto",
 ) -> list[ModelScore]:
     """Fit each named model on the train part (the validation part chooses among starts), then score it by
     free-run simulation in exact mode on every test record (default: the split's test part, with the default
-    initialisation window)."""
+    initialisation window). `device` as `fj.fit`'s, for each model's fit and scoring: `"auto"` the host CPU for
+    sequential work when the default device is an accelerator (stated in the log), `"cpu"`, `"gpu"`."""
     specs = default_models(settings)
     tests = [split.test_record()] if tests is None else list(tests)
     scales = DataScales.from_data(split.train)
@@ -46,31 +49,45 @@ def fit_and_score(
     for name in names:
         spec = specs[name]
         start_time = time.perf_counter()
-        log(f"fitting {spec.label} ...")
-        result = spec.fit(None if spec.build is None else spec.build(scales), split, seed, progress)
-        elapsed = time.perf_counter() - start_time
-        model = result.model
-        full_prediction = free_run(model, split.full)
-        predictions = {
-            test.name: full_prediction if test.record is split.full else free_run(model, test.record) for test in tests
-        }
-        row = score_row(
-            name,
-            spec.label,
-            model,
-            full_prediction,
-            predictions,
-            split,
-            tests,
-            fit_time=elapsed,
-            num_parameters=count_parameters(model),
-            result=result.code,  # the name of the fj.RESULTS item
-            message=result.message,
-            std=result.std,
+        start = None if spec.build is None else spec.build(scales)
+        target, reason = choose_device(start, split.train, device, batched=False)
+        log(
+            f"fitting {spec.label} ..."
+            if target is None
+            else f"fitting {spec.label} on {target.platform} ({reason}) ..."
         )
+        with forced_device(target):
+            row = _fit_and_score_one(name, spec, start, split, tests, seed, progress, start_time)
         rows.append(row)
-        log(f"  {spec.label}: test NMSE {row.nmse:.3f} %, MAX {row.max_error:.3f}, {elapsed:.1f} s: {result.message}")
+        log(f"  {spec.label}: test NMSE {row.nmse:.3f} %, MAX {row.max_error:.3f}, {row.fit_time:.1f} s: {row.message}")
     return rows
+
+
+def _fit_and_score_one(
+    name: str, spec: Any, start: Any, split: Split, tests: list[TestRecord], seed: int, progress: bool, t0: float
+) -> ModelScore:
+    """`fit_and_score` for one model: fit `start` (None: identified from the split), then score it."""
+    result = spec.fit(start, split, seed, progress)
+    elapsed = time.perf_counter() - t0
+    model = result.model
+    full_prediction = free_run(model, split.full)
+    predictions = {
+        test.name: full_prediction if test.record is split.full else free_run(model, test.record) for test in tests
+    }
+    return score_row(
+        name,
+        spec.label,
+        model,
+        full_prediction,
+        predictions,
+        split,
+        tests,
+        fit_time=elapsed,
+        num_parameters=count_parameters(model),
+        result=result.code,  # the name of the fj.RESULTS item
+        message=result.message,
+        std=result.std,
+    )
 
 
 def run_compare(
@@ -91,6 +108,7 @@ def run_compare(
     out: str | os.PathLike[str] = "fricjax-compare",
     seed: int = 0,
     progress: bool = True,
+    device: str = "auto",
 ) -> None:
     """`fricjax compare` with the command line's options as arguments (`fricjax compare --help` says what each
     does): fit every model on the training record `data`, score each by free run on the test records (`test`, or
@@ -100,6 +118,15 @@ def run_compare(
 
     **Raises:** `CompareError` for bad input (one line).
     """
+    arguments = dict(locals())
+    try:
+        check_device(device, "--device")
+        target = None if device == "auto" else resolve_device(device)
+    except ValueError as error:
+        raise CompareError(str(error)) from None
+    if target is not None:  # everything on `target`: data, fits, scores, ensembles
+        with forced_device(target):
+            return run_compare(**{**arguments, "device": "auto"})
     out = pathlib.Path(out)
     models = [m.lower() for m in models]  # model names are case-insensitive
     if models == ["all"]:
@@ -151,7 +178,9 @@ def run_compare(
     for line in statistics_warnings(split, tests, units):
         print("warning: " + line)
     started = time.perf_counter()
-    rows = fit_and_score(list(models), split, tests=tests, settings=settings, seed=seed, progress=progress)
+    rows = fit_and_score(
+        list(models), split, tests=tests, settings=settings, seed=seed, progress=progress, device=device
+    )
     rows += add_ensembles(rows, split, tests)
     floor = reference_scores(tests)
     print()
