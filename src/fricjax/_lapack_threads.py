@@ -20,6 +20,19 @@ parallelism with XLA's pool, where it belongs. It affects `scipy.linalg` in the 
 algebra. It does nothing when the library is not SciPy's bundled OpenBLAS (a SciPy built on MKL or a system BLAS),
 when the user chose a thread count (`OPENBLAS_NUM_THREADS`, `GOTO_NUM_THREADS` or `OMP_NUM_THREADS`, which OpenBLAS
 reads), or when `FRICJAX_KEEP_BLAS_THREADS` is set to a non-empty value.
+
+**Batched calls deadlock.** jaxlib 0.10.2's LAPACK kernels (`jaxlib/cpu/lapack_kernels.cc`, `ParallelBatchMap`)
+split a *batch* of matrices (a call under `vmap`, or on stacked matrices) whose work exceeds about 2e5 flops into
+chunks, schedule them on XLA's intra-op pool (the threads named `tf_XLAEigen`, one per core) and block on an
+`absl::BlockingCounter` until they are done. A call made from a pool thread waits there while holding that thread;
+when as many batched calls run at once as the pool has threads (two independent thunks on 2 cores, e.g. the full
+batches and the remainder of a `lax.map(..., batch_size=)`), every thread waits for chunks no thread is left to run:
+a native deadlock, intermittent, likelier on a busy machine (notebook 06's local models hung in CI with both pool
+threads in `lapack_dgesdd_ffi -> ParallelBatchMap -> BlockingCounter::Wait`). A call on one matrix (batch 1) runs
+inline on its own thread and never waits (`chunk_size >= batch_count`); jax's sources after 0.11.0 compile the
+pool path out of open-source builds (jax commit 859992407d). `thin_svd` is an SVD that stays one matrix per LAPACK
+call under any `vmap`, for code that is vmapped (`LocalModel`'s local fits); the kernel NARX solvers loop their
+factorisations with `lax.map` (no `batch_size`) for the same reason (`_estimation/_kernel_solvers.py`).
 """
 
 from __future__ import annotations
@@ -29,6 +42,9 @@ import os
 import pathlib
 from collections.abc import Mapping
 from typing import Any
+
+import jax
+import jax.numpy as jnp
 
 # the user's own choice of BLAS threads: OpenBLAS reads these at load, in this order of precedence
 USER_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
@@ -89,6 +105,46 @@ def limit_blas_threads(environ: Mapping[str, str], threads: int = 1) -> list[str
         setter(threads)
         done.append(name)
     return done
+
+
+@jax.custom_batching.sequential_vmap
+def _svd_one_at_a_time(matrix: Any) -> Any:
+    """LAPACK's thin SVD; under `vmap`, a `lax.map` over the batch: one matrix per call (see the module docstring)."""
+    u, s, vh = jnp.linalg.svd(matrix, full_matrices=False)
+    return u, s, vh  # a tuple, not jnp's named result: the derivative rule returns the same structure
+
+
+@jax.custom_jvp
+def thin_svd(matrix: Any) -> tuple[Any, Any, Any]:
+    """`jnp.linalg.svd(matrix, full_matrices=False)` (`(u, s, vh)`, the same LAPACK routine and results) for a real
+    `(m, n)` matrix, made one matrix per LAPACK call however it is vmapped, so that it never enters jaxlib's
+    batch-parallel path, which can deadlock XLA's CPU thread pool (module docstring). As fast as the batched
+    call (a batch of 768 matrices 300 x 28: 0.18-0.20 s either way on 2 cores, OpenBLAS on one thread).
+    Differentiable (`jax.custom_batching` rules are not, so the derivative is written out: JAX's SVD rule, with
+    zero singular values given zero weight in the division by `s`)."""
+    return _svd_one_at_a_time(matrix)
+
+
+@thin_svd.defjvp
+def _thin_svd_jvp(primals: Any, tangents: Any) -> Any:
+    (a,), (da,) = primals, tangents
+    u, s, vh = _svd_one_at_a_time(a)  # on primals only: the tangents below are linear, so `grad` can transpose them
+    v = vh.T
+    ds_full = u.T @ da @ v
+    ds = jnp.diagonal(ds_full)
+    gaps = (s[None, :] + s[:, None]) * (s[None, :] - s[:, None])  # s_j^2 - s_i^2
+    f = jnp.where(gaps == 0, 0.0, 1.0 / jnp.where(gaps == 0, 1.0, gaps))
+    inverse = jnp.where(s == 0, 0.0, 1.0 / jnp.where(s == 0, 1.0, s))
+    du = u @ (f * (ds_full * s[None, :] + (ds_full * s[None, :]).T))
+    dv = v @ (f * (s[:, None] * ds_full + (s[:, None] * ds_full).T))
+    m, n = a.shape[-2:]
+    if m > n:  # the part of da v outside the span of u
+        dav = da @ v
+        du = du + (dav - u @ (u.T @ dav)) * inverse[None, :]
+    if n > m:
+        dau = da.T @ u
+        dv = dv + (dau - v @ (v.T @ dau)) * inverse[None, :]
+    return (u, s, vh), (du, ds, dv.T)
 
 
 def configure() -> None:

@@ -24,6 +24,7 @@ import numpy as np
 import scipy.optimize
 from jaxtyping import Array, ArrayLike, Bool, Float
 
+from .._lapack_threads import thin_svd
 from .._smoothing import is_concrete
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -80,8 +81,10 @@ def _column_norms(A: Any, xp: Any) -> Any:
 
 
 def _svd(As: Any, rcond: Any, xp: Any) -> tuple[Any, Any, Any, Any]:
-    """Thin SVD `As = U diag(s) Vt` and the mask of the singular values kept: `s > 0` and `s >= rcond * s_max`."""
-    U, s, Vt = xp.linalg.svd(As, full_matrices=False) if xp is jnp else _svd_numpy(As)
+    """Thin SVD `As = U diag(s) Vt` and the mask of the singular values kept: `s > 0` and `s >= rcond * s_max`.
+    JAX: LAPACK's, one matrix per call however the solve is vmapped (`thin_svd`: multi-start fits with separable
+    parameters vmap it, and batched LAPACK calls can deadlock XLA's CPU thread pool)."""
+    U, s, Vt = thin_svd(As) if xp is jnp else _svd_numpy(As)
     keep = (s > 0) & (s >= rcond * s[0])
     return U, s, Vt, keep
 

@@ -327,7 +327,7 @@ def tpcr(matrix: Float[Array, "K D"], target: Float[Array, "K C"], rank: Any, rc
     `j < rank` (others set to zero in the pseudoinverse, parlitz2004 §III-F). The SVD is LAPACK's, one
     neighbourhood per call however the queries are batched (`thin_svd`: batched calls can deadlock XLA's CPU
     thread pool)."""
-    u, s, vt = jnp.linalg.svd(matrix, full_matrices=False)
+    u, s, vt = thin_svd(matrix)
     floor = jnp.maximum(rcond, jnp.finfo(matrix.dtype).eps * max(matrix.shape)) * s[0]
     keep = (s > floor) & (jnp.arange(s.shape[0]) < rank)
     inverse = jnp.where(keep, 1.0 / jnp.where(keep, s, 1.0), 0.0)
