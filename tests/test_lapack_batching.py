@@ -94,6 +94,14 @@ def test_local_linear_fit_is_truncated_principal_component_regression(name):
     rank = dims if case["rank"] is None else case["rank"]
     expected = [tpcr_numpy(points, forces, q, rank, case["rcond"]) for q in queries]
     np.testing.assert_allclose(model.predict(queries), expected, rtol=1e-9, atol=1e-10)
+    # reverse mode through the one-at-a-time SVD: the derivative in the query is the TPCR slope
+    slope = jax.grad(lambda q: model.predict(q[None])[0])(jax.numpy.asarray(queries[0]))
+    zero = np.zeros(dims)
+    expected_slope = [
+        tpcr_numpy(points, forces, e, rank, case["rcond"]) - tpcr_numpy(points, forces, zero, rank, case["rcond"])
+        for e in np.eye(dims)
+    ]
+    np.testing.assert_allclose(slope, expected_slope, rtol=1e-8, atol=1e-9)
 
 
 # ----------------------------------------------------------------------------------------------------------------
