@@ -13,7 +13,17 @@ PACKAGE = ROOT / "src" / "fricjax"
 
 # the layers of DESIGN.md, lowest first: a module may import only from its own layer or lower ones
 LAYERS = [
-    {"_xla_flags", "_lapack_threads", "_version", "_smoothing", "_constraints", "_inputs", "_metrics", "_validation"},
+    {
+        "_xla_flags",
+        "_lapack_threads",
+        "_version",
+        "_compilation_cache",
+        "_smoothing",
+        "_constraints",
+        "_inputs",
+        "_metrics",
+        "_validation",
+    },
     {"_models"},
     {"_simulate"},
     {"_systems", "_data"},

@@ -11,11 +11,18 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from ._compilation_cache import cache_disabled, default_cache_dir, enable_compilation_cache
 from ._protocols.compare._names import MODEL_NAMES
 from ._protocols.compare._names import PHYSICS_MODELS as DEFAULT_MODELS
 
 # the protocols (and JAX) are imported in `main` once the arguments are parsed: `--help` and argument errors answer
 # before JAX loads
+
+
+_NO_CACHE_HELP = (
+    f"do not keep compiled programs for the next run (default: kept in {default_cache_dir()}; "
+    "FRICJAX_NO_CACHE=1 does the same, FRICJAX_CACHE_DIR moves the folder)"
+)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -31,6 +38,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--out", default="fricjax-demo", help="output folder for the figure and JSON (default: %(default)s)"
     )
     demo.add_argument("--no-figure", action="store_true", help="skip the figure")
+    demo.add_argument("--no-cache", action="store_true", help=_NO_CACHE_HELP)
     compare = sub.add_parser(
         "compare", help="fit every model to a record, compare them on held-out data, add ensembles, report"
     )
@@ -103,6 +111,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     compare.add_argument("--out", default="fricjax-compare", help="output folder (default: %(default)s)")
     compare.add_argument("--seed", type=int, default=0, help="seed for the synthetic data and multi-starts")
     compare.add_argument("--no-progress", action="store_true", help="no progress bars")
+    compare.add_argument("--no-cache", action="store_true", help=_NO_CACHE_HELP)
     compare.add_argument(
         "--device",
         choices=("auto", "cpu", "gpu"),
@@ -112,6 +121,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     import jax
+
+    from . import _lapack_threads  # noqa: F401  (OpenBLAS on one thread, as `import fricjax`'s public names do)
+
+    if not (args.no_cache or cache_disabled()):
+        enable_compilation_cache()
 
     from ._protocols._demo import run_demo
     from ._protocols.compare._output import check_writable

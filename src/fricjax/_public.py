@@ -5,6 +5,7 @@ one of them, so that `import fricjax` (and `fricjax --help`) return before JAX i
 from . import _lapack_threads as _lapack_threads  # isort: skip
 from . import compare as compare  # the public `fj.compare` namespace
 from ._cli import main as main  # the command line: fj.main(["compare", ...])
+from ._compilation_cache import enable_compilation_cache as enable_compilation_cache
 from ._constraints import AbstractUnwrappable as AbstractUnwrappable
 from ._constraints import Fixed as Fixed
 from ._constraints import Positive as Positive
