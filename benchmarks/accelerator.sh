@@ -12,10 +12,12 @@ root="$(cd "$(dirname "$0")/.." && pwd)"
 export PYTHONPATH="$root/src${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 MPLBACKEND=Agg
 python3 -c "import jax; print(jax.__version__, jax.devices())"
 if [ "$what" = simulate ] || [ "$what" = all ]; then
-  (cd "$root/benchmarks" && timeout 420 python3 parallel_scan.py --lengths 1000 10000 100000 1000000 \
-    --fit-length 1000000 --budget 2 --repeats 10 | tee "$out/parallel_scan.jsonl")
+  (cd "$root/benchmarks" && timeout 420 python3 parallel_scan.py --lengths ${LENGTHS:-1000 10000 100000 1000000} \
+    --fit-length "${FIT_LENGTH:-1000000}" --sequential-max "${SEQUENTIAL_MAX:-100000}" --budget 2 --repeats 10 \
+    ${PREFIX:+--prefix $PREFIX} | tee "$out/parallel_scan.jsonl")
 fi
 if [ "$what" = compare ] || [ "$what" = all ]; then
+  export FRICJAX_NO_CACHE=1  # first runs, compiled from scratch on both
   for platform in default cpu; do
     start=$(date +%s.%N)
     if [ "$platform" = cpu ]; then env JAX_PLATFORMS=cpu timeout 200 python3 -m fricjax compare --no-progress \
