@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--models", nargs="+", default=["lugre", "maxwell_nlr7"], choices=["lugre", "maxwell_nlr7"])
     parser.add_argument("--sequential-max", type=int, default=100_000, help="on an accelerator (launch-bound)")
     parser.add_argument("--fit-length", type=int, default=0, help="0: no fit")
-    parser.add_argument("--prefix", default=None, choices=["doubling", "blelloch"], help="default: fricjax's")
+    parser.add_argument("--prefix", default=None, choices=["auto", "doubling", "blelloch"], help="default: fricjax's")
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--budget", type=float, default=5.0, help="seconds of timing per configuration")
     cfg = parser.parse_args(argv)
@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None) -> None:
 
     if cfg.prefix:
         _parallel.PREFIX = cfg.prefix
-    ENV.update(environment(prefix=_parallel.PREFIX))
+    ENV.update(environment(), prefix=_parallel.PREFIX)
     for length in cfg.lengths:
         for name in cfg.models:
             emit(long_record(name, length, cfg))

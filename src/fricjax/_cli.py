@@ -5,6 +5,8 @@ and an exit status."""
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
+import os
 import pathlib
 import signal
 import sys
@@ -116,11 +118,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--device",
         choices=("auto", "cpu", "gpu"),
         default="auto",
-        help="where the fits run: auto (on a GPU machine, sequential work on the host CPU and batched work or long "
-        "records of models with a time-parallel form on the GPU; stated in the log), cpu, gpu (default: %(default)s)",
+        help="where the fits run: auto (the host CPU: the fastest for this command's single-start fits of records "
+        "of thousands of samples, even on a GPU machine), cpu, gpu (the accelerator; each model's fit still runs on "
+        "the host CPU when it has no time-parallel form or its record is short, as fj.fit(device='auto') chooses; "
+        "stated in the log) (default: %(default)s)",
     )
     args = parser.parse_args(argv)
     import jax
+
+    if getattr(args, "device", "auto") == "auto" and not os.environ.get("JAX_PLATFORMS"):
+        # the command's records (thousands of samples) and single-start fits run fastest on the host CPU, and an
+        # accelerator's start-up alone costs seconds (benchmarks/README.md, "Accelerators"): leave it uninitialised
+        jax.config.update("jax_platforms", "cpu")
+        if _accelerator_installed():
+            print("fricjax: running on the host CPU (--device gpu runs the fits on the accelerator)")
 
     from . import _lapack_threads  # noqa: F401  (OpenBLAS on one thread, as `import fricjax`'s public names do)
 
@@ -142,6 +153,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         run_demo(out, figure=not args.no_figure)
         return 0
+    if args.device == "gpu" and not [d for d in jax.devices() if d.platform != "cpu"]:
+        print(f"fricjax compare: --device gpu but JAX sees only CPU devices ({jax.devices()})", file=sys.stderr)
+        return 2
     previous = _terminate_as_interrupt()
     try:
         run_compare(
@@ -161,7 +175,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             out=args.out,
             seed=args.seed,
             progress=not args.no_progress,
-            device=args.device,
+            # gpu: the accelerator is JAX's default device and each model's fit goes where fj.fit(device="auto")
+            # puts it (the host CPU without a time-parallel form or on a short record; stated in the log)
+            device="cpu" if args.device == "cpu" else "auto",
         )
         return 0
     except CompareError as err:
@@ -173,6 +189,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _accelerator_installed() -> bool:
+    """Whether a JAX accelerator plugin (CUDA, ROCm, TPU) is installed (without starting JAX's backends)."""
+    names = {(dist.metadata["Name"] or "").lower() for dist in importlib.metadata.distributions()}
+    return any(name.startswith(("jax-cuda", "jax_cuda", "jax-rocm", "jax_rocm", "libtpu")) for name in names)
 
 
 def _terminate_as_interrupt() -> Any:

@@ -221,10 +221,9 @@ class MaxwellSlip(AbstractFrictionModel):
             return None
         thresholds = unwrap(self.thresholds)
         length = samples.dx.shape[0]
-        shape = (length, *thresholds.shape)
         state = self.init_state()
-        delta = ClampMaps(
-            jnp.broadcast_to(samples.dx[:, None], shape).astype(thresholds.dtype),
+        delta = ClampMaps(  # one shift for every element: (T, 1)
+            jnp.asarray(samples.dx, thresholds.dtype)[:, None],
             held(-thresholds, length),
             held(thresholds, length),
         )
