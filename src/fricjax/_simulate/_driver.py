@@ -94,7 +94,7 @@ def simulate(
     - `scan`: how time is traversed (the values are the same to round-off; speed only): `"sequential"` one step
       after another (`lax.scan`); `"parallel"` the time-parallel form, an associative scan over the model's state
       maps in O(log T) depth (LuGre, exact Maxwell-slip LR / NLR, exact play operators, static laws; an error for
-      other models); `"auto"` (default) the parallel form on a GPU / TPU for records of at least 2048 samples
+      other models); `"auto"` (default) the parallel form on a GPU / TPU for records of at least 256 samples
       when the model has one, the sequential scan otherwise (on a CPU the sequential loop is faster).
       Differentiated, the parallel form uses JAX's derivatives of its operations (`derivatives` applies to the
       sequential scan).

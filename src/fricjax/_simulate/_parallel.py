@@ -21,9 +21,10 @@ from .._models._state_maps import apply, compose
 from ._scan import split_time_signals
 
 SCANS = ("auto", "sequential", "parallel")
-# `scan="auto"` takes the parallel form from this many samples on (on an accelerator): below it the launches of the
-# sequential loop cost less than the log-depth scan's extra work (measured on an H100, benchmarks/README.md)
-PARALLEL_MIN_LENGTH = 2048
+# `scan="auto"` takes the parallel form from this many samples on (on an accelerator): a sequential step costs about
+# 10 us there, so the log-depth scan wins from a few dozen samples (H100: 1 000 samples 0.29 ms against 11 ms;
+# benchmarks/README.md, "Accelerators")
+PARALLEL_MIN_LENGTH = 256
 # how the prefix compositions are computed: "doubling" (Hillis & Steele 1986: log2 T rounds, each composing every
 # map with the one 2^r samples earlier: one fused kernel per round, O(T log T) work), "blelloch"
 # (`jax.lax.associative_scan`: O(T) work in about 2 log2 T rounds of strided slices and interleaves), or "auto":
