@@ -91,8 +91,10 @@ class MultiStart(AbstractStrategy):
         """`count` starts around `params` (trainable leaves; a leading axis of size `count` is added to each);
         start 0 is `params` itself. Deterministic for a `seed`."""
         leaves, treedef = jax.tree_util.tree_flatten(params, is_leaf=lambda n: isinstance(n, Positive))
-        key = jax.random.PRNGKey(seed)
         count, spread = self.count, self.spread
+        if count == 1:  # `params` itself: no random draw (nor its compilation)
+            return jax.tree_util.tree_map(lambda leaf: leaf[None] if eqx.is_array(leaf) else leaf, params)
+        key = jax.random.PRNGKey(seed)
         out = []
         for leaf in leaves:
             key, sub = jax.random.split(key)
