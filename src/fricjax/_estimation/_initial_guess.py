@@ -1,0 +1,191 @@
+"""Data-driven starts: scales read off a record before any fit (`RecordScales`) and a starting model of any physics
+family built from them (`fj.initial_guess`).
+
+The readings follow the phenomena the papers describe (worden2007 §2, parlitz2004 §II): in gross sliding the force
+is `offset + Fc sign(v) + Fv v` (plus the Stribeck rise at low speed), fitted by least squares on the fastest
+samples; the static level `Fs` is the top of |F - offset|; right after a reversal the force changes with the
+displacement at the pre-sliding stiffness (the slope |dF/dx| over a few samples), and the breakaway displacement is
+`Fs / stiffness`; elements of multi-element models (GMS, Maxwell-slip) get thresholds spread from a small fraction of
+the breakaway displacement up to it, as reversals of every size between them load them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from .._constraints import unwrap
+from .._data._record import FrictionData
+from .._models.physics._dahl import Dahl
+from .._models.physics._gms import GMS
+from .._models.physics._lugre import LuGre
+from .._models.physics._maxwell_slip import MaxwellSlip, SpringForces
+from .._models.physics._static import BoPavelescu, Coulomb, CoulombViscous, Tustin
+from .._models.physics._stribeck import ExponentialStribeck
+from .._smoothing import AbstractSmoothing, Exact
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordScales:
+    """Scales of a friction record, read before any fit.
+
+    `force` [N]: half the 1-99 % range of the force about its median; `Fc` [N], `Fv` [N·s/m], `offset` [N]: the
+    least-squares fit of `offset + Fc sign(v) + Fv v` to the fastest 30 % of the samples (`Fv >= 0`); `Fs` [N]: the
+    99.5 % level of |F - offset| (at least 1.05 Fc); `vs` [m/s]: the 30 % level of |v|; `stiffness` [N/m]: the 90 %
+    level of |dF/dx| over 3-sample windows that move (pre-sliding after reversals); `breakaway` [m] = Fs /
+    stiffness; `dx` [m]: the median step; `duration` [s]; `v_fast` [m/s]: the 90 % level of |v|.
+    """
+
+    force: float
+    Fc: float
+    Fs: float
+    vs: float
+    stiffness: float
+    breakaway: float
+    dx: float
+    duration: float = 1.0
+    v_fast: float = 1e-3
+    Fv: float = 0.0
+    offset: float = 0.0
+
+    @classmethod
+    def from_data(cls, data: FrictionData) -> RecordScales:
+        """The scales of `data` (a `fj.FrictionData`)."""
+        if not isinstance(data, FrictionData):
+            raise TypeError(f"initial_guess: `data` must be an fj.FrictionData, got {type(data).__name__}.")
+        samples = data.motion.samples()
+        x, v = np.asarray(samples.x, float), np.asarray(samples.v, float)
+        force = np.asarray(data.force, float)
+        centred = force - np.median(force)
+        scale = 0.5 * float(np.percentile(centred, 99) - np.percentile(centred, 1))
+        fast = np.abs(v) > np.percentile(np.abs(v), 70)
+        Fc, Fv, offset = _sliding_line(force[fast], v[fast]) if fast.sum() >= 3 else (scale, 0.0, 0.0)
+        if not Fc > 0:
+            Fc = float(np.median(np.abs(centred[fast]))) if fast.any() else scale
+        Fs = max(float(np.percentile(np.abs(force - offset), 99.5)), 1.05 * Fc)
+        vs = float(np.percentile(np.abs(v), 30)) or 1e-3
+        stiffness = _presliding_stiffness(x, force, Fs)
+        if stiffness is None:  # no reversal spans the pre-sliding range: the steepest 3-sample slopes
+            dxw, dfw = x[3:] - x[:-3], force[3:] - force[:-3]
+            moving = np.abs(dxw) > np.percentile(np.abs(dxw), 20) + 1e-15
+            slopes = np.abs(dfw[moving] / dxw[moving])
+            stiffness = float(np.percentile(slopes, 90)) if slopes.size else scale / 1e-5
+        steps = np.abs(np.diff(x))
+        dx = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1e-9
+        duration = data.length * float(np.asarray(data.motion.dt))
+        v_fast = float(np.percentile(np.abs(v), 90)) or 1e-3
+        return cls(scale, Fc, Fs, vs, stiffness, Fs / stiffness, dx, duration, v_fast, Fv, offset)
+
+    def thresholds(self, elements: int) -> np.ndarray:
+        """`elements` element thresholds [m], geometrically spread from 5 % of the breakaway displacement to it."""
+        return self.breakaway * np.geomspace(0.05, 1.0, elements)
+
+
+def _presliding_stiffness(x: np.ndarray, force: np.ndarray, Fs: float, share: float = 0.3) -> float | None:
+    """The median secant slope |dF / dx| [N/m] from each displacement reversal until the force has changed by `share`
+    of the full swing `2 Fs` (for an exponential pre-sliding curve `0.84 x` its initial slope at 0.3), over the
+    reversals that reach it before the next one; None when none does."""
+    step = np.diff(x)
+    direction = np.sign(step)
+    moving = np.flatnonzero(direction != 0)
+    if moving.size < 2:
+        return None
+    turns = moving[1:][direction[moving[1:]] != direction[moving[:-1]]]  # first step of each new direction
+    target = share * 2.0 * Fs
+    slopes = []
+    bounds = [*turns[1:], len(step)]
+    for start, end in zip(turns, bounds, strict=True):
+        travelled = np.abs(x[start + 1 : end + 1] - x[start])
+        change = np.abs(force[start + 1 : end + 1] - force[start])
+        reached = np.flatnonzero(change >= target)
+        if reached.size and travelled[reached[0]] > 0:
+            slopes.append(change[reached[0]] / travelled[reached[0]])
+    return float(np.median(slopes)) if slopes else None
+
+
+def _sliding_line(force: np.ndarray, v: np.ndarray) -> tuple[float, float, float]:
+    """Least squares of `force ~ offset + Fc sign(v) + Fv v` with `Fv >= 0`: `(Fc, Fv, offset)`."""
+    columns = np.stack([np.ones_like(v), np.sign(v), v], axis=1)
+    coef = np.linalg.lstsq(columns, force, rcond=None)[0]
+    if coef[2] < 0:  # a negative viscous slope is not physical: refit without it
+        coef = np.append(np.linalg.lstsq(columns[:, :2], force, rcond=None)[0], 0.0)
+    return float(coef[1]), float(coef[2]), float(coef[0])
+
+
+GUESSABLE = (Coulomb, CoulombViscous, Tustin, BoPavelescu, LuGre, GMS, MaxwellSlip, Dahl)
+
+
+def initial_guess(
+    model: Any, data: FrictionData, *, elements: int | None = None, smoothing: AbstractSmoothing | None = None
+) -> Any:
+    """A starting model of `model`'s family, its parameters read off `data` (`RecordScales`).
+
+    **Arguments:**
+
+    - `model`: a class (`fj.LuGre`, `fj.GMS`, `fj.MaxwellSlip` (an NLR model), `fj.Dahl`, `fj.Coulomb`,
+      `fj.CoulombViscous`, `fj.Tustin`, `fj.BoPavelescu`) or an instance, whose structure (element count,
+      smoothing) is kept.
+    - `data`: the training record (`fj.FrictionData`).
+    - `elements`: element count of GMS / Maxwell-slip (default: the instance's, else 4).
+    - `smoothing`: the start's smoothing (default: the instance's, else `fj.Exact()`).
+
+    What is not readable from a record starts at a neutral value: LuGre's `sigma1` at 0 (it enters the force
+    linearly: `fj.fit(..., separable=("sigma1",))` solves it), GMS's attraction rate `C` at 10 Fs per second,
+    equal GMS fractions `alpha`, Dahl's exponent at 1.
+
+    ```python
+    >>> import numpy as np, fricjax as fj
+    >>> motion = fj.Motion.from_position(1e-3 * np.sin(np.linspace(0, 20, 4000)), dt=1e-3)
+    >>> data = fj.FrictionData(motion, fj.simulate(fj.CoulombViscous(Fc=2.0, Fv=30.0), motion))
+    >>> guess = fj.initial_guess(fj.CoulombViscous, data)
+    >>> round(float(fj.unwrap(guess).Fc), 1)
+    2.0
+    ```
+    """
+    cls = model if isinstance(model, type) else type(model)
+    if not issubclass(cls, GUESSABLE):
+        names = ", ".join(f"fj.{c.__name__}" for c in GUESSABLE)
+        raise TypeError(f"initial_guess: no data-driven start for {cls.__name__}; it has one for {names}.")
+    if smoothing is None:
+        smoothing = Exact() if isinstance(model, type) else getattr(model, "smoothing", Exact())
+    if elements is None:
+        elements = 4 if isinstance(model, type) else _element_count(model)
+    s = RecordScales.from_data(data)
+    if cls is Coulomb:
+        return Coulomb(Fc=s.Fc, offset=s.offset, smoothing=smoothing)
+    if cls is CoulombViscous:
+        return CoulombViscous(Fc=s.Fc, Fv=s.Fv, offset=s.offset, smoothing=smoothing)
+    if cls is Tustin:
+        return Tustin(Fc=s.Fc, Fs=s.Fs, vs=s.vs, Fv=s.Fv, offset=s.offset, smoothing=smoothing)
+    if cls is BoPavelescu:
+        return BoPavelescu(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0, Fv=s.Fv, offset=s.offset, smoothing=smoothing)
+    stribeck = ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0)
+    if cls is LuGre:
+        return LuGre(stribeck, sigma0=s.stiffness, sigma1=0.0, sigma2=s.Fv, offset=s.offset, smoothing=smoothing)
+    if cls is GMS:
+        shares = np.arange(elements, 0, -1, dtype=float)  # stiffer elements first
+        return GMS(
+            stribeck,
+            k=s.stiffness * shares / shares.sum(),
+            alpha=np.full(elements, 1.0 / elements),
+            C=10.0 * s.Fs,
+            sigma2=s.Fv,
+            offset=s.offset,
+            smoothing=smoothing,
+        )
+    if cls is Dahl:
+        return Dahl(sigma0=s.stiffness, Fc=s.Fc, offset=s.offset, smoothing=smoothing)
+    thresholds = s.thresholds(elements)  # Maxwell-slip NLR: the elements share the static level
+    return MaxwellSlip.nlr(k=s.Fs / elements / thresholds, thresholds=thresholds, offset=s.offset, smoothing=smoothing)
+
+
+def _element_count(model: Any) -> int:
+    if isinstance(model, GMS):
+        return int(np.shape(unwrap(model).k)[-1])
+    if isinstance(model, MaxwellSlip):
+        if not isinstance(model.force_map, SpringForces):
+            raise TypeError("initial_guess: Maxwell-slip starts are NLR models (SpringForces), not DLR / DNLRX.")
+        return model.num_elements
+    return 4

@@ -1,0 +1,93 @@
+"""`fj.initial_guess`: data-driven starts read off synthetic records of known models (each reading within a factor
+2-3 of the truth), for every family it supports; structure kept from an instance; clear errors."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import fricjax as fj
+
+jax.config.update("jax_enable_x64", True)
+
+
+@pytest.fixture(scope="module")
+def motion() -> fj.Motion:
+    """1 Hz, the amplitude rising from 2 um (pre-sliding) to 2 mm (gross sliding) and back: every regime."""
+    t = np.arange(20_000) * 1e-3
+    x = (2e-6 + 2e-3 * (0.5 - 0.5 * np.cos(2 * np.pi * t / t[-1]))) * np.sin(2 * np.pi * t)
+    return fj.Motion.from_position(x, dt=1e-3)
+
+
+STRIBECK = {"Fc": 1.0, "Fs": 1.5, "vs": 2e-3}
+TRUTHS = {
+    "lugre": (fj.LuGre(fj.ExponentialStribeck(**STRIBECK), 1e5, 300.0, 40.0, offset=0.3), 1e5, 40.0),
+    "gms": (
+        fj.GMS(
+            fj.ExponentialStribeck(**STRIBECK), [6e4, 2.5e4, 1e4, 5e3], [0.4, 0.3, 0.2, 0.1], 50.0, 40.0, offset=0.3
+        ),
+        1e5,
+        40.0,
+    ),
+    "nlr": (fj.MaxwellSlip.nlr(k=[1e5, 5e4, 2e4], thresholds=[2e-6, 6e-6, 2e-5], offset=0.3), 1.7e5, None),
+    "dahl": (fj.Dahl(sigma0=1e5, Fc=1.0, offset=0.3), 1e5, None),
+    "tustin": (fj.Tustin(**STRIBECK, Fv=40.0, offset=0.3), None, 40.0),
+}
+
+
+def _record(model: object, motion: fj.Motion, seed: int = 0) -> fj.FrictionData:
+    force = np.asarray(fj.simulate(model, motion))
+    return fj.FrictionData(motion, force + 0.01 * np.random.default_rng(seed).normal(size=force.shape))
+
+
+def _within(estimate: float, truth: float, factor: float) -> bool:
+    return truth / factor <= estimate <= truth * factor
+
+
+@pytest.mark.parametrize("name", sorted(TRUTHS))
+def test_scales_read_off_known_models(name, motion):
+    truth, stiffness, viscous = TRUTHS[name]
+    scales = fj.RecordScales.from_data(_record(truth, motion))
+    sliding = 1.0 if name in ("nlr", "dahl") else None  # NLR: sum k_i Delta_i = 0.9 N; Dahl: Fc
+    assert _within(scales.Fc, sliding or STRIBECK["Fc"], 1.5)
+    assert abs(scales.offset - 0.3) < 0.05
+    if stiffness is not None:
+        assert _within(scales.stiffness, stiffness, 3.0)
+    if viscous is not None:
+        assert _within(scales.Fv, viscous, 2.0)
+    if name in ("lugre", "gms", "tustin"):
+        assert _within(scales.Fs, STRIBECK["Fs"], 1.5)
+        assert _within(scales.vs, STRIBECK["vs"], 3.0)
+
+
+@pytest.mark.parametrize(
+    "family", [fj.Coulomb, fj.CoulombViscous, fj.Tustin, fj.BoPavelescu, fj.LuGre, fj.GMS, fj.MaxwellSlip, fj.Dahl]
+)
+def test_every_family_gets_a_start_that_runs(family, motion):
+    data = _record(TRUTHS["lugre"][0], motion)
+    start = fj.initial_guess(family, data)
+    assert isinstance(start, family)
+    force = np.asarray(fj.simulate(start, data.motion))
+    assert np.all(np.isfinite(force))
+    # a start of the right size: its sliding force within a factor 3 of the record's
+    assert _within(float(np.percentile(np.abs(force - 0.3), 95)), float(np.percentile(np.abs(data.force - 0.3), 95)), 3)
+
+
+def test_structure_of_an_instance_is_kept(motion):
+    data = _record(TRUTHS["gms"][0], motion)
+    template = fj.GMS(fj.ExponentialStribeck(**STRIBECK), [1.0] * 6, [1 / 6] * 6, 1.0, smoothing=fj.Smooth(1e-7))
+    guess = fj.initial_guess(template, data)
+    assert fj.unwrap(guess).k.shape == (6,)
+    assert guess.smoothing == fj.Smooth(1e-7)
+    assert fj.unwrap(fj.initial_guess(fj.MaxwellSlip, data, elements=3)).thresholds.shape == (3,)
+
+
+def test_errors(motion):
+    data = _record(TRUTHS["lugre"][0], motion)
+    with pytest.raises(TypeError, match="no data-driven start for Threlfall"):
+        fj.initial_guess(fj.Threlfall, data)
+    with pytest.raises(TypeError, match="must be an fj.FrictionData"):
+        fj.initial_guess(fj.LuGre, data.motion)
+    with pytest.raises(TypeError, match="NLR models"):
+        fj.initial_guess(fj.MaxwellSlip.dlr(np.ones((2, 3)), max_deflection=1e-5), data)
