@@ -226,17 +226,30 @@ def fit(
                 check_every = eval_every or max(1, steps // 50)
             else:  # solvers with their own convergence test run their budget unless a tolerance asks for checks
                 check_every = budget if tolerance is None else (eval_every or max(1, budget // 8))
-            outcome = run_stage(
-                solver,
-                problem,
-                search,
-                static,
-                budget=budget,
-                check_every=check_every,
-                tolerance=tolerance,
-                patience=patience if validation is not None else None,
-                eps=eps,
-            )
+            screening, plan = plan.screen, dataclasses.replace(plan, screen=None)  # the first stage screens
+            first = budget if screening is None else max(1, min(budget - 1, round(screening[0] * budget)))
+            for part in (first, budget - first):
+                if part == 0:
+                    continue
+                outcome = run_stage(
+                    solver,
+                    problem,
+                    search,
+                    static,
+                    budget=part,
+                    check_every=min(check_every, part),
+                    tolerance=tolerance,
+                    patience=patience if validation is not None else None,
+                    eps=eps,
+                )
+                if outcome.stop is not None or screening is None:
+                    break
+                survivors = np.argsort(search.best_scores, kind="stable")[: screening[1]]
+                if 0 not in survivors:  # the initial model (start 0) always goes on too
+                    survivors = np.append(survivors, 0)
+                search.keep(survivors)
+                screening = None
+            assert outcome is not None  # budget >= 1: the first part ran
             converged = outcome.converged
             if outcome.stop is not None:
                 code, message = outcome.stop, outcome.message
@@ -247,12 +260,15 @@ def fit(
     best_ys, best_scores, diverged = search.best_ys, search.best_scores, search.diverged
     if np.isfinite(best_scores).any():
         best = int(np.argmin(best_scores))
+        original = int(search.active[best])  # its index among all the starts (screening keeps some)
     else:  # every start diverged before the first check: fall back to the initial parameters
-        best, best_ys = 0, ys0
+        best, original, best_ys = 0, 0, ys0
     chosen = jax.tree_util.tree_map(lambda a: a[best], best_ys)
-    best_losses = [row[best] for row in search.history["train_loss"]]
+    best_losses = [row[original] for row in search.history["train_loss"]]
     if code == "max_steps":  # no stopping rule ended the fit: the tolerance rule, the solver's verdict, the budget
         code, message = _stopping_reason(solver, outcome, converged, best, steps, best_losses, diverged[best])
+    if len(search.active) < count:
+        message += f" (all {count} starts screened, the best {len(search.active)} went on)"
     if code != "diverged" and diverged.any() and not diverged.all():
         message += f" ({int(diverged.sum())} of {count} starts diverged and were discarded)"
     if not linear_only:  # never worse than the start: the initial model, scored as the starts are chosen
@@ -288,7 +304,7 @@ def fit(
         history={
             "step": np.asarray(history["step"]),
             "train_loss": np.asarray(best_losses),
-            "val_loss": np.asarray([row[best] for row in history["val_loss"]]),
+            "val_loss": np.asarray([row[original] for row in history["val_loss"]]),
             "eps": np.asarray(history["eps"], dtype=float),
             "time": np.asarray(history["time"], dtype=float),
         },
@@ -298,7 +314,7 @@ def fit(
         evaluations=search.step_count,
         wall_time=time.perf_counter() - start_time,
         num_starts=count,
-        best_start=best,
+        best_start=original,
         std=std,
         extra=chosen[1],
     )

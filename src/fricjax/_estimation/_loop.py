@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._sharding import shard_batch
 from ._solution import RESULTS
 from ._solvers import AbstractSolver, tree_finite
 
@@ -118,6 +119,26 @@ class Search:
         self.by_validation, self.start_time, self.bar = by_validation, start_time, bar
         self.step_count = self.stall = 0
         self.history: dict[str, list[Any]] = {"step": [], "train_loss": [], "val_loss": [], "eps": [], "time": []}
+        self.active = np.arange(count)  # the original index of each start still searched (`keep`)
+        self.count = count
+
+    def keep(self, indices: np.ndarray) -> None:
+        """Go on with the starts at `indices` only (screening): their current and best parameters, scores and
+        flags; the history keeps one column per original start (NaN for the dropped ones)."""
+        indices = np.asarray(indices)
+
+        def take(tree: Any) -> Any:
+            return jax.tree_util.tree_map(lambda a: a[indices] if eqx.is_array(a) and jnp.ndim(a) else a, tree)
+
+        self.ys, self.best_ys = shard_batch(take(self.ys)), shard_batch(take(self.best_ys))
+        self.best_scores, self.diverged = self.best_scores[indices], self.diverged[indices]
+        self.active = self.active[indices]
+
+    def _full(self, values: Any) -> np.ndarray:
+        """Per-start values of the active starts as a row over every original start (NaN where dropped)."""
+        row = np.full(self.count, np.nan)
+        row[self.active] = np.asarray(values, dtype=float).reshape(-1)
+        return row
 
     def _scores(self, train: Any, val: Any) -> np.ndarray:
         scores = np.asarray(val if self.by_validation else train)
@@ -142,8 +163,8 @@ class Search:
         history = self.history
         history["time"].append(time.perf_counter() - self.start_time)
         history["step"].append(self.step_count)
-        history["train_loss"].append(train)
-        history["val_loss"].append(val)
+        history["train_loss"].append(self._full(train))
+        history["val_loss"].append(self._full(val))
         history["eps"].append(np.nan if eps is None else float(eps))
         if self.bar is not None:
             self.bar.update(steps)

@@ -34,7 +34,8 @@ class FitPlan:
 
     - `model`: the start model (smoothing as the first stage needs it); `separable`: dotted paths solved by least
       squares; `stages`: the smoothing width of each stage (`None`: the model's own); `tolerance`, `patience`: the
-      loop's stopping rules; `seed`: for random starts.
+      loop's stopping rules; `seed`: for random starts; `screen`: `(fraction, keep)`: after that fraction of the
+      first stage's steps only the `keep` best starts go on.
     - After parameter selection: `params0` (the trained leaves of the start), `scales` (None, or a tree shaped
       like `params0`: the optimiser sees parameters divided by it) and `starts` (a batch of `params0`-shaped trees
       along a new leading axis, in the optimiser's coordinates: divided by `scales`).
@@ -46,6 +47,7 @@ class FitPlan:
     tolerance: float | None = None
     patience: int | None = None
     seed: int = 0
+    screen: tuple[float, int] | None = None
     params0: Any = None
     scales: Any = None
     starts: Any = None
@@ -72,17 +74,41 @@ def _divide(starts: Any, scales: Any) -> Any:
 class MultiStart(AbstractStrategy):
     """`count` starts drawn around the initial model, fitted together in one vmap-ed program.
 
-    Positive (log-stored) parameters are multiplied by `exp(spread * N(0, 1))`; real ones get
-    `spread * (|value| + 1e-12) * N(0, 1)` added. The first start is the initial model itself. The best start is
+    `distribution="normal"` (default): positive (log-stored) parameters are multiplied by `exp(spread * N(0, 1))`,
+    real ones get `spread * (|value| + 1e-12) * N(0, 1)` added; `"log-uniform"`: positive parameters multiplied by
+    `exp(U(-spread, spread))` (spread over `[p e^-spread, p e^spread]`, even in the logarithm), real ones
+    `spread * (|value| + 1e-12) * U(-1, 1)` added. The first start is the initial model itself. The best start is
     chosen by validation loss (training loss without validation data).
+
+    Screening: with `keep` (< `count`), every start runs the first `screen` fraction of the (first stage's) steps,
+    then only the `keep` best go on, and the initial model with them (one more compilation, for the smaller batch;
+    an optax solver's moments restart), so that many starts cost a short run each.
     """
 
     count: int
     spread: float = 0.5
+    distribution: str = "normal"
+    keep: int | None = None
+    screen: float = 0.25
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "count", positive_int(self.count, "count", "MultiStart"))
         object.__setattr__(self, "spread", nonnegative_float(self.spread, "spread", "MultiStart"))
+        if self.distribution not in ("normal", "log-uniform"):
+            raise ValueError(
+                f"MultiStart: `distribution` must be 'normal' or 'log-uniform', got {self.distribution!r}."
+            )
+        if self.keep is not None:
+            object.__setattr__(self, "keep", positive_int(self.keep, "keep", "MultiStart"))
+        screen = nonnegative_float(self.screen, "screen", "MultiStart")
+        if not 0 < screen < 1:
+            raise ValueError(f"MultiStart: `screen` must be a fraction of the steps in (0, 1), got {self.screen!r}.")
+        object.__setattr__(self, "screen", screen)
+
+    def prepare(self, plan: FitPlan) -> FitPlan:
+        if self.keep is None or self.keep >= self.count:
+            return plan
+        return dataclasses.replace(plan, screen=(self.screen, self.keep))
 
     def transform(self, plan: FitPlan) -> FitPlan:
         return dataclasses.replace(plan, starts=_divide(self.draw(plan.params0, plan.seed), plan.scales))
@@ -100,14 +126,20 @@ class MultiStart(AbstractStrategy):
             key, sub = jax.random.split(key)
             if isinstance(leaf, Positive) and leaf.raw is not None:
                 raw = leaf.raw
-                noise = spread * jax.random.normal(sub, (count,) + raw.shape, raw.dtype)
+                noise = spread * self._unit(sub, (count,) + raw.shape, raw.dtype)
                 out.append(eqx.tree_at(lambda p: p.raw, leaf, raw[None] + noise.at[0].set(0.0)))
             elif eqx.is_inexact_array(leaf):
-                noise = spread * jax.random.normal(sub, (count,) + leaf.shape, leaf.dtype) * (jnp.abs(leaf) + 1e-12)
+                noise = spread * self._unit(sub, (count,) + leaf.shape, leaf.dtype) * (jnp.abs(leaf) + 1e-12)
                 out.append(leaf[None] + noise.at[0].set(0.0))
             else:  # frozen (partitioned out) or not an array
                 out.append(leaf)
         return jax.tree_util.tree_unflatten(treedef, out)
+
+    def _unit(self, key: Any, shape: tuple[int, ...], dtype: Any) -> jax.Array:
+        """Unit draws of the chosen distribution: N(0, 1), or U(-1, 1) for "log-uniform"."""
+        if self.distribution == "log-uniform":
+            return jax.random.uniform(key, shape, dtype, -1.0, 1.0)
+        return jax.random.normal(key, shape, dtype)
 
 
 @dataclasses.dataclass(frozen=True)
