@@ -98,6 +98,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     compare.add_argument("--gms-elements", type=int, default=4, help="GMS elements (default: %(default)s)")
     compare.add_argument(
+        "--starts",
+        type=int,
+        default=2,
+        help="starts of the Levenberg-Marquardt fits (static curve, LuGre, Maxwell-slip): more than 2 are drawn "
+        "log-uniformly around the data-driven start, screened in one vmap-ed program, the best 2 polished; --seed "
+        "changes the draws (default: %(default)s)",
+    )
+    compare.add_argument(
         "--maxwell-elements", type=int, default=5, help="Maxwell-slip NLR / DNLRX elements (default: %(default)s)"
     )
     compare.add_argument(
@@ -167,6 +175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             steps=args.steps,
             gms_elements=args.gms_elements,
             maxwell_elements=args.maxwell_elements,
+            starts=args.starts,
             drift=args.drift,
             neural_steps=args.neural_steps,
             dt=args.dt,

@@ -48,14 +48,14 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
             lambda s: BoPavelescu(
                 Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0, Fv=0.0, smoothing=Smooth(max(1e-3 * s.vs, 1e-9))
             ),
-            lm_recipe(("Fv", "offset"), 2, settings),
+            lm_recipe(("Fv", "offset"), settings.starts, settings),
         ),
         "lugre": ModelSpec(
             "LuGre",
             lambda s: LuGre(
                 stribeck(s), sigma0=s.stiffness, sigma1=0.0, sigma2=0.0, smoothing=Smooth(max(1e-3 * s.vs, 1e-9))
             ),
-            lm_recipe(("sigma1", "sigma2", "offset"), 2, settings),
+            lm_recipe(("sigma1", "sigma2", "offset"), settings.starts, settings),
         ),
         "gms": ModelSpec(
             f"GMS (N={n_gms})",
@@ -73,7 +73,7 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
             lambda s: MaxwellSlip.nlr(
                 k=s.Fs / n_ms / thresholds(s, n_ms), thresholds=thresholds(s, n_ms), smoothing=Smooth(1e-3)
             ),
-            lm_recipe(("force_map.offset",), 2, settings),
+            lm_recipe(("force_map.offset",), settings.starts, settings),
         ),
         "dnlrx": ModelSpec(
             f"Maxwell-slip DNLRX({n_ms},2,1)",
@@ -83,7 +83,7 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
                 c=[0.0, 0.0],
                 smoothing=Smooth(1e-3),
             ),
-            lm_recipe(("force_map.theta", "force_map.c", "force_map.offset"), 2, settings),
+            lm_recipe(("force_map.theta", "force_map.c", "force_map.offset"), settings.starts, settings),
         ),
     }
 

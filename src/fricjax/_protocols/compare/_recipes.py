@@ -56,13 +56,23 @@ def lm_recipe(separable: tuple[str, ...], starts: int, settings: FitSettings) ->
             steps=settings.steps,
             tolerance=settings.tolerance,
             separable=separable_paths(start, separable),
-            multistart=MultiStart(starts, spread=0.5) if starts > 1 else None,
+            multistart=_multistart(starts),
             seed=seed,
             progress=progress,
             compute_std=True,
         )
 
     return run
+
+
+def _multistart(starts: int) -> MultiStart | None:
+    """The starts of an LM recipe: none beyond the given one, 2 drawn normally (spread 0.5), or more drawn
+    log-uniformly over a factor e either way and screened down to the best 2 (`FitSettings.starts`)."""
+    if starts <= 1:
+        return None
+    if starts <= 2:
+        return MultiStart(starts, spread=0.5)
+    return MultiStart(starts, spread=1.0, distribution="log-uniform", keep=2)
 
 
 def identified_result(model: Any, message: str, wall_time: float, validation_nmse: float) -> FitResult:

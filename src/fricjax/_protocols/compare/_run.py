@@ -100,6 +100,7 @@ def run_compare(
     steps: int = 40,
     gms_elements: int = 4,
     maxwell_elements: int = 5,
+    starts: int = 2,
     drift: str = "linear",
     neural_steps: int = 600,
     dt: float | None = None,
@@ -143,6 +144,7 @@ def run_compare(
         steps=steps,
         gms_elements=gms_elements,
         maxwell_elements=maxwell_elements,
+        starts=starts,
         drift=drift,
         neural_steps=neural_steps,
     )

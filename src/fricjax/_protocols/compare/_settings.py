@@ -68,6 +68,10 @@ class FitSettings:
       loss falls by less than `tolerance` (relative) over `steps / 8` steps; `max_steps` means not converged.
     - `gms_elements`, `maxwell_elements`: the element counts of GMS and of Maxwell-slip NLR / DNLRX.
     - `gms_starts`: starts of the GMS fit, split between its two Stribeck-velocity ends (at least one each).
+    - `starts`: starts of the Levenberg-Marquardt fits of the static curve, LuGre and Maxwell-slip (`--starts`):
+      2 draws around the data-driven start (spread 0.5); more are drawn log-uniformly over a factor e either way,
+      screened for a quarter of the steps in one vmap-ed program, and the best 2 (and the data-driven start)
+      polished (`fj.MultiStart(keep=2)`).
     - `neural_steps`: the output-error (NOE) Adam steps of the neural models (`mlp`, `gsnn`, `rnn`, `avd`; see
       `neural_models`), after their teacher-forced stage.
     - `drift`: the force sensor's drift fitted with every model (`fj.SensorDrift`): `"linear"` (default),
@@ -79,6 +83,7 @@ class FitSettings:
     gms_elements: int = 4
     maxwell_elements: int = 5
     gms_starts: int = 2
+    starts: int = 2
     tolerance: float = 1e-4
     drift: str = "linear"
     neural_steps: int = 600
@@ -87,7 +92,7 @@ class FitSettings:
         if self.drift not in ("linear", "leaky", "none"):
             raise CompareError(f"--drift must be linear, leaky or none, got {self.drift!r}")
         try:  # the command line's options, named as the user typed them (its error line names the command)
-            for name in ("steps", "gms_elements", "maxwell_elements", "gms_starts", "neural_steps"):
+            for name in ("steps", "gms_elements", "maxwell_elements", "gms_starts", "starts", "neural_steps"):
                 object.__setattr__(self, name, positive_int(getattr(self, name), f"--{name.replace('_', '-')}", ""))
             object.__setattr__(self, "tolerance", nonnegative_float(self.tolerance, "tolerance", "FitSettings"))
         except ValueError as error:
