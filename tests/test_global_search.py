@@ -52,3 +52,17 @@ def test_multistart_options_are_checked():
         fj.MultiStart(4, keep=2, screen=1.0)
     with pytest.raises(ValueError, match="keep"):
         fj.MultiStart(4, keep=0)
+
+
+def test_implausible_fits_are_named():
+    stribeck = fj.ExponentialStribeck(Fc=1.5, Fs=1.0, vs=1e-3)
+    lugre = fj.SensorDrift(fj.LuGre(stribeck, sigma0=1e5, sigma1=0.0, sigma2=3.0), rate=0.1)
+    notes = fj.compare.implausible(lugre)
+    assert any("Fs < Fc" in note for note in notes) and any("sigma1 = 0" in note for note in notes)
+    gms = fj.GMS(fj.ExponentialStribeck(1.0, 1.5, 1e-3), k=[1e4, 1e3], alpha=[0.9999, 0.0001], C=10.0, sigma2=1.0)
+    assert any("1 of 2 GMS elements" in note for note in fj.compare.implausible(gms))
+    nlr = fj.MaxwellSlip.nlr(k=[1e5, 1e4], thresholds=[1e-6, 1e-3])
+    assert any("1 of 2 Maxwell-slip elements never slip" in n for n in fj.compare.implausible(nlr, 1e-4))
+    assert any("every Maxwell-slip element stays stuck" in n for n in fj.compare.implausible(nlr, 1e-7))
+    good = fj.LuGre(fj.ExponentialStribeck(1.0, 1.5, 1e-3), sigma0=1e5, sigma1=300.0, sigma2=3.0)
+    assert fj.compare.implausible(good) == []

@@ -19,6 +19,7 @@ the fitted models (`add_ensembles`) and the comparison table (`format_table`). F
 from ._protocols.compare._ensembles import add_ensembles as add_ensembles
 from ._protocols.compare._figures import plot_prediction_errors as plot_prediction_errors
 from ._protocols.compare._figures import plot_test_loops as plot_test_loops
+from ._protocols.compare._plausibility import implausible as implausible
 from ._protocols.compare._recipes import ModelSpec as ModelSpec
 from ._protocols.compare._records import LoadedRecord as LoadedRecord
 from ._protocols.compare._records import Split as Split

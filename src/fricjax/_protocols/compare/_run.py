@@ -20,6 +20,7 @@ from ._emps_table import emps_table
 from ._ensembles import add_ensembles
 from ._figures import plot_prediction_errors, plot_test_loops
 from ._output import check_writable, strict_json
+from ._plausibility import command_line_advice, half_excursion, implausible
 from ._records import Split, TestRecord, load_record_spec, split_record, statistics_warnings
 from ._registry import MODEL_NAMES, PHYSICS_MODELS, default_models
 from ._report import compare_report, format_table
@@ -85,7 +86,9 @@ def _fit_and_score_one(
         fit_time=elapsed,
         num_parameters=count_parameters(model),
         result=result.code,  # the name of the fj.RESULTS item
-        message=result.message,
+        message="; ".join(
+            [command_line_advice(result.message), *implausible(model, half_excursion(split.train.motion))]
+        ),
         std=result.std,
     )
 
