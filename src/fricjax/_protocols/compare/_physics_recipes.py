@@ -161,7 +161,18 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
                 tolerance=settings.tolerance,
                 compute_std=True,
             )
-            results.append(polished if polished.success and polished.train_loss <= coarse.train_loss else coarse)
+            end = "slow" if vs == scales.vs else "fast"
+            if polished.success and polished.train_loss <= coarse.train_loss:
+                chosen = dataclasses.replace(
+                    polished, message=f"Stribeck velocity from the {end} end; Adam then LM polish: {polished.message}"
+                )
+            else:
+                chosen = dataclasses.replace(
+                    coarse,
+                    message=f"Stribeck velocity from the {end} end; the LM polish could not improve the Adam result "
+                    f"(polish: {polished.message}); Adam: {coarse.message}",
+                )
+            results.append(chosen)
             wall_time += coarse.wall_time + polished.wall_time
         best = min(results, key=lambda r: r.val_loss if np.isfinite(r.val_loss) else r.train_loss)
         return dataclasses.replace(best, wall_time=wall_time)
