@@ -113,8 +113,9 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
     The Stribeck velocity starts once at the slow end (`DataScales.vs`) and once at the fast end (`v_fast`) of the
     record: from the wrong end the fit settles in a flat curve (small vs and delta) that costs ~2x in test NMSE, and
     which end is wrong depends on the record (the default mixed record: the slow one). The end of the Adam stage does
-    not tell them apart, the polished models' validation loss does. `gms_starts` starts are split between the two ends
-    (at least one each). Only first-order derivatives: the Adam stage differentiates the free run through the
+    not tell them apart, the polished models' validation loss does. `max(gms_starts, starts)` starts are split
+    between the two ends (at least one each); more than 2 per end are drawn log-uniformly and screened. Only
+    first-order derivatives: the Adam stage differentiates the free run through the
     tangent-linear recurrence (`SimulationLoss(derivatives="tangent")`, chosen when the scan's own reverse pass cost
     ~20x the forward pass; with fricjax's XLA setting both cost 3-5x, and the choice stays so that the documented
     results hold), and both stages fit the offset with the other parameters (`separable=` would nest a forward
@@ -130,7 +131,11 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         eps_end = max(1e-3 * scales.dx, 1e-12)
         prefix = "model." if isinstance(start, SensorDrift) else ""
         viscous_scale = 0.1 * scales.Fc / scales.v_fast  # a viscous force of 10 % of Fc at the fast end
-        per_end = max(settings.gms_starts // 2, 1)
+        per_end = max(max(settings.gms_starts, settings.starts) // 2, 1)
+        if per_end <= 2:
+            multistart = MultiStart(per_end, spread=0.3) if per_end > 1 else None
+        else:  # many starts: log-uniform draws screened down to the best 2 (and the data-driven one)
+            multistart = MultiStart(per_end, spread=1.0, distribution="log-uniform", keep=2)
         results, wall_time = [], 0.0
         adam, lm = optax.adam(3e-2), levenberg_marquardt()  # one solver object each: the second end reuses the jit
         tangent = SimulationLoss(derivatives="tangent")
@@ -146,7 +151,7 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
                 solver=adam,
                 steps=8 * settings.steps,
                 continuation=Continuation(100 * eps_end, eps_end, stages=3),
-                multistart=MultiStart(per_end, spread=0.3) if per_end > 1 else None,
+                multistart=multistart,
                 seed=seed,
                 progress=progress,
             )
