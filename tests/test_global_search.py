@@ -32,6 +32,7 @@ def test_log_uniform_draws_stay_in_their_band():
     assert np.all(np.abs(offsets - 0.5) <= np.log(3.0) * 0.5 + 1e-12)
 
 
+@pytest.mark.slow  # three programs compiled: ~10 s
 def test_screening_keeps_the_best_and_reports_it(record):
     start = fj.Tustin(Fc=0.5, Fs=3.0, vs=1e-3, Fv=10.0, smoothing=fj.Smooth(1e-4))
     common = {"solver": fj.levenberg_marquardt(), "steps": 40, "eval_every": 5, "tolerance": 1e-12}

@@ -44,7 +44,14 @@ def _relative(a: object, b: object) -> float:
     return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-300))
 
 
-@pytest.mark.parametrize("name", sorted(MODELS))
+FAST = ("lugre", "nlr", "tustin", "drift_lugre")  # the fast tier; the others in the slow one (compilation time)
+
+
+def _tiers(names: list[str], fast: tuple[str, ...]) -> list[object]:
+    return [name if name in fast else pytest.param(name, marks=pytest.mark.slow) for name in names]
+
+
+@pytest.mark.parametrize("name", _tiers(sorted(MODELS), FAST))
 def test_parallel_equals_sequential(name):
     model, motion = MODELS[name], _motion()
     sequential = fj.simulate(model, motion, scan="sequential")
@@ -53,9 +60,9 @@ def test_parallel_equals_sequential(name):
     assert _relative(parallel, sequential) < 1e-12
 
 
-@pytest.mark.parametrize("name", ["lugre", "lugre_smooth", "nlr", "drift_lugre"])
+@pytest.mark.parametrize("name", _tiers(["lugre", "lugre_smooth", "nlr", "drift_lugre"], ("lugre", "nlr")))
 def test_parallel_gradients_equal_sequential(name):
-    model, motion = MODELS[name], _motion(800, seed=1)
+    model, motion = MODELS[name], _motion(400, seed=1)
     target = fj.simulate(model, motion) * 1.02 + 0.01
 
     def loss(m: object, scan: str) -> jax.Array:
@@ -68,6 +75,7 @@ def test_parallel_gradients_equal_sequential(name):
         assert _relative(a, b) < 1e-10
 
 
+@pytest.mark.slow
 def test_parallel_play_operators_and_forward_mode():
     motion = _motion(600, seed=2)
     plays = fj.PlayOperators([1e-6, 4e-6, 2e-5])
