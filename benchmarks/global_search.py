@@ -1,0 +1,151 @@
+#!/usr/bin/env python
+"""Success rate of physics fits over seeded random records: how often a fit gets within 1.2x of the true model.
+
+For each family (LuGre, GMS(4), Maxwell-slip NLR(5), the Tustin static law) and seed: true parameters drawn
+log-uniformly (a factor 2 either way) around a nominal model; a training record and a held-out test record of
+different amplitude and frequency (both from pre-sliding into sliding), the forces with noise (1 % of the force
+range) and the displacement quantised (2 nm) as a sensor gives them. Each fit starts from `fj.initial_guess` and
+runs Levenberg-Marquardt (smooth model, separable linear parameters) with `--starts` starts; a fit succeeds when
+its exact free run's NMSE on the test record is within `--tolerance` (1.2) times the true model's NMSE on the same
+measured input. Prints one JSON line per family and start count (success rate, median ratio, wall time per fit)
+and one per fit with `--verbose`.
+
+Run: `python benchmarks/global_search.py [--seeds 10] [--starts 1 8] [--families lugre gms nlr tustin]`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from typing import Any
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+
+import fricjax as fj  # noqa: E402
+from _environment import environment  # noqa: E402
+
+DT = 1e-3
+NOISE = 0.01  # of the force range
+QUANTUM = 2e-9  # m
+
+
+def excitation(seed: int, amplitude: float, frequency: float, samples: int = 6000) -> fj.Motion:
+    """A sine whose amplitude rises from 1 % to 100 % of `amplitude` [m], plus a slow random walk, quantised."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(samples) * DT
+    envelope = amplitude * (0.01 + 0.99 * (t / t[-1]) ** 2)
+    x = envelope * np.sin(2 * np.pi * frequency * t) + np.cumsum(rng.normal(size=samples)) * amplitude * 1e-3
+    return fj.Motion.from_position(np.round(x / QUANTUM) * QUANTUM, dt=DT)
+
+
+def truth(family: str, rng: np.random.Generator) -> tuple[Any, tuple[str, ...]]:
+    """A random true model of `family` and its linear (separable) parameters."""
+
+    def f(value: float) -> float:  # log-uniform, a factor 2 either way
+        return float(value * np.exp(rng.uniform(-np.log(2), np.log(2))))
+
+    stribeck = fj.ExponentialStribeck(Fc=f(1.0), Fs=f(1.0) * 1.5, vs=f(2e-3), delta=2.0)
+    if family == "lugre":
+        return fj.LuGre(stribeck, f(1e5), f(300.0), f(40.0), offset=0.1), ("sigma1", "sigma2", "offset")
+    if family == "gms":
+        k = f(1e5) * np.array([0.4, 0.3, 0.2, 0.1])
+        return fj.GMS(stribeck, k, [0.4, 0.3, 0.2, 0.1], f(50.0), f(40.0), offset=0.1), ("sigma2", "offset")
+    if family == "nlr":
+        thresholds = f(2e-5) * np.geomspace(0.05, 1.0, 5)
+        return fj.MaxwellSlip.nlr(k=f(1.0) / 5 / thresholds, thresholds=thresholds, offset=0.1), ("force_map.offset",)
+    if family == "tustin":
+        return fj.Tustin(Fc=f(1.0), Fs=f(1.5), vs=f(2e-3), Fv=f(40.0), offset=0.1), ("Fv", "offset")
+    raise ValueError(family)
+
+
+def smoothing(family: str, data: fj.FrictionData) -> fj.AbstractSmoothing:
+    scales = fj.RecordScales.from_data(data)
+    if family == "nlr":
+        return fj.Smooth(1e-3)
+    if family == "gms":
+        return fj.Smooth(max(1e-3 * scales.dx, 1e-12))
+    return fj.Smooth(max(1e-3 * scales.vs, 1e-9))
+
+
+def one(family: str, seed: int, starts: int, steps: int) -> dict[str, Any]:
+    rng = np.random.default_rng(seed)
+    model, linear = truth(family, rng)
+    records = []
+    for part, (amplitude, frequency) in enumerate(((2e-3, 1.0), (8e-4, 2.3))):
+        motion = excitation(1000 * seed + part, amplitude, frequency)
+        force = np.asarray(fj.simulate(model, motion))
+        force = force + NOISE * np.ptp(force) * rng.normal(size=force.shape)
+        records.append(fj.FrictionData(motion, force))
+    train, test = records
+    start = fj.initial_guess(type(model), train, smoothing=smoothing(family, train))
+    multistart = None if starts == 1 else fj.MultiStart(starts, 1.0, distribution="log-uniform", keep=2)
+    began = time.perf_counter()
+    result = fj.fit(
+        start,
+        train,
+        solver=fj.levenberg_marquardt(),
+        steps=40,
+        scaling=fj.ParameterScaling(),
+        separable=linear,
+        multistart=multistart,
+        tolerance=1e-4,
+        seed=seed,
+    )
+    wall = time.perf_counter() - began
+    fitted = float(fj.nmse(test.force, fj.simulate(fj.exact(result.model), test.motion)))
+    reference = float(fj.nmse(test.force, fj.simulate(model, test.motion)))
+    return {
+        "family": family,
+        "seed": seed,
+        "starts": starts,
+        "ratio": fitted / reference,
+        "fitted_nmse": fitted,
+        "true_nmse": reference,
+        "wall_s": wall,
+        "result": result.code,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--families", nargs="+", default=["lugre", "gms", "nlr", "tustin"])
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--starts", type=int, nargs="+", default=[1, 8])
+    parser.add_argument("--steps", type=int, default=40)
+    parser.add_argument("--tolerance", type=float, default=1.2)
+    parser.add_argument("--verbose", action="store_true")
+    cfg = parser.parse_args()
+    env = environment()
+    for family in cfg.families:
+        for starts in cfg.starts:
+            runs = [one(family, seed, starts, cfg.steps) for seed in range(cfg.seeds)]
+            if cfg.verbose:
+                for run in runs:
+                    print(json.dumps({**run, **env}), flush=True)
+            ratios = [run["ratio"] for run in runs]
+            print(
+                json.dumps(
+                    {
+                        "bench": "global_search",
+                        "family": family,
+                        "starts": starts,
+                        "seeds": cfg.seeds,
+                        "success_rate": float(np.mean([r <= cfg.tolerance for r in ratios])),
+                        "median_ratio": statistics.median(ratios),
+                        "worst_ratio": max(ratios),
+                        "median_wall_s": statistics.median(run["wall_s"] for run in runs),
+                        **env,
+                    }
+                ),
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
