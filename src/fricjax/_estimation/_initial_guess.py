@@ -35,7 +35,9 @@ class RecordScales:
     least-squares fit of `offset + Fc sign(v) + Fv v` to the fastest 30 % of the samples (`Fv >= 0`); `Fs` [N]: the
     99.5 % level of |F - offset| (at least 1.05 Fc); `vs` [m/s]: the 30 % level of |v|; `stiffness` [N/m]: the 90 %
     level of |dF/dx| over 3-sample windows that move (pre-sliding after reversals); `breakaway` [m] = Fs /
-    stiffness; `dx` [m]: the median step; `duration` [s]; `v_fast` [m/s]: the 90 % level of |v|.
+    stiffness; `dx` [m]: the median step; `duration` [s]; `v_fast` [m/s]: the 90 % level of |v|; `slip` [m]: half
+    the median distance from a reversal to 90 % of the sliding swing `2 Fc` (where the last elements of a
+    multi-element model slip; the breakaway displacement when no reversal gets there).
     """
 
     force: float
@@ -49,6 +51,7 @@ class RecordScales:
     v_fast: float = 1e-3
     Fv: float = 0.0
     offset: float = 0.0
+    slip: float = 0.0
 
     @classmethod
     def from_data(cls, data: FrictionData) -> RecordScales:
@@ -76,33 +79,48 @@ class RecordScales:
         dx = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1e-9
         duration = data.length * float(np.asarray(data.motion.dt))
         v_fast = float(np.percentile(np.abs(v), 90)) or 1e-3
-        return cls(scale, Fc, Fs, vs, stiffness, Fs / stiffness, dx, duration, v_fast, Fv, offset)
+        slip = _slip_distance(x, force, Fc) or Fs / stiffness
+        return cls(scale, Fc, Fs, vs, stiffness, Fs / stiffness, dx, duration, v_fast, Fv, offset, slip)
 
     def thresholds(self, elements: int) -> np.ndarray:
-        """`elements` element thresholds [m], geometrically spread from 5 % of the breakaway displacement to it."""
-        return self.breakaway * np.geomspace(0.05, 1.0, elements)
+        """`elements` element thresholds [m], geometrically spread from 5 % of the slip distance to it."""
+        return max(self.slip, self.breakaway) * np.geomspace(0.05, 1.0, elements)
 
 
 def _presliding_stiffness(x: np.ndarray, force: np.ndarray, Fs: float, share: float = 0.3) -> float | None:
     """The median secant slope |dF / dx| [N/m] from each displacement reversal until the force has changed by `share`
     of the full swing `2 Fs` (for an exponential pre-sliding curve `0.84 x` its initial slope at 0.3), over the
     reversals that reach it before the next one; None when none does."""
+    reached = _reversal_secants(x, force, share * 2.0 * Fs)
+    return float(np.median([change / travelled for travelled, change in reached])) if reached else None
+
+
+def _slip_distance(x: np.ndarray, force: np.ndarray, Fc: float, share: float = 0.9) -> float | None:
+    """Half the median displacement [m] from a reversal until the force has changed by `share` of the sliding swing
+    `2 Fc`: where the last elements of a multi-element model start slipping (a reversal curve is the loading curve
+    doubled, Masing's rule); None when no reversal gets there."""
+    reached = _reversal_secants(x, force, share * 2.0 * Fc)
+    return 0.5 * float(np.median([travelled for travelled, _ in reached])) if reached else None
+
+
+def _reversal_secants(x: np.ndarray, force: np.ndarray, target: float) -> list[tuple[float, float]]:
+    """For each displacement reversal whose force changes by `target` [N] before the next reversal: the distance
+    travelled [m] and the force change [N] at the first sample where it does."""
     step = np.diff(x)
     direction = np.sign(step)
     moving = np.flatnonzero(direction != 0)
     if moving.size < 2:
-        return None
+        return []
     turns = moving[1:][direction[moving[1:]] != direction[moving[:-1]]]  # first step of each new direction
-    target = share * 2.0 * Fs
-    slopes = []
+    found = []
     bounds = [*turns[1:], len(step)]
     for start, end in zip(turns, bounds, strict=True):
         travelled = np.abs(x[start + 1 : end + 1] - x[start])
         change = np.abs(force[start + 1 : end + 1] - force[start])
         reached = np.flatnonzero(change >= target)
         if reached.size and travelled[reached[0]] > 0:
-            slopes.append(change[reached[0]] / travelled[reached[0]])
-    return float(np.median(slopes)) if slopes else None
+            found.append((float(travelled[reached[0]]), float(change[reached[0]])))
+    return found
 
 
 def _sliding_line(force: np.ndarray, v: np.ndarray) -> tuple[float, float, float]:
