@@ -118,10 +118,14 @@ from ._models.blackbox._regressors import PlayOperators as PlayOperators
 from ._models.blackbox._rnn import RecurrentNetwork as RecurrentNetwork
 from ._models.blackbox._rnn import RecurrentNetworkState as RecurrentNetworkState
 from ._models.blackbox._wavelet import WaveletNARX as WaveletNARX
+from ._models.combine._backlash import Backlash as Backlash
+from ._models.combine._backlash import BacklashState as BacklashState
 from ._models.combine._ensemble import AbstractEnsemble as AbstractEnsemble
 from ._models.combine._ensemble import AverageEnsemble as AverageEnsemble
 from ._models.combine._ensemble import WeightedEnsemble as WeightedEnsemble
 from ._models.combine._hybrid import HybridFriction as HybridFriction
+from ._models.combine._normal_load import NormalLoad as NormalLoad
+from ._models.combine._normal_load import NormalLoadState as NormalLoadState
 from ._models.combine._sensor import SensorDrift as SensorDrift
 from ._models.combine._sensor import SensorDriftState as SensorDriftState
 from ._models.combine._tangent import TangentGradients as TangentGradients

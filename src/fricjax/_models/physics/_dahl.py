@@ -9,10 +9,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ..._constraints import Parameter, ParamLike, model_dtype, positive, real, unwrap
+from ..._constraints import Parameter, ParamLike, SidedParameter, model_dtype, positive, real, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact
 from .._base import AbstractFrictionModel
+from ._stribeck import side, sided_positive
 
 
 class DahlState(eqx.Module):
@@ -58,14 +59,15 @@ class Dahl(AbstractFrictionModel):
     **Arguments:**
 
     - `sigma0`: rest stiffness [N/m] (> 0); pre-sliding force ≈ sigma0 · x.
-    - `Fc`: Coulomb force [N] (> 0), the asymptote in sliding.
+    - `Fc`: Coulomb force [N] (> 0), the asymptote in sliding; a (+, -) pair for asymmetric friction: `Fc+`
+      while dx > 0 (the force tends to +Fc+), `Fc-` while dx < 0 (to -Fc-), the rest stiffness sigma0 in both.
     - `alpha`: shape exponent (> 0; 1 is the classical Dahl model).
     - `offset`: constant force offset [N]. `F0`: initial force [N].
     - `smoothing`: `Exact()` or `Smooth(eps)`, eps in m/s.
     """
 
     sigma0: Parameter
-    Fc: Parameter
+    Fc: SidedParameter
     alpha: Parameter
     offset: Parameter
     F0: Parameter
@@ -85,7 +87,7 @@ class Dahl(AbstractFrictionModel):
     ):
         dtype = model_dtype(sigma0, Fc, alpha, offset, F0)
         self.sigma0 = positive(sigma0, "sigma0", dtype, scalar=True)
-        self.Fc = positive(Fc, "Fc", dtype, scalar=True)
+        self.Fc = sided_positive(Fc, "Fc", dtype)
         self.alpha = positive(alpha, "alpha", dtype, scalar=True)
         self.offset = real(offset, "offset", dtype, scalar=True)
         self.F0 = real(F0, "F0", dtype, scalar=True)
@@ -100,16 +102,16 @@ class Dahl(AbstractFrictionModel):
 
     def step(self, state: DahlState, sample: MotionSample) -> tuple[DahlState, Array]:
         p = unwrap(self)
-        rate = p.sigma0 / p.Fc  # 1/m
         F = state.F
         v_step = sample.dx / sample.dt  # the velocity held over the step
 
-        def moved(direction: float) -> Array:
-            u = 1.0 - direction * F / p.Fc
+        def moved(direction: float, Fc: Array) -> Array:
+            rate = p.sigma0 / Fc  # 1/m
+            u = 1.0 - direction * F / Fc
             travelled = p.smoothing.relu(direction * v_step) * sample.dt  # distance moved in `direction` [m]
             u = dahl_distance_update(u, travelled, rate, p.alpha)
-            return direction * p.Fc * (1.0 - u)
+            return direction * Fc * (1.0 - u)
 
         up = p.smoothing.step(v_step)  # direction of motion (exact: dx > 0)
-        F = up * moved(1.0) + (1.0 - up) * moved(-1.0)
+        F = up * moved(1.0, side(p.Fc, 0)) + (1.0 - up) * moved(-1.0, side(p.Fc, 1))
         return DahlState(F=F), F + p.offset

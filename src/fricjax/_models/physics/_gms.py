@@ -56,6 +56,10 @@ class GMS(AbstractFrictionModel):
     (`dx` for the direction, `(|F_i| - alpha_i s) / k_i` for the threshold, `F_i / k_i` for the reversal),
     the clip a smooth clip, and `slipping` a continuous weight; it converges to the exact switching as eps -> 0.
 
+    Asymmetric dynamic friction: with a Stribeck curve of (+, -) pairs, elements slip towards `+alpha_i s+(v)`
+    (dx > 0) or `-alpha_i s-(v)` (dx < 0) and stick inside `[-alpha_i s-(v), alpha_i s+(v)]`; steady sliding
+    gives `s+(v)` and `-s-(|v|)` (plus the viscous term). The branch follows the smooth step of `dx` in smooth mode.
+
     **Arguments:**
 
     - `stribeck`: the shared Stribeck curve s(v) [N].
@@ -136,19 +140,31 @@ class GMS(AbstractFrictionModel):
         # every per-step scalar is broadcast to the elements first: XLA:CPU then builds the step from a few
         # element-wise kernels instead of scalar kernels feeding vector ones (measured ~5x fewer ns per step)
         dx = jnp.broadcast_to(sample.dx, jnp.shape(state.F))
-        s = p.stribeck(dx / sample.dt)  # at the velocity held over the step, as the slip law
-        bound = p.alpha * s
         direction = sm.sign(dx)
         # continue slipping while the motion keeps the direction of the element force; a rest (dx = 0,
         # direction 0) ends the slip in both modes (direction**2 is 0 there)
         keeps_slipping = state.slipping * sm.step(direction * state.F / p.k) * direction**2
+        F_trial = state.F + p.k * dx
+        if p.stribeck.asymmetric:
+            # separate branches: slip towards +alpha s+ (dx > 0) or -alpha s- (dx < 0); stick inside
+            # [-alpha s-, alpha s+], written as a clip of half-width `width` around `centre`
+            up = sm.step(dx)
+            s_plus, s_minus = p.stribeck.branches(dx / sample.dt)
+            s = up * s_plus + (1.0 - up) * s_minus
+            centre, width = 0.5 * p.alpha * (s_plus - s_minus), 0.5 * p.alpha * (s_plus + s_minus)
+            target = p.alpha * (up * s_plus - (1.0 - up) * s_minus)
+            starts_slipping = (1.0 - keeps_slipping) * sm.step((sm.abs(F_trial - centre) - width) / p.k)
+            F_stick = sm.clip(F_trial - centre, width) + centre
+        else:
+            s = p.stribeck(dx / sample.dt)  # at the velocity held over the step, as the slip law
+            bound = p.alpha * s
+            target = bound * direction
+            starts_slipping = (1.0 - keeps_slipping) * sm.step((sm.abs(F_trial) - bound) / p.k)
+            F_stick = sm.clip(F_trial, bound)
         # exact relaxation towards alpha s sgn(dx) at rate C / s: relax(F, C / s, C alpha sgn, dt) written as
         # F e + alpha s sgn (1 - e), e = exp(-C dt / s), which needs no small-rate branch (C / s > 0)
         decay = jnp.exp(-p.C * sample.dt / s)
-        F_slip = state.F * decay + bound * direction * (1.0 - decay)
-        F_trial = state.F + p.k * dx
-        starts_slipping = (1.0 - keeps_slipping) * sm.step((sm.abs(F_trial) - bound) / p.k)
-        F_stick = sm.clip(F_trial, bound)
+        F_slip = state.F * decay + target * (1.0 - decay)
         F = keeps_slipping * F_slip + (1.0 - keeps_slipping) * F_stick
         slipping = keeps_slipping + starts_slipping
         force = jnp.sum(F) + p.sigma2 * sample.v + p.offset

@@ -53,6 +53,10 @@ class LuGre(AbstractFrictionModel):
     `dx_k / dt`, so the bristle follows the recorded displacement exactly (`z = x` in pre-sliding from rest);
     `dz/dt` is evaluated at the end of the step, and the viscous term uses the sample's velocity `v_k`.
 
+    Asymmetric dynamic friction: a Stribeck curve with (+, -) pairs of coefficients gives separate branches for
+    the two directions of motion, chosen by the sign of `dx / dt` (smoothly, by the smoothing's step, in smooth
+    mode); steady sliding then gives `s+(v) + sigma2 v` for v > 0 and `-s-(|v|) + sigma2 v` for v < 0.
+
     **Arguments:**
 
     - `stribeck`: the Stribeck curve s(v) [N].
@@ -123,7 +127,8 @@ class LuGre(AbstractFrictionModel):
         `z_k = exp(-h_k) z_k-1 + v_k dt phi1(h_k)`, `h_k = rate_k dt` (the time-parallel free run)."""
         p = unwrap(self)
         v_step = samples.dx / samples.dt
-        h = p.sigma0 * p.smoothing.abs(v_step) / p.stribeck(v_step) * samples.dt
+        s = p.stribeck(v_step, p.smoothing.step(v_step))
+        h = p.sigma0 * p.smoothing.abs(v_step) / s * samples.dt
         return shaped_like(self.init_state(), [AffineMaps(jnp.exp(-h), v_step * samples.dt * phi1(h))])
 
     def init_state(self) -> LuGreState:
@@ -132,7 +137,8 @@ class LuGre(AbstractFrictionModel):
     def step(self, state: LuGreState, sample: MotionSample) -> tuple[LuGreState, Array]:
         p = unwrap(self)
         v_step = sample.dx / sample.dt  # the velocity held over (t_{k-1}, t_k]: consistent with x
-        rate = p.sigma0 * p.smoothing.abs(v_step) / p.stribeck(v_step)  # 1/s
+        s = p.stribeck(v_step, p.smoothing.step(v_step))  # the branch of the direction of motion
+        rate = p.sigma0 * p.smoothing.abs(v_step) / s  # 1/s
         z = relax(state.z, rate, v_step, sample.dt)
         dz = v_step - rate * z
         force = p.sigma0 * z + p.sigma1 * dz + p.sigma2 * sample.v + p.offset
