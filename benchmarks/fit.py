@@ -159,12 +159,60 @@ def bench(name: str, steps: int, nm_evals: int) -> dict[str, Any]:
     }
 
 
+def latency(steps: int) -> dict[str, Any]:
+    """First-call and warm wall time of `fj.fit` with Levenberg-Marquardt on LuGre against the savvy user's recipe:
+    scipy's `least_squares` (TRF) with `jax.jacfwd` of the same jit-compiled simulator, residuals normalised alike.
+    Run in a fresh process (`--latency`) so that the first call compiles everything."""
+    motion = excitation(steps)
+    truth, start, eps = models("lugre")
+    data = fj.FrictionData(motion, fj.simulate(truth, motion))
+    start = fj.with_smoothing(start, fj.Smooth(eps))
+    times: dict[str, list[float]] = {"fricjax_lm": [], "scipy_trf_jacfwd": []}
+    losses: dict[str, float] = {}
+    for _ in range(2):
+        t0 = time.perf_counter()
+        result = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=60, scaling=fj.ParameterScaling())
+        times["fricjax_lm"].append(time.perf_counter() - t0)
+        losses["fricjax_lm"] = float(result.train_loss)
+    params, static = eqx.partition(start, eqx.is_inexact_array)
+    flat, unravel = jax.flatten_util.ravel_pytree(params)
+    force = jnp.asarray(data.force)
+    scale = float(jnp.std(force))
+
+    def residuals(p: Any) -> Any:
+        return (fj.simulate(eqx.combine(unravel(p), static), motion) - force) / scale
+
+    res, jac = jax.jit(residuals), jax.jit(jax.jacfwd(residuals))  # compiled at the first call
+    for _ in range(2):
+        t0 = time.perf_counter()
+        solution = scipy.optimize.least_squares(
+            lambda p: np.asarray(res(p)), np.asarray(flat), jac=lambda p: np.asarray(jac(p)), method="trf"
+        )
+        times["scipy_trf_jacfwd"].append(time.perf_counter() - t0)
+        losses["scipy_trf_jacfwd"] = float(np.mean(solution.fun**2))
+    return {
+        "bench": "fit_latency",
+        "samples": steps,
+        "first_call_s": {k: round(v[0], 3) for k, v in times.items()},
+        "warm_s": {k: round(v[1], 3) for k, v in times.items()},
+        "loss": losses,
+        "loss_note": "both: mean squared error / force variance",
+        "jax": jax.__version__,
+        "python": platform.python_version(),
+        "device": str(jax.devices()[0]),
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--steps", type=int, default=40000)
     parser.add_argument("--nm-evals", type=int, default=4000)
     parser.add_argument("--models", nargs="+", default=["lugre", "gms4"])
+    parser.add_argument("--latency", action="store_true", help="first-call and warm LM fit vs scipy TRF + jacfwd")
     args = parser.parse_args()
+    if args.latency:
+        print(json.dumps(latency(args.steps)), flush=True)
+        return
     for name in args.models:
         print(json.dumps(bench(name, args.steps, args.nm_evals)), flush=True)
 
