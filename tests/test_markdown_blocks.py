@@ -12,6 +12,9 @@ sparingly: a block that takes long should be made short (fewer steps, a shorter 
 ```` ```python ```` fences are run; ```` ```bash ```` and other languages never are.
 
 Files whose blocks take more than a few seconds are in ``SLOW`` (the slow tier); the rest run in the fast tier.
+
+The README is also checked for development history that does not belong in a user's guide (commit hashes, issue
+references, figures with their old values), and its first two commands for agreement with what ``.ci/run`` runs.
 """
 
 import doctest
@@ -128,3 +131,28 @@ def test_block_parser_honours_no_run_and_snippets(tmp_path):
     assert blocks[0][1] == "x = 1\n"
     assert "class" in blocks[1][1] and "--8<--" not in blocks[1][1]
     assert doctest.DocTestParser().get_examples(blocks[2][1])[0].want == "2\n"
+
+
+# a commit hash: 7-40 hex digits with at least one letter and one digit (plain numbers and words are not hashes)
+_HASH = re.compile(r"\b(?=[0-9a-f]*[a-f])(?=[0-9a-f]*[0-9])[0-9a-f]{7,40}\b")
+# issue references and the phrases of a development log: "before this", figures that moved ("0.0998 -> 0.104 %")
+_HISTORY = re.compile(
+    r"\bissues? #?\d+|\bbefore this\b|\bpreviously\b|\bused to be\b|\bit was \d|\d\s*(?:->|→)\s*\d", re.IGNORECASE
+)
+
+
+def test_readme_has_no_development_history():
+    text = (ROOT / "README.md").read_text()
+    found = sorted(set(_HASH.findall(text)) | {m.group(0) for m in _HISTORY.finditer(text)})
+    assert not found, f"README.md holds development history (commit hashes, issue references, old figures): {found}"
+    assert not _HASH.search("a 1000000-sample record, 40 000 steps, decade") and _HASH.search("see 7f339c2")
+
+
+def test_readme_first_commands_are_those_ci_runs():
+    """.ci/run runs the README's first two commands (install + main job, then the fast tier): they must agree."""
+    commands = re.findall(r"^```bash\n(.*?)\n```", (ROOT / "README.md").read_text(), re.MULTILINE | re.DOTALL)
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert commands[0] == 'python3 -m venv .venv && . .venv/bin/activate && pip install -e ".[test]" && fricjax compare'
+    assert commands[0] in ci
+    assert commands[1] == ". .venv/bin/activate && python -m pytest"
+    assert "python -m pytest" in ci
