@@ -111,6 +111,8 @@ def test_fit_on_one_record_and_run_free_on_another(tmp_path, capsys):
     gms = next(m for m in report["models"] if m["name"] == "gms")
     score_ = gms["test_scores"][other]
     fitted_offset = gms["parameters"]["model.offset"]  # the friction model's offset (inside its sensor drift)
+    assert gms["parameter_units"]["model.offset"] == "N" and gms["parameter_units"]["model.k"] == "N/m"
+    assert set(gms["parameter_units"]) == set(gms["parameters"])
     # the estimated offset: the difference of the two cells' offsets (-0.7 N) up to drift and the fit's own offset
     assert abs(score_["offset"] + fitted_offset - (-0.5)) < 0.1, (score_["offset"], fitted_offset)
     # 2-s records and a 20-step budget: within 10x of the floor (the full-size run in the README: 2.3x)
@@ -296,6 +298,11 @@ def test_compare_fits_the_neural_models(record_csv, tmp_path, capsys):
         reloaded = fj.load_model(out / "models" / f"{name}.eqx")
         assert isinstance(reloaded, fj.SensorDrift) and isinstance(reloaded.model, kind)
     assert "GSNN (5) on 20 plays" in printed and "recurrent network (20 play + 8)" in printed
+    # a neural model out of its output-error budget is told to raise --neural-steps, not --steps
+    stopped = [m for name, m in rows.items() if name in ("mlp", "gsnn", "rnn", "avd") and m["result"] == "max_steps"]
+    assert all("raise `steps`" not in m["result_message"] for m in stopped)
+    if stopped:
+        assert "--neural-steps" in printed and "raise --neural-steps" in stopped[0]["result_message"], printed
 
 
 @pytest.mark.slow

@@ -129,6 +129,7 @@ def test_solution_parameter_table_has_units_and_std():
     assert table["Fc"]["unit"] == "N" and table["Fv"]["unit"] == "N s/m" and table["offset"]["unit"] == "N"
     assert np.isfinite(table["Fc"]["std"]).all()
     assert "[N s/m]" in result.summary()
+    assert "no validation data" in result.summary() and "nan" not in result.summary().splitlines()[1]
 
 
 def test_result_codes_are_one_enumeration():

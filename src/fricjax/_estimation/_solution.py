@@ -168,10 +168,12 @@ class Solution:
         """A short human-readable report: result, losses, and at most `max_parameters` parameter lines (arrays of
         more than 8 entries are summarised by shape and range)."""
         effort = f" after {self.evaluations} steps in {self.wall_time:.2f} s" if self.evaluations else ""
-        lines = [
-            f"{type(self).__name__}: {self.code}{effort}: {self.message}",
-            f"train loss {self.train_loss:.4g}, validation loss {self.val_loss:.4g} (exact {self.exact_val_loss:.4g})",
-        ]
+        losses = f"train loss {self.train_loss:.4g}, "
+        if np.isnan(self.val_loss) and np.isnan(self.exact_val_loss) and self.code != "diverged":
+            losses += "no validation data"
+        else:
+            losses += f"validation loss {self.val_loss:.4g} (exact {self.exact_val_loss:.4g})"
+        lines = [f"{type(self).__name__}: {self.code}{effort}: {self.message}", losses]
         rows = self.parameter_table()
         for row in rows[:max_parameters]:
             path, value, std, unit = row["path"], row["value"], row["std"], row["unit"]

@@ -134,6 +134,8 @@ def least_squares_then_noe(linear: tuple[str, ...], settings: FitSettings) -> Ca
             progress=progress,
             **validation,
         )
+        # the output-error stage's budget is the command line's --neural-steps, not fit's `steps` or --steps
+        noe = dataclasses.replace(noe, message=noe.message.replace("raise `steps`", "raise --neural-steps"))
         wall_time = first.wall_time + noe.wall_time
         if not noe.val_loss < first.val_loss:  # the NOE stage returned its start
             return dataclasses.replace(noe, wall_time=wall_time)

@@ -1,6 +1,6 @@
 """What `compare` reports: the comparison table (`format_table`, sorted by test NMSE with `by_score`) and the
 contents of `report.json` (`compare_report`: data, split, test records, settings, noise floor, and every model's
-scores, parameters and standard deviations)."""
+scores, parameters with their SI units and standard deviations)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,10 @@ from typing import Any
 import numpy as np
 
 from ..._constraints import parameter_arrays, unwrap
+from ..._estimation._solution import parameter_unit
 from ..._smoothing import exact
 from ..._version import fricjax_version
+from ._names import NEURAL_MODELS
 from ._output import versions
 from ._records import LoadedRecord, Split, TestRecord
 from ._scoring import ModelScore, Score
@@ -61,7 +63,10 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
     if several:
         lines.append("test records: " + "; ".join(f"{i + 1} = {n}" for i, n in enumerate(names)))
     codes = sorted({r.result for r in rows if r.result in RESULT_CODES})
-    lines.append("result: " + "; ".join(f"{c} = {RESULT_CODES[c]}" for c in codes))
+    legend = dict(RESULT_CODES)
+    if any(r.result == "max_steps" and r.name in NEURAL_MODELS for r in rows):  # their budget is --neural-steps
+        legend["max_steps"] = legend["max_steps"].replace("--steps", "--steps; neural models: --neural-steps")
+    lines.append("result: " + "; ".join(f"{c} = {legend[c]}" for c in codes))
     return "\n".join(lines)
 
 
@@ -89,7 +94,13 @@ def compare_report(
         "data": data,
         "seed": seed,
         "data_card": training.card,
-        "units": {"x": units.x, "v": units.v, "force": units.force, "internal": "SI (m, m/s, N)"},
+        "units": {
+            "x": units.x,
+            "v": units.v,
+            "force": units.force,
+            "internal": "SI (m, m/s, N)",
+            "parameters": "SI, whatever the record's units: each model's parameter_units",
+        },
         "split": {
             "train": [0, split.train_end],
             "validation": [split.train_end, split.validation_end],
@@ -135,6 +146,7 @@ def compare_report(
                 "result": r.result,
                 "result_message": r.message,
                 "parameters": _parameters(r.model),
+                "parameter_units": _units(_parameters(r.model)),
                 "parameter_std": _estimated_std(r.std) if r.std is not None else None,
             }
             for r in sorted(rows, key=by_score)
@@ -145,6 +157,12 @@ def compare_report(
 
 def _parameters(model: Any) -> dict[str, Any]:
     return {path: value.tolist() for path, value in parameter_arrays(unwrap(exact(model))).items()}
+
+
+def _units(parameters: dict[str, Any]) -> dict[str, str | None]:
+    """The SI unit of each parameter (`fj.Solution.parameter_table`'s), whatever the record's units; `None` where the
+    parameter is not a literature symbol fricjax knows (network weights, polynomial coefficients)."""
+    return {path: parameter_unit(path) or None for path in parameters}
 
 
 def _estimated_std(std: Any) -> dict[str, Any]:
