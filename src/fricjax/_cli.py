@@ -8,10 +8,8 @@ import argparse
 import importlib.metadata
 import os
 import pathlib
-import signal
 import sys
 from collections.abc import Sequence
-from typing import Any
 
 from ._compilation_cache import cache_disabled, default_cache_dir, enable_compilation_cache
 from ._protocols.compare._names import MODEL_NAMES
@@ -132,6 +130,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         "stated in the log) (default: %(default)s)",
     )
     args = parser.parse_args(argv)
+    if args.command != "compare":
+        return _run(args)
+    from ._estimation._interrupts import stop_on_signals  # no JAX: installed before JAX loads (seconds)
+
+    # from here on SIGINT / SIGTERM only set a flag, and the run stops at its next check (between models, within a
+    # fit, before each file is written) by raising `Interrupted`: an exception raised by the handler itself could
+    # land inside JAX (module _interrupts says what went wrong). Run as the program (argv None), the signals stay
+    # ignored on the way out: one after the files are published does not turn a finished run into a death by signal
+    with stop_on_signals(restore=argv is not None):
+        try:
+            return _run(args)
+        except KeyboardInterrupt:  # `Interrupted`; the staging folder is removed on the way out
+            print(f"fricjax compare: interrupted; nothing was written to {args.out}", file=sys.stderr)
+            return 130
+
+
+def _run(args: argparse.Namespace) -> int:
+    """`main` after the arguments are parsed."""
     import jax
 
     if getattr(args, "device", "auto") == "auto" and not os.environ.get("JAX_PLATFORMS"):
@@ -164,7 +180,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.device == "gpu" and not [d for d in jax.devices() if d.platform != "cpu"]:
         print(f"fricjax compare: --device gpu but JAX sees only CPU devices ({jax.devices()})", file=sys.stderr)
         return 2
-    previous = _terminate_as_interrupt()
     try:
         run_compare(
             data=args.data,
@@ -192,31 +207,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CompareError as err:
         print("fricjax compare: " + " ".join(str(err).split()), file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # the staging folder is removed on the way out (finally in run_compare)
-        print(f"fricjax compare: interrupted; nothing was written to {args.out}", file=sys.stderr)
-        return 130
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
 
 
 def _accelerator_installed() -> bool:
     """Whether a JAX accelerator plugin (CUDA, ROCm, TPU) is installed (without starting JAX's backends)."""
     names = {(dist.metadata["Name"] or "").lower() for dist in importlib.metadata.distributions()}
     return any(name.startswith(("jax-cuda", "jax_cuda", "jax-rocm", "jax_rocm", "libtpu")) for name in names)
-
-
-def _terminate_as_interrupt() -> Any:
-    """SIGTERM raises KeyboardInterrupt (so the clean-up of a half-written report runs); returns the previous
-    handler, or None where signals cannot be set (not the main thread)."""
-
-    def interrupt(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
-    try:
-        return signal.signal(signal.SIGTERM, interrupt)
-    except ValueError:  # not in the main thread
-        return None
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._interrupts import check_interrupt
 from ._sharding import shard_batch
 from ._solution import RESULTS
 from ._solvers import AbstractSolver, tree_finite
@@ -218,6 +219,7 @@ def run_stage(
         states = init_states(solver, problem, search.ys, args, batched_args)
     done = 0
     while done < budget:
+        check_interrupt()  # SIGINT / SIGTERM under `fricjax compare`: stop between chunks (a no-op elsewhere)
         n = min(check_every, budget - done)
         if solver.restarts_at_checks:
             states = None  # initialised inside `run_steps`, from the (projected) iterate

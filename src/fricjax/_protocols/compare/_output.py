@@ -1,25 +1,35 @@
 """Where `compare` writes: a check that the output folder takes files (`check_writable`), a file replaced in one
-rename (`write_atomic`), strict JSON with non-finite numbers as `null` (`strict_json`), and the versions a report
-records (`fricjax_version`, `versions`)."""
+rename (`write_atomic`), a run's files staged and published as one unit (`Staging`) with the staging folders of
+killed runs removed (`remove_stale_staging`), strict JSON with non-finite numbers as `null` (`strict_json`), and
+the versions a report records (`versions`)."""
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import pathlib
+import shutil
+import socket
 import tempfile
+import time
 import uuid
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from ..._estimation._interrupts import check_interrupt, hold_signals
 from ._settings import CompareError
 
+STAGING_PREFIX = ".partial-"  # the staging folders inside --out
+STALE_AFTER = 3600.0  # seconds: a staging folder this old belongs to no live run (a run stages for seconds)
 
-def check_writable(out: pathlib.Path) -> None:
-    """Raise `CompareError` unless `out` (created if missing) takes new files and its `models` entry, if any, is
-    a folder."""
+
+def check_writable(out: pathlib.Path, files: tuple[str, ...] = ()) -> None:
+    """Raise `CompareError` unless `out` (created if missing) takes new files, its `models` entry, if any, is a
+    folder, and none of the `files` it is to receive is a folder (said before a fit of minutes, not after it)."""
     try:
         out.mkdir(parents=True, exist_ok=True)
         handle, probe = tempfile.mkstemp(prefix=".fricjax-write-test-", dir=out)  # a fresh name: nothing overwritten
@@ -30,11 +40,16 @@ def check_writable(out: pathlib.Path) -> None:
     models = out / "models"
     if models.exists() and not models.is_dir():
         raise CompareError(f"--out {out}: 'models' exists and is not a folder; move it away or choose another --out")
+    for name in files:
+        if (out / name).is_dir() and not (out / name).is_symlink():
+            raise CompareError(f"--out {out}: {name} is a folder; move it away or choose another --out")
 
 
 def write_atomic(path: pathlib.Path, text: str) -> None:
     """Write `text` to a temporary file beside `path`, then rename it over `path`. The file gets the mode of any
-    new file (0o666 less the umask, as the other outputs), not `tempfile.mkstemp`'s 0o600."""
+    new file (0o666 less the umask, as the other outputs), not `tempfile.mkstemp`'s 0o600. Under `fricjax compare`
+    a SIGINT / SIGTERM received so far stops it before anything is written (`Interrupted`)."""
+    check_interrupt()
     temporary = path.with_name(f".fj-{uuid.uuid4().hex[:12]}.tmp")  # short: a long `path.name` stays legal
     handle = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
@@ -44,6 +59,177 @@ def write_atomic(path: pathlib.Path, text: str) -> None:
     except BaseException:
         pathlib.Path(temporary).unlink(missing_ok=True)
         raise
+
+
+class Staging:
+    """A run's files, written into a hidden folder inside `out` (`write`), then moved into `out` as one unit
+    (`publish`): with `with Staging(out) as staging:` the folder is removed on the way out, whatever happens.
+
+    The folder (`.partial-<pid>-*`) records its owner (process id and host, for `remove_stale_staging`); the files
+    are written under its `new/`, and the files of `out` they replace are moved under its `previous/` while
+    publishing, so that a failure part-way moves everything back. Files in `out` that the run does not write are
+    never touched (`out` may be a folder of the user's: only file-by-file renames are safe there, not a swap of
+    whole folders)."""
+
+    def __init__(self, out: pathlib.Path):
+        self.out = out
+        self.root = pathlib.Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{os.getpid()}-", dir=out))
+        self.new, self.previous = self.root / "new", self.root / "previous"
+        try:
+            (self.root / "owner.json").write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname()}))
+            self.new.mkdir()
+        except OSError as err:
+            shutil.rmtree(self.root, ignore_errors=True)
+            raise CompareError(f"--out {out}: could not start writing ({_reason(err)}); nothing was written") from None
+        self.names: list[str] = []  # the staged files, relative to `out`, in the order they are published
+        self.keep = False  # a rollback failed: `previous/` holds files of `out` (said in the error)
+
+    def __enter__(self) -> Staging:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if not self.keep:
+            shutil.rmtree(self.root, ignore_errors=True)
+
+    def write(self, name: str, write: Callable[[pathlib.Path], Any]) -> None:
+        """Stage `out/name` (a relative path): `write(path)` writes it to its place in the staging folder. A
+        SIGINT / SIGTERM received so far stops the run here (`Interrupted`); a failed write (a full disk) is a
+        one-line `CompareError` naming the file."""
+        check_interrupt()
+        path = self.new / name
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write(path)
+        except (OSError, ValueError) as err:
+            cause = err if isinstance(err, OSError) else err.__cause__  # save_model: a ValueError from an OSError
+            if not isinstance(cause, OSError):
+                raise
+            reason = _reason(cause)
+            raise CompareError(f"--out {self.out}: could not write {name} ({reason}); nothing was written") from None
+        self.names.append(name)
+
+    def publish(self) -> None:
+        """Move the staged files into `out`, in the order they were written (the report last), as one unit: each
+        file of `out` that a staged one replaces is first moved aside into the staging folder, and when any move
+        fails every move is undone, so that `out` is left as it was. A SIGINT / SIGTERM received so far stops the
+        run before the first move; once the moves begin, signals wait until they end (even a second one)."""
+        check_interrupt()
+        for name in self.names:  # refuse what is bound to fail before anything moves
+            for folder in self._folders(name):
+                if os.path.lexists(folder) and not folder.is_dir():
+                    raise CompareError(
+                        f"--out {self.out}: {folder.name} is not a folder, but {name} must go in it; move it away "
+                        "or choose another --out (nothing was written)"
+                    )
+            if (self.out / name).is_dir() and not (self.out / name).is_symlink():
+                raise CompareError(
+                    f"--out {self.out}: {name} is a folder; move it away or choose another --out (nothing was written)"
+                )
+        moves: list[tuple[pathlib.Path, pathlib.Path]] = []  # the renames done, to undo in reverse
+        created: list[pathlib.Path] = []  # the folders made in `out`, to remove again
+        current = ""
+        with hold_signals():
+            try:
+                for index, current in enumerate(self.names):
+                    for folder in self._folders(current):
+                        if not folder.exists():
+                            folder.mkdir()
+                            created.append(folder)
+                    target = self.out / current
+                    if os.path.lexists(target):
+                        self.previous.mkdir(exist_ok=True)
+                        os.replace(target, self.previous / str(index))
+                        moves.append((target, self.previous / str(index)))
+                    os.replace(self.new / current, target)
+                    moves.append((self.new / current, target))
+            except BaseException as err:
+                failed = _undo(moves, created)
+                self.keep = bool(failed)
+                if failed:
+                    raise CompareError(
+                        f"--out {self.out}: could not move {current} into place ({err}), nor put back {failed[0]}; "
+                        f"the previous files are in {self.previous}: move them back by hand"
+                    ) from None
+                if not isinstance(err, OSError):
+                    raise
+                raise CompareError(
+                    f"--out {self.out}: could not move {current} into place ({_reason(err)}); nothing was changed "
+                    "(the previous files are back)"
+                ) from None
+
+    def _folders(self, name: str) -> list[pathlib.Path]:
+        """The folders in `out` that `out/name` goes in (`models`), outermost first."""
+        return [self.out / parent for parent in reversed(pathlib.PurePath(name).parents) if parent.parts]
+
+
+def _undo(moves: list[tuple[pathlib.Path, pathlib.Path]], created: list[pathlib.Path]) -> list[pathlib.Path]:
+    """Undo `moves` (renames) and remove the `created` folders, last first; returns the paths it could not restore."""
+    failed = []
+    for source, target in reversed(moves):
+        try:
+            os.replace(target, source)
+        except OSError:
+            failed.append(source)
+    for folder in reversed(created):
+        try:
+            folder.rmdir()
+        except OSError:
+            pass
+    return failed
+
+
+def _reason(err: OSError) -> str:
+    """Why a write or a rename failed, with what to do about it, in a few words."""
+    text = err.strerror or str(err)
+    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"{text}: free some space or choose another --out"
+    if err.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return f"{text}: check the folder's permissions or choose another --out"
+    if err.errno in (errno.EBUSY, errno.ETXTBSY):
+        return f"{text}: close the program that holds it and run again"
+    if err.errno == errno.EXDEV:
+        return f"{text}: 'models' is on another file system than --out; choose another --out"
+    return f"{text}: check --out and run again"
+
+
+def remove_stale_staging(out: pathlib.Path, *, now: float | None = None) -> None:
+    """Remove the staging folders that runs left in `out` when they were killed: those of a process that no longer
+    runs on this host, and any older than `STALE_AFTER`. One that holds files moved aside while publishing (the run
+    was killed in the middle of its renames) is kept, with a warning: those files were the user's."""
+    now = time.time() if now is None else now
+    for folder in sorted(out.glob(STAGING_PREFIX + "*")):
+        try:
+            if not folder.is_dir() or folder.is_symlink() or not _stale(folder, now):
+                continue
+            previous = folder / "previous"
+            if previous.is_dir() and any(previous.iterdir()):
+                print(
+                    f"warning: {folder} holds files that a killed run had moved aside from {out}; move back the "
+                    "ones you need, then delete the folder"
+                )
+                continue
+            shutil.rmtree(folder)
+        except OSError:
+            continue  # someone else's, or going away: not ours to insist on
+
+
+def _stale(folder: pathlib.Path, now: float) -> bool:
+    if now - folder.stat().st_mtime > STALE_AFTER:
+        return True
+    try:
+        owner = json.loads((folder / "owner.json").read_text())
+        pid, host = int(owner["pid"]), str(owner["host"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return False  # being created, or written by an older fricjax: the age decides
+    if host != socket.gethostname() or pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:
+        return False  # it exists (another user's process)
+    return False
 
 
 def strict_json(report: Any) -> str:

@@ -4,14 +4,14 @@ models, figures and `report.json` (`run_compare`)."""
 
 from __future__ import annotations
 
+import functools
 import os
 import pathlib
-import shutil
-import tempfile
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from ..._estimation._interrupts import check_interrupt
 from ..._estimation._placement import check_device, choose_device, forced_device, resolve_device
 from ..._estimation._serialise import save_model
 from ..._validation import nonnegative_int
@@ -19,7 +19,7 @@ from ..._version import fricjax_version
 from ._emps_table import emps_table
 from ._ensembles import add_ensembles
 from ._figures import plot_prediction_errors, plot_test_loops
-from ._output import check_writable, strict_json
+from ._output import Staging, check_writable, remove_stale_staging, strict_json
 from ._plausibility import command_line_advice, half_excursion, implausible
 from ._records import Split, TestRecord, load_record_spec, split_record, statistics_warnings
 from ._registry import MODEL_NAMES, PHYSICS_MODELS, default_models
@@ -48,6 +48,7 @@ def fit_and_score(
     scales = DataScales.from_data(split.train)
     rows = []
     for name in names:
+        check_interrupt()  # SIGINT / SIGTERM under `fricjax compare` stop the run here (a no-op elsewhere)
         spec = specs[name]
         start_time = time.perf_counter()
         start = None if spec.build is None else spec.build(scales)
@@ -118,9 +119,12 @@ def run_compare(
     does): fit every model on the training record `data`, score each by free run on the test records (`test`, or
     the record's own test part), add ensembles, print the table, and write the models, the figures and
     `report.json` to `out`. `data="emps"`: the EMPS table instead (`emps_table`). Files are staged in a folder
-    inside `out` and moved in one by one, the report last; an interruption leaves nothing new in `out`.
+    inside `out` and published together (`Staging`: all or none of them); staging folders of killed runs are
+    removed first. Under the command line's signal handlers (`stop_on_signals`), SIGINT / SIGTERM stop the run at
+    the next check: between models, within fits, before the ensembles and before each file is written.
 
-    **Raises:** `CompareError` for bad input (one line).
+    **Raises:** `CompareError` for bad input or a failed write (one line); `Interrupted` after SIGINT / SIGTERM
+    (nothing written to `out`).
     """
     arguments = dict(locals())
     try:
@@ -151,7 +155,10 @@ def run_compare(
         drift=drift,
         neural_steps=neural_steps,
     )
-    check_writable(out)
+    check_writable(
+        out, ("report.json",) if data == "emps" else ("test_errors.png", "hysteresis_loops.png", "report.json")
+    )
+    remove_stale_staging(out)
     if data == "emps":
         emps_table(out)
         return
@@ -186,17 +193,20 @@ def run_compare(
     rows = fit_and_score(
         list(models), split, tests=tests, settings=settings, seed=seed, progress=progress, device=device
     )
+    check_interrupt()
     rows += add_ensembles(rows, split, tests)
     floor = reference_scores(tests)
     print()
     print(format_table(rows, floor))
-    staging = pathlib.Path(tempfile.mkdtemp(prefix=".partial-", dir=out))
     try:
-        (staging / "models").mkdir()
+        staging = Staging(out)  # the files are written there, then moved into `out` together (or not at all)
+    except OSError as err:
+        raise CompareError(f"--out {out}: could not create a staging folder ({err.strerror})") from None
+    with staging:
         for row in rows:
-            save_model(staging / "models" / f"{row.name}.eqx", row.model)
-        plot_prediction_errors(rows, tests[0], staging / "test_errors.png", units=units)
-        plot_test_loops(rows, tests[0], staging / "hysteresis_loops.png", units=units)
+            staging.write(f"models/{row.name}.eqx", functools.partial(save_model, model=row.model))
+        staging.write("test_errors.png", lambda path: plot_prediction_errors(rows, tests[0], path, units=units))
+        staging.write("hysteresis_loops.png", lambda path: plot_test_loops(rows, tests[0], path, units=units))
         report = compare_report(
             data=data,
             seed=seed,
@@ -209,15 +219,8 @@ def run_compare(
             rows=rows,
             started=started,
         )
-        (staging / "report.json").write_text(strict_json(report))
-        # move in file by file (each an atomic rename); nothing in `out` that this run did not write is touched
-        (out / "models").mkdir(exist_ok=True)
-        for item in sorted((staging / "models").iterdir()):
-            item.replace(out / "models" / item.name)
-        for name in ("test_errors.png", "hysteresis_loops.png", "report.json"):  # the report last
-            (staging / name).replace(out / name)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        staging.write("report.json", lambda path: path.write_text(strict_json(report)))  # the report last
+        staging.publish()
     print(
         f"\nreport: {out / 'report.json'}; figures: {out / 'test_errors.png'}, {out / 'hysteresis_loops.png'}; "
         f"models: {out / 'models'} ({time.perf_counter() - started:.0f} s)"

@@ -1,0 +1,156 @@
+"""Hostile conditions for `fricjax compare`'s output (issue 31 item 2): its files are published into --out as one
+unit. A move that fails part-way, a folder where a file must go and a full disk while drawing the figures leave
+--out exactly as it was, with one line on stderr that names the file and what to do (exit 2); the staging folders
+of killed runs are removed by the next run. The tests that need a fit are slow (its compilation: 10-25 s on the
+2-core machine, once per test process; each one after the first takes about a second)."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import pathlib
+import socket
+import subprocess
+import sys
+import time
+
+import matplotlib.figure
+import pytest
+
+import fricjax as fj
+
+# one quick model on a short synthetic record (the programs compile once per test process)
+RUN = ["compare", "--models", "stribeck", "--steps", "2", "--data", "tribometer:mixed:duration=0.5", "--no-progress"]
+
+
+def _compare(out: pathlib.Path) -> int:
+    return fj.main([*RUN, "--no-cache", "--out", str(out)])
+
+
+def _previous_run(out: pathlib.Path) -> dict[str, bytes | None]:
+    """Fill `out` with the files of an earlier run and one of the user's; returns its snapshot."""
+    files = {
+        "report.json": b'{"old": true}',
+        "test_errors.png": b"old figure",
+        "hysteresis_loops.png": b"old loops",
+        "models/stribeck.eqx": b"old model",
+        "models/gms.eqx": b"a model of another run",
+        "notes.txt": b"the user's",
+    }
+    for name, content in files.items():
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_bytes(content)
+    return _snapshot(out)
+
+
+def _snapshot(out: pathlib.Path) -> dict[str, bytes | None]:
+    """Every entry under `out`, hidden ones included: a file's bytes, None for a folder."""
+    return {str(path.relative_to(out)): None if path.is_dir() else path.read_bytes() for path in sorted(out.rglob("*"))}
+
+
+def _one_line(err: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+@pytest.mark.slow
+def test_a_move_that_fails_part_way_is_undone(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "out"
+    before = _previous_run(out)
+    replace = os.replace
+
+    def busy_report(source, target, *args, **kwargs):  # the last move (the report's) fails: the others are undone
+        if pathlib.Path(target) == out / "report.json" and ".partial-" in str(source) and "previous" not in str(source):
+            raise OSError(errno.EBUSY, "Device or resource busy", str(target))
+        return replace(source, target, *args, **kwargs)
+
+    monkeypatch.setattr(os, "replace", busy_report)
+    assert _compare(out) == 2
+    line = _one_line(capsys.readouterr().err)
+    assert "report.json" in line and "nothing was changed" in line and "close the program" in line, line
+    assert _snapshot(out) == before
+
+
+def test_a_folder_where_a_file_goes_is_refused_before_the_fit(tmp_path, capsys):
+    out = tmp_path / "out"
+    (out / "hysteresis_loops.png").mkdir(parents=True)
+    (out / "hysteresis_loops.png" / "mine.txt").write_text("the user's")
+    (out / "report.json").write_text("{}")
+    before = _snapshot(out)
+    started = time.perf_counter()
+    assert _compare(out) == 2
+    assert time.perf_counter() - started < 5  # not after a fit
+    line = _one_line(capsys.readouterr().err)
+    assert "hysteresis_loops.png is a folder" in line and "move it away" in line, line
+    assert _snapshot(out) == before
+
+
+@pytest.mark.slow
+def test_a_folder_where_a_model_goes_changes_nothing(tmp_path, capsys):
+    out = tmp_path / "out"
+    _previous_run(out)
+    (out / "models" / "stribeck.eqx").unlink()
+    (out / "models" / "stribeck.eqx").mkdir()  # found only when the fitted models are known
+    before = _snapshot(out)
+    assert _compare(out) == 2
+    line = _one_line(capsys.readouterr().err)
+    assert "models/stribeck.eqx is a folder" in line and "nothing was written" in line, line
+    assert _snapshot(out) == before
+
+
+@pytest.mark.slow
+def test_a_full_disk_while_drawing_is_one_line_and_changes_nothing(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "out"
+    before = _previous_run(out)
+
+    def full_disk(self, path, *args, **kwargs):
+        pathlib.Path(path).write_bytes(b"\x89PNG half")  # a part written, as PIL does before it fails
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", full_disk)
+    assert _compare(out) == 2
+    line = _one_line(capsys.readouterr().err)
+    assert "test_errors.png" in line and "No space left" in line and "free some space" in line, line
+    assert _snapshot(out) == before
+
+
+def test_staging_folders_of_killed_runs_are_removed(tmp_path, capsys):
+    out = tmp_path / "out"
+    host = socket.gethostname()
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead_pid = int(gone.stdout)
+    folders = {
+        ".partial-abc123": None,  # an older fricjax's (no owner): removed once an hour old
+        f".partial-{dead_pid}-x1": {"pid": dead_pid, "host": host},  # its process has ended: removed at once
+        f".partial-{os.getpid()}-x2": {"pid": os.getpid(), "host": host},  # a live run's: kept
+        ".partial-1-x3": {"pid": 1, "host": "another-machine"},  # another host's, recent: kept
+        ".partial-1-x4": {"pid": dead_pid, "host": host},  # killed while publishing: holds the user's files
+    }
+    for name, owner in folders.items():
+        (out / name / "new").mkdir(parents=True)
+        (out / name / "new" / "report.json").write_text("{}")
+        if owner is not None:
+            (out / name / "owner.json").write_text(json.dumps(owner))
+    (out / ".partial-1-x4" / "previous").mkdir()
+    (out / ".partial-1-x4" / "previous" / "0").write_text("an earlier report")
+    hour_ago = time.time() - 2 * 3600
+    os.utime(out / ".partial-abc123", (hour_ago, hour_ago))
+    # the next run cleans up before anything else (this one then stops at its missing record)
+    assert fj.main(["compare", "--data", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
+    left = sorted(path.name for path in out.iterdir())
+    assert left == [".partial-1-x3", ".partial-1-x4", f".partial-{os.getpid()}-x2"], left
+    assert ".partial-1-x4" in capsys.readouterr().out  # a warning says where the moved-aside files are
+
+
+@pytest.mark.slow
+def test_a_complete_run_replaces_its_own_files_and_keeps_the_users(tmp_path):
+    out = tmp_path / "out"
+    before = _previous_run(out)
+    assert _compare(out) == 0
+    after = _snapshot(out)
+    for name in ("report.json", "test_errors.png", "hysteresis_loops.png", "models/stribeck.eqx"):
+        assert after[name] != before[name]  # replaced by this run's
+    assert after["notes.txt"] == before["notes.txt"] and after["models/gms.eqx"] == before["models/gms.eqx"]
+    assert not list(out.glob(".partial-*"))
