@@ -13,9 +13,10 @@ from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike
 
-from ..._constraints import Fixed, ParamLike, SidedParameter, as_float_array, model_dtype, positive, unwrap
+from ..._constraints import Fixed, ParamLike, SidedParameter, model_dtype, positive, unwrap
 
 
 def abs_pow(u: ArrayLike, p: ArrayLike) -> Array:
@@ -33,7 +34,7 @@ def abs_pow(u: ArrayLike, p: ArrayLike) -> Array:
 def sided_positive(value: ParamLike, name: str, dtype: Any = None) -> Any:
     """A positive coefficient that is one number (symmetric) or a pair (value for v > 0, value for v < 0)."""
     raw = value.value if isinstance(value, Fixed) else value
-    shape = tuple(raw.shape) if hasattr(raw, "shape") else as_float_array(raw).shape
+    shape = tuple(np.shape(raw))  # no conversion yet: `positive` refuses strings by name
     if shape not in ((), (2,)):
         raise ValueError(
             f"`{name}` must be a scalar (symmetric curve) or a pair (value for v > 0, value for v < 0), "
