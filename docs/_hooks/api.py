@@ -166,6 +166,9 @@ def entries(search_path: str) -> list[Entry]:
             try:
                 member = griffe_namespace[name]
                 target = member.target_path if member.is_alias else member.path
+                if target.startswith("fricjax._public."):  # the lazy namespace's one hop: to the definition
+                    inner = package["_public"][target.rsplit(".", 1)[1]]
+                    target = inner.target_path if inner.is_alias else inner.path
             except KeyError:  # not visible to static analysis: place it by its runtime module
                 target = f"{getattr(getattr(namespace, name), '__module__', prefix)}.{name}"
             found.append(Entry(f"{prefix}.{name}", target))

@@ -3,8 +3,9 @@
 One flat public namespace: `import fricjax as fj`.
 """
 
-import importlib
-from typing import TYPE_CHECKING, Any
+import importlib as _importlib
+from typing import TYPE_CHECKING as _TYPE_CHECKING
+from typing import Any as _Any
 
 # first, before any JAX computation: sets XLA_FLAGS so that XLA:CPU compiles each scan as one function
 from . import _xla_flags as _xla_flags  # isort: skip
@@ -12,15 +13,15 @@ from ._version import fricjax_version as _fricjax_version
 
 __version__ = _fricjax_version()
 
-if TYPE_CHECKING:  # type checkers and IDEs see every public name; at run time they load on first use
+if _TYPE_CHECKING:  # type checkers and IDEs see every public name; at run time they load on first use
     from ._public import *  # noqa: F403
 
 
-def __getattr__(name: str) -> Any:
+def __getattr__(name: str) -> _Any:
     """The public names load on first use, all at once (PEP 562): `import fricjax` itself imports no JAX."""
     if name.startswith("__"):
         raise AttributeError(name)
-    public = importlib.import_module("._public", __name__)
+    public = _importlib.import_module("._public", __name__)
     names = {key: value for key, value in vars(public).items() if not key.startswith("_")}
     globals().update(names)
     if name not in names:
@@ -29,5 +30,5 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> list[str]:
-    public = importlib.import_module("._public", __name__)
+    public = _importlib.import_module("._public", __name__)
     return sorted(set(globals()) | {key for key in vars(public) if not key.startswith("_")})
