@@ -29,6 +29,7 @@ PROBE = """
 import ctypes, json, sys
 if sys.argv[1] == "fricjax":
     import fricjax
+    fricjax.simulate  # the public names load on first use (fricjax/__init__.py), and set the threads then
 else:
     import scipy.linalg.cython_lapack
 library = ctypes.CDLL(sys.argv[2])
