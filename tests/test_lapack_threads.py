@@ -1,7 +1,7 @@
-"""`import fricjax` runs the OpenBLAS behind JAX's CPU LAPACK calls (SciPy's bundled copy) on one thread, leaves it
-alone when the user chose (`OPENBLAS_NUM_THREADS`, `OMP_NUM_THREADS`) or opts out, and LAPACK results stay right
-(src/fricjax/_lapack_threads.py). Each case runs in a fresh interpreter, reading the thread count through the
-library's own C function."""
+"""fricjax (its public names, at first use) runs the OpenBLAS behind JAX's CPU LAPACK calls (SciPy's bundled copy) on
+one thread, leaves it alone when the user chose (`OPENBLAS_NUM_THREADS`, `OMP_NUM_THREADS`) or opts out, and LAPACK
+results stay right (src/fricjax/_lapack_threads.py). Each case runs in a fresh interpreter, reading the thread count
+through the library's own C function."""
 
 from __future__ import annotations
 
