@@ -58,6 +58,7 @@ def implausible(model: Any, record_excursion: float | None = None) -> list[str]:
 def command_line_advice(message: str) -> str:
     """A fit's message with its advice put in terms of `fricjax compare`'s options (the command line has no
     learning rate)."""
+    message = message.replace("raise `steps`", "raise --steps")  # the neural recipes say --neural-steps first
     return message.replace("lower the learning rate", "try other starts (--seed, --starts) or more steps (--steps)")
 
 
