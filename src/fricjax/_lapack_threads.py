@@ -16,10 +16,10 @@ OpenBLAS's second core (the direct kernel solve of 4 000 samples 1.04 -> 1.22 s,
 `results/kernel-blas-threads.jsonl`).
 
 fricjax therefore sets that OpenBLAS to one thread (`scipy_openblas_set_num_threads(1)`) when its public names load
-(the first `fj.NAME` after `import fricjax`, before any computation of fricjax's) and when the command line starts,
-which keeps the parallelism with XLA's pool, where it belongs. It affects `scipy.linalg` in the same process too,
-not NumPy's linear algebra. It does nothing when the library is not SciPy's bundled OpenBLAS (a SciPy built on MKL
-or a system BLAS), when the user chose a thread count (`OPENBLAS_NUM_THREADS`, `GOTO_NUM_THREADS` or
+(at the first use of one of them after `import fricjax`, before any computation of fricjax's) and when the command
+line starts, which keeps the parallelism with XLA's pool, where it belongs. It affects `scipy.linalg` in the same
+process too, not NumPy's linear algebra. It does nothing when the library is not SciPy's bundled OpenBLAS (a SciPy
+built on MKL or a system BLAS), when the user chose a thread count (`OPENBLAS_NUM_THREADS`, `GOTO_NUM_THREADS` or
 `OMP_NUM_THREADS`, which OpenBLAS reads), or when `FRICJAX_KEEP_BLAS_THREADS` is set to a non-empty value.
 
 **Batched calls deadlock.** jaxlib 0.10.2's LAPACK kernels (`jaxlib/cpu/lapack_kernels.cc`, `ParallelBatchMap`)
