@@ -210,7 +210,7 @@ def fit(
     bar = _progress_bar(progress, steps, solver.kind)
     search = Search(ys0, validation is not None, start_time, bar)
     linear_only = not any(eqx.is_array(leaf) for leaf in jax.tree_util.tree_leaves(params0))
-    code, message, outcome, converged = "max_steps", "", None, ""
+    code, message, outcome, converged, screened = "max_steps", "", None, "", ""
     if linear_only:  # only separable (linear) parameters: one least-squares solve is the whole fit
         code, message = "successful", "only linear parameters: solved by least squares"
         search.best_scores = np.zeros(count)
@@ -245,8 +245,11 @@ def fit(
                 if outcome.stop is not None or screening is None:
                     break
                 survivors = np.argsort(search.best_scores, kind="stable")[: screening[1]]
+                screened = f" (all {count} starts screened, the best {len(survivors)} went on"
                 if 0 not in survivors:  # the initial model (start 0) always goes on too
                     survivors = np.append(survivors, 0)
+                    screened += " with the initial start"
+                screened += ")"
                 search.keep(survivors)
                 screening = None
             assert outcome is not None  # budget >= 1: the first part ran
@@ -267,8 +270,7 @@ def fit(
     best_losses = [row[original] for row in search.history["train_loss"]]
     if code == "max_steps":  # no stopping rule ended the fit: the tolerance rule, the solver's verdict, the budget
         code, message = _stopping_reason(solver, outcome, converged, best, steps, best_losses, diverged[best])
-    if len(search.active) < count:
-        message += f" (all {count} starts screened, the best {len(search.active)} went on)"
+    message += screened
     if code != "diverged" and diverged.any() and not diverged.all():
         message += f" ({int(diverged.sum())} of {count} starts diverged and were discarded)"
     if not linear_only:  # never worse than the start: the initial model, scored as the starts are chosen
