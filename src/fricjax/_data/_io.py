@@ -8,6 +8,7 @@ import math
 import pathlib
 import re
 import sys
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -28,8 +29,10 @@ _ALIASES = {
     "x": ("x", "position", "displacement", "pos"),
     "v": ("v", "velocity", "vel"),
     "force": ("force", "f", "friction", "friction_force"),
+    "normal_force": ("normal_force", "normal", "normal_load"),  # and `N`, upper case only (see _role_of)
 }
 _ROLE = {alias: role for role, aliases in _ALIASES.items() for alias in aliases}
+_NORMAL_SYMBOL = "N"  # case-sensitive: a lower-case `n` column is usually a sample index
 
 # SI factor of each unit name; the names are case-sensitive (mN is not MN), other spellings in _SPELLINGS
 _X_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "nm": 1e-9, "in": 0.0254}
@@ -44,9 +47,11 @@ _SPELLINGS = {
     "μN": "uN",
     "µs": "us",
     "μs": "us",
+    "lb": "lbf",
 }
-_TABLES = {"x": _X_UNITS, "force": _FORCE_UNITS, "t": _TIME_UNITS}
-_KIND = {"x": "displacement", "force": "force", "t": "time"}
+_TABLES = {"x": _X_UNITS, "force": _FORCE_UNITS, "t": _TIME_UNITS, "normal_force": _FORCE_UNITS}
+_KIND = {"x": "displacement", "force": "force", "t": "time", "normal_force": "normal force"}
+_VELOCITY_POLICIES = ("auto", "file", "derive")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,7 +59,7 @@ class Units:
     """The units a record file is written in: displacement `x` (velocity in `x` per second) and `force`.
 
     Unit names are checked and spelled canonically (`"µm"` becomes `"um"`). Known displacement units: m, cm,
-    mm, um (µm), nm, in; force units: N, kN, mN, uN (µN), lbf, kip.
+    mm, um (µm), nm, in; force units: N, kN, mN, uN (µN), lbf (lb), kip.
 
     ```python
     >>> Units(x="µm", force="kN").v, Units(x="mm").x_factor
@@ -71,8 +76,8 @@ class Units:
 
     @staticmethod
     def check(quantity: str, name: str) -> str:
-        """The canonical spelling of unit `name` for `quantity` (`"x"`, `"force"` or `"t"`); a ValueError
-        listing the known units if there is none."""
+        """The canonical spelling of unit `name` for `quantity` (`"x"`, `"force"`, `"normal_force"` or `"t"`);
+        a ValueError listing the known units if there is none."""
         table = _TABLES[quantity]
         name = str(name).strip()
         name = _SPELLINGS.get(name, name)
@@ -104,9 +109,11 @@ class Units:
 class RecordInfo:
     """What `read_record` found in a file.
 
-    `columns` maps each role used (`"t"`, `"dt"`, `"x"`, `"v"`, `"force"`) to the column name or NPZ key as
-    written in the file; `ignored` lists the columns and keys not used; `units` the file's units (the data
-    returned with it are SI); `samples` the record length; `dt` the sample time used [s].
+    `columns` maps each role used (`"t"`, `"dt"`, `"x"`, `"v"`, `"force"`, `"normal_force"`) to the column
+    name or NPZ key as written in the file (a normal force summed from several columns: their names joined by
+    `" + "`); `ignored` lists the columns and keys not used (a velocity column replaced by `velocity="derive"`
+    among them); `units` the file's units of displacement and friction force (the data returned with it are
+    SI); `samples` the record length; `dt` the sample time used [s].
     """
 
     path: str
@@ -118,7 +125,13 @@ class RecordInfo:
 
 
 def load_record(
-    path: str | pathlib.Path, *, dt: float | None = None, x_unit: str | None = None, force_unit: str | None = None
+    path: str | pathlib.Path,
+    *,
+    dt: float | None = None,
+    x_unit: str | None = None,
+    force_unit: str | None = None,
+    velocity: str = "auto",
+    normal_force_column: str | Sequence[str] | None = None,
 ) -> FrictionData:
     """Read a friction record from a `.csv` (header row) or `.npz` file, in SI units.
 
@@ -129,16 +142,36 @@ def load_record(
       also `velocity`, `vel`. A missing `v` is derived by central differences, a missing `x` by zero-order hold;
     - `t` uniformly sampled time [s], also `time`; or `dt` the sample time [s] (one value, or a column of equal
       values; with `t` too, they must agree); or the `dt` argument, which wins over both (use it when `t` is
-      rounded or absent). A zero, negative, non-finite or subnormal sample time is an error naming its column.
+      rounded or absent). A zero, negative, non-finite or subnormal sample time is an error naming its column;
+    - `normal_force` the normal load [force unit], also `normal`, `normal_load` and `N` (upper case only: a
+      lower-case `n` is usually a sample index); or the columns named by `normal_force_column`, summed. It
+      becomes `Motion.normal_force` [N] (for models that take the normal load, e.g. `NormalLoad`).
 
     Other columns and keys are ignored, as are NPZ keys that are not numeric (strings, metadata); an NPZ key
     holding a 2-D table under a column name is an error. Two columns with the same role (`x` and `position`)
     are an error. At least 100 samples.
 
-    **Units.** A column name may carry its unit in brackets: `x [um]`, `force (kN)`, `v [mm/s]`, `t [ms]`.
+    **NPZ tables.** An NPZ file holding `data` (a 2-D numeric array, one row per sample) and `columns` (one name
+    per column of `data`) is read as if each column were its own key, as in the friction-damper records of
+    `shared/data/damper` (`time_s`, `displacement_in`, `friction_force_kip`, `velocity_in_per_s`,
+    `actuator_force1_lb`, ...; its other keys, such as `meta_json`, are ignored).
+
+    **Units.** A column name may carry its unit in brackets, `x [um]`, `force (kN)`, `v [mm/s]`, `t [ms]`, or
+    as a suffix after an underscore, `x_um`, `friction_force_kip`, `velocity_in_per_s`, `time_ms`. A suffix
+    that is not a unit of the column's quantity is part of the name (`x_raw`, `force_filtered`: not used).
     An NPZ file may hold a key `units` with a string such as `"x=um,force=kN"`. The `x_unit` and `force_unit`
     arguments win over the file's units. Without any, the file is SI (m, N, s). Displacement units: m, cm, mm,
-    um (µm), nm, in; force units: N, kN, mN, uN (µN), lbf, kip; time units: s, ms, us (µs).
+    um (µm), nm, in; force units: N, kN, mN, uN (µN), lbf (lb), kip; time units: s, ms, us (µs). Unit names are
+    case-sensitive (`mN` is not `MN`). A velocity is in the displacement unit per second (`v [mm/s]` with
+    `x [mm]`; other pairings are an error). A normal-force column without a unit of its own is in the unit of
+    a `normal_force=` units entry, else in the friction force's unit.
+
+    **Velocity.** When the file holds both `x` and `v`, `velocity` decides which velocity the record gets:
+    `"auto"` (default) the file's, after checking that it agrees with `x` (an error naming both columns when
+    the RMS ratio of `v`, integrated over short windows, to the change of `x` over the same windows is outside
+    [0.5, 2] or its sign is opposite, e.g. a column in other units); `"file"` the file's, unchecked;
+    `"derive"` recomputed from `x` by central differences, the velocity column ignored (the damper's
+    dataset-4 records need it: their velocity column is about 1/125 of dx/dt).
 
     **CSV files** are separated by `,`, `;` or tabs (found from the header and the first row; in `;` and tab
     files a decimal comma is read as a point), may quote numbers (`"1.5"`), and are read in chunks: the memory
@@ -147,9 +180,12 @@ def load_record(
     Errors are one line naming the file and the fix, and the first offending line by its number (`RecordError`,
     a ValueError).
 
-    **Arguments:** `path` the file; `dt` the sample time [s]; `x_unit`, `force_unit` the file's units.
+    **Arguments:** `path` the file; `dt` the sample time [s]; `x_unit`, `force_unit` the file's units;
+    `velocity` `"auto"`, `"file"` or `"derive"` (above); `normal_force_column` a column name, or several whose
+    sum is the normal load (matched case-insensitively, units in brackets or suffixes as above); a name the
+    file lacks is an error listing the columns found.
 
-    **Returns:** a `FrictionData` in m, m/s and N.
+    **Returns:** a `FrictionData` in m, m/s and N (the normal load, if any, in N).
 
     ```python
     >>> import numpy as np, tempfile, pathlib, fricjax as fj
@@ -159,13 +195,33 @@ def load_record(
     >>> data = fj.load_record(path)
     >>> data.length, round(float(data.motion.x[100] / np.sin(t[100])), 6)  # mm -> m
     (200, 0.001)
+    >>> table = pathlib.Path(tempfile.mkdtemp()) / "damper.npz"  # a table in inches, kip and pounds
+    >>> columns = ["time_s", "displacement_in", "friction_force_kip", "actuator_force1_lb", "actuator_force2_lb"]
+    >>> np.savez(table, data=np.c_[t, np.sin(t), np.sin(t), np.full(200, 30.0), np.full(200, 20.0)],
+    ...          columns=np.array(columns))
+    >>> data = fj.load_record(table, normal_force_column=("actuator_force1_lb", "actuator_force2_lb"))
+    >>> round(float(data.motion.x[100] / np.sin(t[100])), 6), round(float(data.motion.normal_force[0]), 3)
+    (0.0254, 222.411)
     ```
     """
-    return read_record(path, dt=dt, x_unit=x_unit, force_unit=force_unit)[0]
+    return read_record(
+        path,
+        dt=dt,
+        x_unit=x_unit,
+        force_unit=force_unit,
+        velocity=velocity,
+        normal_force_column=normal_force_column,
+    )[0]
 
 
 def read_record(
-    path: str | pathlib.Path, *, dt: float | None = None, x_unit: str | None = None, force_unit: str | None = None
+    path: str | pathlib.Path,
+    *,
+    dt: float | None = None,
+    x_unit: str | None = None,
+    force_unit: str | None = None,
+    velocity: str = "auto",
+    normal_force_column: str | Sequence[str] | None = None,
 ) -> tuple[FrictionData, RecordInfo]:
     """`load_record`, also returning a `RecordInfo` (columns used and ignored, units, samples, dt)."""
     path = pathlib.Path(path)
@@ -178,26 +234,33 @@ def read_record(
             dt = math.nan
         if not (math.isfinite(dt) and dt >= sys.float_info.min):  # subnormal: 1 / dt overflows
             raise RecordError(f"{path}: dt must be a positive finite sample time in seconds, got {dt!r}")
-    entries, units_entry = _read_table(path)
+    if velocity not in _VELOCITY_POLICIES:
+        raise RecordError(f"{path}: velocity must be 'auto', 'file' or 'derive', got {velocity!r}")
+    named = _normal_force_names(path, normal_force_column)
+    entries, units_entry = _read_table(path, named)
     columns: dict[str, str] = {}  # role -> the name as written in the file
     data: dict[str, np.ndarray] = {}  # role -> the values as written
-    declared: dict[str, list[tuple[str, str]]] = {"x": [], "force": [], "t": [], "dt": []}  # (unit, where given)
+    declared: dict[str, list[tuple[str, str]]] = {role: [] for role in ("x", "force", "t", "dt", "normal_force")}
+    normal: dict[str, tuple[str, np.ndarray, str | None]] = {}  # lower-case name -> (name, values, own unit)
     ignored = []
     for raw, values in entries:
-        name, unit = _split_unit(raw)
-        role = _ROLE.get(name.lower())
-        if role is None:
+        role, unit = _column_role(raw)
+        if raw.strip().lower() in named:
+            if role not in (None, "normal_force"):
+                raise RecordError(
+                    f"{path}: column {raw!r} gives {role!r}; it cannot also be the normal force (normal_force_column)"
+                )
+            values = _one_signal(path, raw, values)
+            normal[raw.strip().lower()] = (raw, values, _force_unit_of(raw) if role is None else unit)
+            continue
+        if role is None or (role == "normal_force" and named):
             if raw.strip():
                 ignored.append(raw)
             continue
         if role in columns:
             raise RecordError(f"{path}: columns {columns[role]!r} and {raw!r} both give {role!r}; keep one of them")
-        if values is None:
-            raise RecordError(f"{path}: {raw!r} does not hold numbers; give a numeric column or rename it")
-        if np.squeeze(values).ndim > 1:
-            raise RecordError(f"{path}: {raw!r} has shape {values.shape}; give one value per sample (a 1-D array)")
         columns[role] = raw
-        data[role] = values.reshape(-1)
+        data[role] = _one_signal(path, raw, values)
         if unit is not None:
             _declare(declared, role, unit, repr(raw), path)
     if units_entry is not None:
@@ -211,6 +274,12 @@ def read_record(
             f"{path}: need a displacement column 'x' (or position, displacement, pos) and/or a velocity column 'v' "
             "(or velocity, vel)"
         )
+    missing = [name for name in named if name not in normal]
+    if missing:
+        found = ", ".join(repr(raw) for raw, _ in entries) or "nothing"
+        raise RecordError(
+            f"{path}: no column {named[missing[0]]!r} for the normal force (normal_force_column); found: {found}"
+        )
     units = Units(
         x=_resolve_unit(path, "x", declared["x"], x_unit),
         force=_resolve_unit(path, "force", declared["force"], force_unit),
@@ -220,6 +289,29 @@ def read_record(
     force = _scaled(data["force"], units.force_factor)
     if force.size < 100:
         raise RecordError(f"{path}: only {force.size} samples; need at least 100")
+    normal_force = None
+    if "normal_force" in data:  # found by its alias: its unit is declared like any column's
+        entry_unit = _resolve_unit(path, "normal_force", declared["normal_force"], None, units.force)
+        normal_force = _scaled(data["normal_force"], _FORCE_UNITS[entry_unit])
+    elif normal:
+        default = _resolve_unit(path, "normal_force", declared["normal_force"], None, units.force)
+        normal_force = np.zeros(force.size)
+        for raw, values, own in normal.values():
+            unit = default if own is None else _resolve_unit(path, "normal_force", [(own, repr(raw))], None)
+            if values.size != force.size:
+                raise RecordError(
+                    f"{path}: column {raw!r} has {values.size} values but the record {force.size}; give one per sample"
+                )
+            normal_force += values * _FORCE_UNITS[unit]
+        columns["normal_force"] = " + ".join(raw for raw, _, _ in normal.values())
+    if velocity == "derive" and "v" in data:
+        if "x" not in data:
+            raise RecordError(
+                f"{path}: velocity='derive' needs a displacement column 'x' (or position, displacement, pos) to "
+                f"recompute the velocity from; the file has only {columns['v']!r}"
+            )
+        del data["v"]
+        ignored.append(columns.pop("v"))
     x = _scaled(data["x"], units.x_factor) if "x" in data else None
     v = _scaled(data["v"], units.x_factor) if "v" in data else None
     try:
@@ -228,21 +320,83 @@ def read_record(
         else:
             assert v is not None  # checked above: x and/or v
             motion = Motion.from_velocity(v, dt)
+        if normal_force is not None:
+            motion = Motion(x=motion.x, v=motion.v, dt=motion.dt, normal_force=normal_force)
         record = FrictionData(motion, force)
     except (ValueError, TypeError) as err:
         raise RecordError(f"{path}: {err}") from err
+    if velocity == "auto" and x is not None and v is not None:
+        ratio = _velocity_ratio(x, v, dt)
+        if not 0.5 <= ratio <= 2.0:
+            raise RecordError(
+                f"{path}: velocity column {columns['v']!r} disagrees with displacement column {columns['x']!r}: it "
+                f"is {ratio:.3g} times the rate of change of {columns['x']!r} (RMS); drop the velocity column or pass "
+                "velocity='derive' to recompute it from the displacement (velocity='file' keeps it unchecked)"
+            )
     return record, RecordInfo(str(path), columns, tuple(ignored), units, int(force.size), float(dt))
 
 
-def _read_table(path: pathlib.Path) -> tuple[list[tuple[str, np.ndarray | None]], str | None]:
+def _normal_force_names(path: pathlib.Path, names: str | Sequence[str] | None) -> dict[str, str]:
+    """The `normal_force_column` argument as {lower-case trimmed name: name as given}."""
+    if names is None:
+        return {}
+    listed = [names] if isinstance(names, str) else list(names)
+    if not listed or not all(isinstance(name, str) and name.strip() for name in listed):
+        raise RecordError(
+            f"{path}: normal_force_column must be a column name or a sequence of column names, got {names!r}"
+        )
+    out: dict[str, str] = {}
+    for name in listed:
+        key = name.strip().lower()
+        if key in out:
+            raise RecordError(f"{path}: normal_force_column names {out[key]!r} twice; name each column once")
+        out[key] = name
+    return out
+
+
+def _one_signal(path: pathlib.Path, raw: str, values: np.ndarray | None) -> np.ndarray:
+    """The values of column `raw` as a 1-D array; an error if they are not numbers or not one per sample."""
+    if values is None:
+        raise RecordError(f"{path}: {raw!r} does not hold numbers; give a numeric column or rename it")
+    if np.squeeze(values).ndim > 1:
+        raise RecordError(f"{path}: {raw!r} has shape {values.shape}; give one value per sample (a 1-D array)")
+    return values.reshape(-1)
+
+
+def _velocity_ratio(x: np.ndarray, v: np.ndarray, dt: float) -> float:
+    """How many times the rate of change of `x` the velocity `v` is: an RMS ratio, negative where they
+    anti-correlate.
+
+    The change of `x` over windows of L samples is compared with the integral of `v` (trapezoidal) over the
+    same windows, L the first of 1, 2, 4, ... over which `x` changes by a quarter of its standard deviation
+    (RMS): long enough that sensor noise, which differences over short windows amplify, does not dominate the
+    change of `x`, and short enough that no window spans a period of an oscillation or lets a bias in `v` add up.
+    """
+    swept = np.concatenate(([0.0], np.cumsum(0.5 * (v[1:] + v[:-1])) * dt))
+    spread = float(np.std(x))
+    if spread == 0:  # `x` that never moves agrees only with `v` = 0
+        return 1.0 if not np.any(v) else math.inf
+    lag = 1
+    while True:
+        moved = x[lag:] - x[:-lag]
+        scale = math.sqrt(float(np.mean(moved**2)))
+        if scale >= 0.25 * spread or 2 * lag >= x.size:
+            break
+        lag *= 2
+    integral = swept[lag:] - swept[:-lag]
+    ratio = math.sqrt(float(np.mean(integral**2))) / scale
+    return -ratio if float(np.dot(moved, integral)) < 0 else ratio
+
+
+def _read_table(path: pathlib.Path, named: dict[str, str]) -> tuple[list[tuple[str, np.ndarray | None]], str | None]:
     """The file's columns in order, `(name as written, values or None where not numeric)`, and an NPZ `units`
-    entry if there is one."""
+    entry if there is one. Of a CSV file only the columns with a role or `named` are parsed."""
     suffix = path.suffix.lower()
     try:
         if suffix == ".npz":
             return _read_npz(path)
         if suffix == ".csv":
-            return read_csv(path, lambda name: _split_unit(name)[0].lower() in _ROLE), None
+            return read_csv(path, lambda name: _column_role(name)[0] is not None or name.strip().lower() in named), None
     except RecordError:
         raise
     except CSVError as err:
@@ -258,7 +412,12 @@ def _read_npz(path: pathlib.Path) -> tuple[list[tuple[str, np.ndarray | None]], 
     entries: list[tuple[str, np.ndarray | None]] = []
     units = None
     with np.load(path) as archive:
+        table = _npz_table(path, archive)
         for key in archive.files:
+            if table is not None and key in ("data", "columns"):
+                if key == "data":  # the table's columns in its place, as if each were a key
+                    entries.extend(table)
+                continue
             try:
                 value = archive[key]
             except ValueError:  # an object array (pickled metadata), which allow_pickle=False refuses
@@ -272,6 +431,28 @@ def _read_npz(path: pathlib.Path) -> tuple[list[tuple[str, np.ndarray | None]], 
             else:
                 entries.append((key, None))
     return entries, units
+
+
+def _npz_table(path: pathlib.Path, archive: Any) -> list[tuple[str, np.ndarray]] | None:
+    """The columns of an NPZ table (`data`, 2-D numeric, and `columns`, one name per column of `data`) as
+    `(name, values)`, the values views of one float array; None if the archive holds no such table."""
+    if not {"data", "columns"} <= set(archive.files):
+        return None
+    try:
+        names, data = archive["columns"], archive["data"]
+    except ValueError:  # pickled objects: not a table of numbers and names
+        return None
+    if names.ndim != 1 or names.dtype.kind not in "US" or data.ndim != 2 or data.dtype.kind not in "iuf":
+        return None
+    if names.size != data.shape[1]:
+        raise RecordError(
+            f"{path}: the table 'data' has {data.shape[1]} columns but 'columns' names {names.size}; give one name "
+            "per column"
+        )
+    data = data.astype(float, copy=False)  # the reader's own array: scaled in place later
+    return [
+        (str(name.decode() if isinstance(name, bytes) else name), data[:, j]) for j, name in enumerate(names.tolist())
+    ]
 
 
 def _sample_time(
@@ -334,6 +515,54 @@ def _scaled(values: np.ndarray, factor: float) -> np.ndarray:
     return values
 
 
+def _role_of(name: str) -> str | None:
+    """The role of a column name without its unit (`"Position"` -> `"x"`), or None."""
+    name = name.strip()
+    return "normal_force" if name == _NORMAL_SYMBOL else _ROLE.get(name.lower())
+
+
+def _column_role(raw: str) -> tuple[str | None, str | None]:
+    """The role and declared unit of a column: `"x [um]"` -> `("x", "um")`, `"displacement_in"` ->
+    `("x", "in")`, `"velocity_in_per_s"` -> `("v", "in/s")`, `"temperature"` -> `(None, None)`. A suffix is a
+    unit only if it is one of the role's quantity, else part of the name (`"x_raw"` -> `(None, None)`)."""
+    name, unit = _split_unit(raw)
+    role = _role_of(name)
+    if role is not None or unit is not None:
+        return role, unit
+    for cut in range(len(name)):
+        if name[cut] != "_":
+            continue
+        role, suffix = _role_of(name[:cut]), name[cut + 1 :]
+        if role is None:
+            continue
+        if role == "v":
+            base, sep, per = suffix.rpartition("_per_")
+            base, per = (base, per) if sep else suffix.partition("/")[::2]
+            if per == "s" and _is_unit("x", base):
+                return role, f"{base}/s"
+        elif _is_unit("force" if role == "normal_force" else "t" if role == "dt" else role, suffix):
+            return role, suffix
+    return None, None
+
+
+def _is_unit(quantity: str, name: str) -> bool:
+    try:
+        Units.check(quantity, name)
+    except ValueError:
+        return False
+    return True
+
+
+def _force_unit_of(raw: str) -> str | None:
+    """The unit a column named for the normal force declares: in brackets (any text, checked later) or as a
+    force-unit suffix (`"actuator_force1_lb"` -> `"lb"`); None if it declares none."""
+    name, unit = _split_unit(raw)
+    if unit is not None:
+        return unit
+    head, sep, suffix = name.rpartition("_")
+    return suffix if sep and head and _is_unit("force", suffix) else None
+
+
 def _split_unit(raw: str) -> tuple[str, str | None]:
     """`"x [um]"` -> `("x", "um")`, `"force (kN)"` -> `("force", "kN")`, `"t"` -> `("t", None)`."""
     match = re.fullmatch(r"\s*(.*?)\s*(?:\[([^\]]*)\]|\(([^)]*)\))\s*", raw)
@@ -349,11 +578,11 @@ def _parse_units_entry(entry: str, path: pathlib.Path) -> list[tuple[str, str]]:
         if not item.strip():
             continue
         name, sep, unit = item.partition("=")
-        role = _ROLE.get(name.strip().lower())
+        role = _role_of(name)
         if not sep or role is None or not unit.strip():
             raise RecordError(
                 f"{path}: cannot read {item.strip()!r} in the units entry; write it as 'x=um,force=kN' "
-                "(names: x, v, force, t, dt or their aliases)"
+                "(names: x, v, force, t, dt, normal_force or their aliases)"
             )
         out.append((role, unit.strip()))
     return out
@@ -371,12 +600,15 @@ def _declare(declared: dict[str, list[tuple[str, str]]], role: str, unit: str, w
     declared[role].append((unit, where))
 
 
-_DEFAULTS = {"x": "m", "force": "N", "t": "s"}
+_DEFAULTS = {"x": "m", "force": "N", "t": "s", "normal_force": "N"}
 _OPTIONS = {"x": "x_unit= (--x-unit)", "force": "force_unit= (--force-unit)"}
 
 
-def _resolve_unit(path: Any, quantity: str, declared: list[tuple[str, str]], override: str | None) -> str:
-    """The unit of `quantity`: the argument `override` if given, else the one the file declares, else SI."""
+def _resolve_unit(
+    path: Any, quantity: str, declared: list[tuple[str, str]], override: str | None, default: str | None = None
+) -> str:
+    """The unit of `quantity`: the argument `override` if given, else the one the file declares, else `default`
+    (SI if None)."""
     if override is not None:
         try:
             return Units.check(quantity, override)
@@ -392,4 +624,4 @@ def _resolve_unit(path: Any, quantity: str, declared: list[tuple[str, str]], ove
     if len(found) > 1:
         listed = " and ".join(f"{unit} ({where})" for unit, where in found.items())
         raise RecordError(f"{path}: the file gives the {_KIND[quantity]} unit as {listed}; make them agree{fix}")
-    return next(iter(found), _DEFAULTS[quantity])
+    return next(iter(found), default if default is not None else _DEFAULTS[quantity])

@@ -82,8 +82,14 @@ class FrictionData(eqx.Module):
 
 
 def concatenate(parts: Sequence[FrictionData]) -> FrictionData:
-    """Join records end to end (same `dt`)."""
+    """Join records end to end (same `dt`); each signal of the first record's motion (`x`, `v`, `a`,
+    `normal_force`) is joined."""
     first = parts[0].motion
-    x = None if first.x is None else np.concatenate([np.asarray(p.motion.x) for p in parts])
-    v = None if first.v is None else np.concatenate([np.asarray(p.motion.v) for p in parts])
-    return FrictionData(Motion(x=x, v=v, dt=first.dt), np.concatenate([np.asarray(p.force) for p in parts]))
+
+    def join(name: str) -> np.ndarray | None:
+        if getattr(first, name) is None:
+            return None
+        return np.concatenate([np.asarray(getattr(p.motion, name)) for p in parts])
+
+    motion = Motion(x=join("x"), v=join("v"), dt=first.dt, a=join("a"), normal_force=join("normal_force"))
+    return FrictionData(motion, np.concatenate([np.asarray(p.force) for p in parts]))
