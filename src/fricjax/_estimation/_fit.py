@@ -35,8 +35,10 @@ from ._problem import (
     gauss_newton_std,
     nonnegative_flags,
     nonnegative_mask,
+    offset_paths,
     parameter_specs,
 )
+from ._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch, record_nuisances
 from ._sharding import shard_batch
 from ._solution import FitFailed, Solution
 from ._solvers import as_solver, levenberg_marquardt
@@ -81,6 +83,7 @@ def fit(
     throw: bool = False,
     strategies: Sequence[AbstractStrategy] = (),
     device: Any = "auto",
+    nuisances: Nuisances | None = None,
 ) -> Solution:
     """Fit the parameters of `model` to `data` by gradients through the simulator.
 
@@ -89,14 +92,19 @@ def fit(
     - `model`: the initial model (any fricjax model, or any equinox Module the loss can evaluate, such as an
       `EMPSPlant` with `EMPSOpenLoopLoss`); every floating leaf is trained except `Fixed` ones and smoothing
       widths (narrow it with `train` / `freeze`).
-    - `data`: training data (`FrictionData` for the friction losses; the loss's `data_type` otherwise).
+    - `data`: training data (`FrictionData` for the friction losses; the loss's `data_type` otherwise), or a list of
+      `FrictionData` records of one device (different lengths, one sample time): the model's parameters are shared,
+      each record gets its own nuisances (`nuisances`), the records are simulated side by side in one program
+      (padded, masked), and the loss is the mean over records of each record's NMSE (`fj.RecordsLoss`).
     - `loss`: `SimulationLoss()` (default), `MultipleShootingLoss(L)`, `OneStepLoss()`.
     - `solver`: an optax transformation (default `optax.adam(1e-2)`; parameters are in log space for positive
       ones, so a learning rate of 1e-2 is a 1 % step), an optimistix least-squares solver
       (`optx.LevenbergMarquardt(rtol, atol)`, `optx.GaussNewton`) or minimiser (`optx.BFGS`), or any
       `fj.AbstractSolver` (the interface of the one optimisation loop; docs/concepts.md).
     - `steps`: optimiser steps (optax) or maximum solver steps (optimistix), split over continuation stages.
-    - `validation`: data for early stopping / choosing among starts (scored by free-run simulation).
+    - `validation`: data for early stopping / choosing among starts (scored by free-run simulation); with a list of
+      training records, a list of records (or an `fj.RecordBatch` whose mask scores only the validation part of
+      each), each scored with its least-squares offset.
     - `validation_burn_in`: samples of `validation` simulated but not scored. For hysteretic models pass the
       record from its start up to the end of the validation part, with `validation_burn_in` = the length of
       the part before it, so the model enters the validation part in the state its history gives it.
@@ -129,6 +137,8 @@ def fit(
       time-parallel form (or on a short record) when the default device is an accelerator, the accelerator
       otherwise (batched starts, long records of LuGre / Maxwell-slip); `"cpu"`, `"accelerator"`, a `jax.Device`;
       `None`: JAX's default device. The choice is stated in `message`.
+    - `nuisances`: with several records, which per-record nuisances are estimated with the shared parameters:
+      `fj.Nuisances(offset=True, drift=False, initial_state=True)` (the default); reported in `Solution.records`.
     - `throw`: raise `fj.FitFailed` (holding the `Solution`) when the fit diverged or its solver failed, instead
       of returning the failure.
 
@@ -163,6 +173,17 @@ def fit(
     loss = SimulationLoss() if loss is None else loss
     if not isinstance(loss, AbstractLoss):
         raise TypeError(f"fit: `loss` must be a fricjax loss (fj.SimulationLoss(), ...), got {type(loss).__name__}.")
+    if isinstance(data, (list, tuple, RecordBatch)):  # several records: shared parameters, per-record nuisances
+        data, validation, loss, freeze = _several_records(
+            model, data, validation, validation_burn_in, loss, nuisances, freeze
+        )
+        validation_burn_in = None
+    elif nuisances is not None:
+        raise ValueError(
+            "fit: `nuisances` are per-record parameters of a fit to several records; pass a list of records as `data`."
+        )
+    elif isinstance(validation, (list, tuple, RecordBatch)):
+        raise ValueError("fit: a list of validation records needs a list of training records as `data`.")
     _check_records(model, data, validation, loss)
     steps = positive_int(steps, "steps", "fit")
     eval_every = optional(positive_int, eval_every, "eval_every", "fit")
@@ -203,6 +224,9 @@ def fit(
         val_loss=val_loss_fn,
     )
     count = jax.tree_util.tree_leaves(plan.starts)[0].shape[0] if jax.tree_util.tree_leaves(plan.starts) else 1
+    if isinstance(loss, RecordsLoss):
+        loss = loss.bind(model, data)
+        problem = dataclasses.replace(problem, loss=loss, val_loss=loss.validation_loss())
     extra0 = loss.init_extra(model, data)
     extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + e.shape), extra0)
     ys0 = shard_batch((plan.starts, extras))  # the starts spread over the local devices (identity on one)
@@ -319,6 +343,7 @@ def fit(
         best_start=original,
         std=std,
         extra=chosen[1],
+        records=record_nuisances(loss, fitted, chosen[1], data) if isinstance(loss, RecordsLoss) else None,
     )
     if throw and not solution.success:
         raise FitFailed(solution)
@@ -369,6 +394,35 @@ def _keyword_strategies(
     if tolerance is not None:
         out.append(Tolerance(nonnegative_float(tolerance, "tolerance", "fit")))
     return out
+
+
+def _several_records(
+    model: Any, data: Any, validation: Any, validation_burn_in: Any, loss: Any, nuisances: Any, freeze: Any
+) -> tuple[RecordBatch, Any, RecordsLoss, Any]:
+    """A fit to several records: the padded batches, the loss summed over records, and the model's own offsets
+    frozen where each record has one."""
+    nuisances = Nuisances() if nuisances is None else nuisances
+    if not isinstance(nuisances, Nuisances):
+        raise TypeError(f"fit: `nuisances` must be fj.Nuisances(offset=, drift=, initial_state=), got {nuisances!r}.")
+    if isinstance(loss, RecordsLoss):
+        loss = loss.loss
+    batch = as_record_batch(data, model, "data")
+    if isinstance(validation, FrictionData):
+        validation = [validation]
+    if isinstance(validation, (list, tuple)):
+        burn_in = (
+            None if validation_burn_in is None else nonnegative_int(validation_burn_in, "validation_burn_in", "fit")
+        )
+        starts = None if burn_in is None else [burn_in] * len(validation)
+        validation = as_record_batch(validation, model, "validation", starts)
+    elif validation is not None and not isinstance(validation, RecordBatch):
+        raise TypeError(f"fit: `validation` must be records like `data`, got {type(validation).__name__}.")
+    if nuisances.offset:  # one offset per record replaces the model's own
+        offsets = tuple(path for path in offset_paths(model))
+        if offsets:
+            items = [freeze] if isinstance(freeze, str) or callable(freeze) else list(freeze or ())
+            freeze = (*items, *offsets)
+    return batch, validation, RecordsLoss(loss, nuisances), freeze
 
 
 def _check_records(model: Any, data: Any, validation: Any, loss: Any) -> None:

@@ -43,6 +43,20 @@ class AbstractLoss(eqx.Module):
     def residuals(self, model: Any, extra: Any, data: Any) -> Float[Array, " R"]:
         """The residual vector (prediction - measurement, scaled)."""
 
+    def scaled_residuals(self, model: Any, extra: Any, data: Any, scale: Array, mask: Array | None) -> Array:
+        """The residuals with the force errors divided by `scale` (a scalar or one value per sample) instead of
+        the record's force spread, and zero where `mask` (one bool per sample, or None) is False: how a padded
+        batch of records (`fj.fit(model, [record, ...])`) scores each record by its own spread. Friction losses
+        implement it; others cannot be fitted to several records."""
+        raise TypeError(
+            f"{type(self).__name__} scores one record only; fit several records with fj.SimulationLoss, "
+            "fj.OneStepLoss or fj.MultipleShootingLoss."
+        )
+
+    def scored_samples(self, length: int) -> slice:
+        """Which samples of a record of `length` the force errors of `residuals` cover (in order)."""
+        return slice(0, length)
+
     def __call__(self, model: Any, extra: Any, data: Any) -> Array:
         return jnp.mean(self.residuals(model, extra, data) ** 2)
 
@@ -75,11 +89,17 @@ class SimulationLoss(AbstractLoss):
         return SimulationLoss(burn_in=self.burn_in, batching=self.batching)
 
     def residuals(self, model: Any, extra: Any, data: FrictionData) -> Array:
+        return self.scaled_residuals(model, extra, data, self._scale(data), None)
+
+    def scaled_residuals(self, model: Any, extra: Any, data: FrictionData, scale: Array, mask: Array | None) -> Array:
         model = unwrap(model)
         _, force = run(
             model, model.samples(data.motion), model.init_state(), derivatives=self.derivatives, batching=self.batching
         )
-        return (force - data.force)[self.burn_in :] / self._scale(data)
+        return _masked((force - data.force) / scale, mask)[self.burn_in :]
+
+    def scored_samples(self, length: int) -> slice:
+        return slice(self.burn_in, length)
 
 
 class OneStepLoss(AbstractLoss):
@@ -105,9 +125,15 @@ class OneStepLoss(AbstractLoss):
                 f"OneStepLoss: {type(model).__name__} feeds back no outputs (it has no `feedback`), so its one-step "
                 "prediction is its simulation; use fj.SimulationLoss() or fj.MultipleShootingLoss(...) for it."
             )
+        return self.scaled_residuals(model, extra, data, self._scale(data), None)
+
+    def scaled_residuals(self, model: Any, extra: Any, data: FrictionData, scale: Array, mask: Array | None) -> Array:
         model = unwrap(model)
         _, force = run(model, model.samples(data.motion), model.init_state(), data.force)
-        return (force - data.force)[self.burn_in :] / self._scale(data)
+        return _masked((force - data.force) / scale, mask)[self.burn_in :]
+
+    def scored_samples(self, length: int) -> slice:
+        return slice(self.burn_in, length)
 
 
 class MultipleShootingLoss(AbstractLoss):
@@ -161,6 +187,12 @@ class MultipleShootingLoss(AbstractLoss):
         return jax.tree_util.tree_map(lambda leaf: leaf[ends], states)
 
     def residuals(self, model: Any, extra: Any, data: FrictionData) -> Array:
+        return self.scaled_residuals(model, extra, data, self._scale(data), None)
+
+    def scored_samples(self, length: int) -> slice:
+        return slice(0, (length // self.segment_length) * self.segment_length)
+
+    def scaled_residuals(self, model: Any, extra: Any, data: FrictionData, scale: Array, mask: Array | None) -> Array:
         model = unwrap(model)
         _, (segments, rebuild), force, count = self._segments(model, data)
         first = model.init_state()
@@ -168,7 +200,10 @@ class MultipleShootingLoss(AbstractLoss):
         finals, predicted = jax.vmap(
             lambda state, part: run(model, rebuild(part), state, derivatives=self.derivatives)
         )(starts, segments)
-        errors = ((predicted - force) / self._scale(data)).reshape(-1)
+        used = count * self.segment_length
+        scale = scale[:used].reshape(force.shape) if jnp.ndim(scale) else scale
+        errors = _masked((predicted - force) / scale, None if mask is None else mask[:used].reshape(force.shape))
+        errors = errors.reshape(-1)
         gaps = []
         for final, start in zip(jax.tree_util.tree_leaves(finals), jax.tree_util.tree_leaves(extra), strict=True):
             gap = (final[:-1] - start).reshape(count - 1, -1)
@@ -176,3 +211,7 @@ class MultipleShootingLoss(AbstractLoss):
             gaps.append((gap / scale).reshape(-1))
         continuity = jnp.sqrt(self.continuity_weight) * jnp.concatenate(gaps) if gaps else jnp.zeros((0,))
         return jnp.concatenate([errors, continuity.astype(errors.dtype)])
+
+
+def _masked(errors: Array, mask: Array | None) -> Array:
+    return errors if mask is None else jnp.where(mask, errors, 0.0)

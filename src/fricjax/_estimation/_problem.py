@@ -174,6 +174,18 @@ def nonnegative_mask(model: Any) -> Any:
     return mask
 
 
+def offset_paths(model: Any) -> list[str]:
+    """Dotted paths of the models' own force-offset fields (`offset`, trainable arrays) in `model`."""
+    out = []
+    for prefix, node in submodels(model):
+        value = getattr(node, "offset", None)
+        if isinstance(value, Fixed) or "offset" not in {field.name for field in dataclasses.fields(node)}:
+            continue
+        if jax.tree_util.tree_leaves(eqx.filter(value, eqx.is_inexact_array)):
+            out.append(prefix + "offset")
+    return out
+
+
 def _nonnegative_paths(model: Any) -> list[str]:
     return [
         prefix + field.name

@@ -114,7 +114,10 @@ class Solution:
     - `evaluations`: solver steps per start; `wall_time` [s]; `num_starts`; `best_start`.
     - `std`: pytree shaped like `fj.unwrap(model)`, the Gauss-Newton standard deviations of the trained
       physical parameters (residual variance x (J^T J)^-1), NaN for frozen ones; `None` if not computed.
-    - `extra`: the loss's extra decision variables (multiple-shooting states).
+    - `extra`: the loss's extra decision variables (multiple-shooting states; a fit to several records: the
+      per-record nuisances in units of each record's force spread).
+    - `records`: a fit to several records: `fj.RecordNuisances` (each record's offset [N], drift [N/s], initial
+      state and training NMSE); `None` otherwise.
     """
 
     model: Any
@@ -130,6 +133,7 @@ class Solution:
     best_start: int = 0
     std: Any = None
     extra: Any = None
+    records: Any = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "result", as_result(self.result))  # a name is accepted (thin compatibility)
@@ -186,6 +190,15 @@ class Solution:
             lines.append(f"  {path} = {text}" + (f" [{unit}]" if unit else ""))
         if len(rows) > max_parameters:
             lines.append(f"  ... and {len(rows) - max_parameters} more parameter arrays (Solution.parameters())")
+        if self.records is not None:
+            lines.append(f"  per record ({len(self.records.names)}):")
+            for row in self.records.table():
+                text = f"    {row['name']}: train NMSE {row['train_nmse_percent']:.4g} %"
+                if row["offset_N"] is not None:
+                    text += f", offset {row['offset_N']:.4g} N"
+                if row["drift_N_per_s"] is not None:
+                    text += f", drift {row['drift_N_per_s']:.4g} N/s"
+                lines.append(text)
         return "\n".join(lines)
 
 

@@ -26,6 +26,7 @@ from .._validation import nonnegative_int, positive_int
 from ._loop import Search, run_stage
 from ._losses import AbstractLoss, SimulationLoss
 from ._problem import Problem
+from ._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch
 from ._sharding import shard_batch
 from ._solvers import OptaxSolver
 
@@ -94,18 +95,21 @@ def sweep(
     validation_burn_in: int = 0,
     checks: int = 10,
     progress: bool = False,
+    nuisances: Nuisances | None = None,
 ) -> SweepResult:
     """Train a batch of configurations side by side in one vmap-ed, jit-compiled program.
 
     **Arguments:**
 
     - `models`: a list of models of one structure (`fj.stack_models` is applied) or an already stacked batch.
-    - `data`: the training `fj.FrictionData`, shared by every configuration.
+    - `data`: the training `fj.FrictionData`, shared by every configuration, or a list of records of one device (as
+      `fj.fit`: per-record nuisances `nuisances`, default `fj.Nuisances()`, the loss the mean of the records' NMSEs).
     - `loss`: any fricjax loss (default `fj.SimulationLoss()`, output error; `fj.OneStepLoss()` teacher forcing).
     - `learning_rate`: one number, or one per configuration (a sweep over learning rates).
     - `optimiser`: an optax optimiser factory taking `learning_rate` (default `optax.adam`).
     - `steps`: optimiser steps; `checks`: how often the training loss is recorded (and the bar advanced).
-    - `validation`, `validation_burn_in`: a record scored by free run after the burn-in samples.
+    - `validation`, `validation_burn_in`: a record scored by free run after the burn-in samples (a list of records
+      with a list as `data`, each scored with its least-squares offset).
 
     With several local devices the configurations are sharded over them (`fj.shard_batch`: as many devices as
     divide the batch); the results are those of one device.
@@ -139,6 +143,17 @@ def sweep(
         raise ValueError(f"sweep: `learning_rate` must be positive and finite, one number or one per model ({count}).")
 
     one = jax.tree_util.tree_map(lambda leaf: leaf[0] if eqx.is_array(leaf) else leaf, batch)
+    val_loss_fn: AbstractLoss = SimulationLoss(burn_in=validation_burn_in)
+    if isinstance(data, (list, tuple, RecordBatch)):  # several records: per-record nuisances, as fj.fit
+        nuisances = Nuisances() if nuisances is None else nuisances
+        data = as_record_batch(data, one, "data")
+        loss = RecordsLoss(loss, nuisances).bind(one, data)
+        val_loss_fn = loss.validation_loss()
+        if isinstance(validation, (list, tuple)):
+            starts = [validation_burn_in] * len(validation)
+            validation = as_record_batch(validation, one, "validation", starts)
+    elif nuisances is not None:
+        raise ValueError("sweep: `nuisances` are per-record parameters of a sweep over several records; pass a list.")
     params, static = eqx.partition(batch, trainable_filter(one))
     extra0 = loss.init_extra(one, data)
     extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + jnp.shape(e)), extra0)
@@ -161,10 +176,10 @@ def sweep(
     )  # fmt: skip
     search.close()
     trained = eqx.combine(search.ys[0], static)
-    train_loss = np.asarray(_batch_loss(trained, loss, extra0, data))
+    train_loss = np.asarray(_batch_loss(trained, loss, search.ys[1], data))
     val_loss = np.full(count, np.nan)
     if validation is not None:
-        val_loss = np.asarray(_batch_loss(trained, SimulationLoss(burn_in=validation_burn_in), None, validation))
+        val_loss = np.asarray(_batch_loss(trained, val_loss_fn, None, validation))
     return SweepResult(
         models=trained,
         train_loss=train_loss,
@@ -193,5 +208,8 @@ def _init_states(ys: Any, rates: Any, optimiser: Any) -> Any:
 
 
 @eqx.filter_jit
-def _batch_loss(models: Any, loss: AbstractLoss, extra: Any, data: Any) -> Any:
-    return eqx.filter_vmap(lambda m: loss(m, extra, data))(models)
+def _batch_loss(models: Any, loss: AbstractLoss, extras: Any, data: Any) -> Any:
+    """The loss of every configuration with its own extra decision variables (`extras` batched; None: none)."""
+    if extras is None:
+        return eqx.filter_vmap(lambda m: loss(m, None, data))(models)
+    return eqx.filter_vmap(lambda m, e: loss(m, e, data))(models, extras)

@@ -1,0 +1,176 @@
+"""Fits to several records (`fj.fit(model, [record, ...])`): shared parameters, per-record nuisances (offset, drift,
+initial state), padding that never leaks into the loss, and one-line errors for records that cannot go together."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import fricjax as fj
+
+DT = 1e-3
+OFFSETS = (0.3, -0.2, 0.1)
+DRIFTS = (0.2, 0.0, -0.1)
+SHAPES = ((1e-3, 1.0, 1200), (2e-3, 2.0, 800), (5e-4, 1.5, 1500))  # amplitude [m], frequency [Hz], samples
+
+
+def _truth() -> fj.LuGre:
+    return fj.LuGre(
+        fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3),
+        sigma0=1e5,
+        sigma1=300.0,
+        sigma2=40.0,
+        smoothing=fj.Smooth(1e-5),
+    )
+
+
+def _start() -> fj.LuGre:
+    return fj.LuGre(
+        fj.ExponentialStribeck(Fc=0.7, Fs=1.2, vs=2e-3),
+        sigma0=5e4,
+        sigma1=200.0,
+        sigma2=20.0,
+        smoothing=fj.Smooth(1e-5),
+    )
+
+
+def _records(drift: bool = False, noise: float = 0.005) -> list[fj.FrictionData]:
+    truth = _truth()
+    out = []
+    for i, (amplitude, frequency, n) in enumerate(SHAPES):
+        t = np.arange(n) * DT
+        motion = fj.Motion.from_position(amplitude * np.sin(2 * np.pi * frequency * t + 0.7 * i), dt=DT)
+        force = np.asarray(fj.simulate(truth, motion)) + OFFSETS[i] + (DRIFTS[i] * t if drift else 0.0)
+        out.append(fj.FrictionData(motion, force + noise * np.random.default_rng(i).normal(size=n)))
+    return out
+
+
+def test_padding_never_leaks_the_loss_is_the_mean_of_each_records_nmse():
+    """Without nuisances the batch loss is exactly the mean of the single-record losses (each normalised by its own
+    force spread): padding to the longest record changes nothing."""
+    records = _records()
+    model = _start()
+    loss = fj.RecordsLoss(fj.SimulationLoss(), fj.Nuisances(offset=False, drift=False, initial_state=False))
+    batch = fj.RecordBatch.from_records(records, requires=model.requires)
+    assert batch.count == 3 and batch.length == max(n for *_, n in SHAPES)
+    together = float(loss(model, loss.init_extra(model, batch), batch))
+    alone = [float(fj.SimulationLoss()(model, None, record)) for record in records]
+    np.testing.assert_allclose(together, np.mean(alone), rtol=1e-10)
+    # and with a burn-in the scored samples of each record are the same as alone
+    burned = fj.RecordsLoss(fj.SimulationLoss(burn_in=100), loss.nuisances)
+    alone = [float(fj.SimulationLoss(burn_in=100)(model, None, record)) for record in records]
+    np.testing.assert_allclose(float(burned(model, burned.init_extra(model, batch), batch)), np.mean(alone), rtol=1e-10)
+
+
+def test_shared_parameters_and_each_records_offset_and_drift_are_recovered():
+    records = _records(drift=True)
+    solution = fj.fit(
+        _start(),
+        records,
+        solver=fj.levenberg_marquardt(),
+        steps=60,
+        scaling=fj.ParameterScaling(),
+        nuisances=fj.Nuisances(drift=True),
+    )
+    assert solution.success, solution.message
+    fitted = fj.unwrap(solution.model)
+    np.testing.assert_allclose(float(fitted.stribeck.Fc), 1.0, rtol=0.02)
+    np.testing.assert_allclose(float(fitted.sigma2), 40.0, rtol=0.02)
+    assert float(fitted.offset) == 0.0  # held: each record has its own offset
+    nuisances = solution.records
+    assert nuisances.names == ("record 0", "record 1", "record 2")
+    np.testing.assert_allclose(nuisances.offset, OFFSETS, atol=0.01)
+    np.testing.assert_allclose(nuisances.drift, DRIFTS, atol=0.02)
+    assert np.all(nuisances.train_nmse < 1e-3)  # the noise floor is ~1e-4 of the force variance
+    assert "per record (3)" in solution.summary() and "drift" in solution.summary()
+    # a drift is never part of the model: the fitted model on a record is the friction model alone
+    assert not hasattr(fitted, "rate")
+
+
+def test_initial_state_of_each_record_is_estimated():
+    """Records cut from the middle of a motion start in a state the model's rest state is not: the per-record
+    initial state lets the fit explain the first samples (a Dahl model: its state is the force itself)."""
+    truth = fj.Dahl(sigma0=2e4, Fc=1.0, alpha=1.0)
+    t = np.arange(3000) * DT
+    motion = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * 1.0 * t), dt=DT)
+    full = fj.FrictionData(motion, np.asarray(fj.simulate(truth, motion)))
+    records = [full.slice(300, 1300), full.slice(1700, 3000)]  # each starts mid-loop, at a force far from 0
+    start = fj.Dahl(sigma0=1e4, Fc=0.8, alpha=1.0)
+    kwargs = dict(solver=fj.levenberg_marquardt(), steps=40, scaling=fj.ParameterScaling(), train=("sigma0", "Fc"))
+    with_state = fj.fit(start, records, nuisances=fj.Nuisances(offset=False), **kwargs)
+    without = fj.fit(start, records, nuisances=fj.Nuisances(offset=False, initial_state=False), **kwargs)
+    assert with_state.train_loss < 1e-6 < without.train_loss
+    initial = with_state.records.initial_state
+    # a record's first sample has no increment (dx_0 = 0), so its first force is its initial state
+    expected = [float(full.force[300]), float(full.force[1700])]
+    np.testing.assert_allclose(np.asarray(initial.F).reshape(-1), expected, atol=2e-3)
+    np.testing.assert_allclose(float(fj.unwrap(with_state.model).Fc), 1.0, rtol=1e-3)
+
+
+def test_gradients_of_the_records_loss_agree_with_finite_differences():
+    records = _records(drift=True)
+    model = fj.unwrap(_start())
+    loss = fj.RecordsLoss(fj.SimulationLoss(), fj.Nuisances(drift=True))
+    batch = fj.RecordBatch.from_records(records, requires=model.requires)
+    loss = loss.bind(model, batch)
+    extra = loss.init_extra(model, batch)
+
+    def value(offset, rate, sigma2):
+        m = eqx.tree_at(lambda m: m.sigma2, model, sigma2)
+        e = eqx.tree_at(lambda e: (e.offset, e.rate), extra, (offset, rate))
+        return loss(m, e, batch)
+
+    args = (extra.offset, extra.rate + 0.1, jnp.asarray(25.0))
+    grads = jax.grad(value, argnums=(0, 1, 2))(*args)
+    for which in range(3):
+        for index in range(np.size(args[which])):
+            h = 1e-6
+            up = [jnp.asarray(a, float) for a in args]
+            down = [jnp.asarray(a, float) for a in args]
+            up[which] = up[which].reshape(-1).at[index].add(h).reshape(np.shape(args[which]))
+            down[which] = down[which].reshape(-1).at[index].add(-h).reshape(np.shape(args[which]))
+            numeric = (float(value(*up)) - float(value(*down))) / (2 * h)
+            analytic = float(np.asarray(grads[which]).reshape(-1)[index])
+            np.testing.assert_allclose(analytic, numeric, rtol=1e-4, atol=1e-9)
+
+
+def test_one_step_and_multiple_shooting_losses_take_record_lists():
+    records = _records()
+    narx = fj.MLPNARX.init(fj.NARXRegressors(("v",), 1, 2), 4, key=jax.random.PRNGKey(0))
+    batch = fj.RecordBatch.from_records(records, requires=narx.requires)
+    one_step = fj.RecordsLoss(fj.OneStepLoss(), fj.Nuisances(offset=False, initial_state=False))
+    together = float(one_step(narx, one_step.init_extra(narx, batch), batch))
+    alone = [float(fj.OneStepLoss()(narx, None, record)) for record in records]
+    np.testing.assert_allclose(together, np.mean(alone), rtol=1e-8)
+    solution = fj.fit(_start(), records, loss=fj.MultipleShootingLoss(200), solver=fj.levenberg_marquardt(), steps=5)
+    assert np.isfinite(solution.train_loss) and solution.records.offset.shape == (3,)
+
+
+def test_multistart_sweep_and_validation_records():
+    records = _records()
+    solution = fj.fit(_start(), records[:2], validation=records[2:], steps=10, multistart=2, seed=0)
+    assert solution.num_starts == 2 and np.isfinite(solution.val_loss)
+    result = fj.sweep([_start(), _start()], records[:2], validation=records[2:], steps=5, learning_rate=[1e-2, 3e-3])
+    assert result.train_loss.shape == (2,) and np.all(np.isfinite(result.val_loss))
+
+
+def test_records_that_cannot_go_together_get_one_line_errors():
+    records = _records()
+    other = fj.FrictionData(fj.Motion.from_position(np.asarray(records[0].motion.x), dt=2e-3), records[0].force)
+    with pytest.raises(ValueError, match=r"record 1 of `data` is sampled at dt = 0.002 s.*resample"):
+        fj.fit(_start(), [records[0], other], steps=1)
+    with pytest.raises(ValueError, match="empty list"):
+        fj.fit(_start(), [], steps=1)
+    with pytest.raises(TypeError, match="record 1 of `data` is a ndarray"):
+        fj.fit(_start(), [records[0], np.zeros(3)], steps=1)
+    with pytest.raises(ValueError, match="pass a list of records"):
+        fj.fit(_start(), records[0], nuisances=fj.Nuisances(), steps=1)
+    with pytest.raises(ValueError, match="needs a list of training records"):
+        fj.fit(_start(), records[0], validation=records[1:], steps=1)
+    loaded = fj.NormalLoad(fj.Coulomb(Fc=0.5), reference=100.0)
+    with pytest.raises(ValueError, match="needs the normal load"):
+        fj.fit(loaded, records, steps=1)
+    constant = fj.FrictionData(records[0].motion, np.ones(records[0].length))
+    with pytest.raises(ValueError, match="record 1 in `data` is constant"):
+        fj.fit(_start(), [records[1], constant], steps=1)
