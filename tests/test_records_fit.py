@@ -174,3 +174,24 @@ def test_records_that_cannot_go_together_get_one_line_errors():
     constant = fj.FrictionData(records[0].motion, np.ones(records[0].length))
     with pytest.raises(ValueError, match="record 1 in `data` is constant"):
         fj.fit(_start(), [records[1], constant], steps=1)
+
+
+def test_initialise_recovers_the_offset_and_state_a_record_starts_in():
+    """Test-time initialisation: on a record cut from the middle of a motion (its model state is not rest) with a
+    force-cell offset, the window's least-squares fit finds both, and the free run from them matches the record;
+    the mean-error offset from rest does not."""
+    truth = _truth()
+    t = np.arange(2000) * DT
+    motion = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * 1.0 * t), dt=DT)
+    full = fj.FrictionData(motion, np.asarray(fj.simulate(truth, motion)) + 0.4)
+    record = full.slice(1100, 2000)  # starts while sliding back (z far from 0)
+    window = record.slice(0, 90)
+    start = fj.initialise(truth, window)
+    np.testing.assert_allclose(start.offset, 0.4, atol=1e-3)
+    predicted = np.asarray(fj.simulate(truth, record.motion, start.state0)) + start.offset
+    np.testing.assert_allclose(predicted, np.asarray(record.force), atol=5e-3)
+    rest = fj.initialise(truth, window, initial_state=False)  # today's offset: the mean error of a run from rest
+    from_rest = np.asarray(fj.simulate(truth, record.motion)) + rest.offset
+    assert np.max(np.abs(from_rest - np.asarray(record.force))) > 10 * np.max(np.abs(predicted - record.force))
+    with pytest.raises(ValueError, match="at least 2 samples"):
+        fj.initialise(truth, record.slice(0, 1))

@@ -59,10 +59,12 @@ from ._estimation._lstsq import lstsq as lstsq
 from ._estimation._polynomial_narx import PolynomialNARXResult as PolynomialNARXResult
 from ._estimation._polynomial_narx import identify_polynomial_narx as identify_polynomial_narx
 from ._estimation._problem import solve_linear as solve_linear
+from ._estimation._records import Initialisation as Initialisation
 from ._estimation._records import Nuisances as Nuisances
 from ._estimation._records import RecordBatch as RecordBatch
 from ._estimation._records import RecordNuisances as RecordNuisances
 from ._estimation._records import RecordsLoss as RecordsLoss
+from ._estimation._records import initialise as initialise
 from ._estimation._recursive_fit import RecursiveFitResult as RecursiveFitResult
 from ._estimation._recursive_fit import recursive_fit as recursive_fit
 from ._estimation._serialise import load_model as load_model

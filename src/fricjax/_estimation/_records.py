@@ -30,7 +30,15 @@ from .._models._base import AbstractModel, feeds_back
 from .._simulate import run
 from ._losses import AbstractLoss, MultipleShootingLoss, OneStepLoss, SimulationLoss
 
-__all__ = ["Nuisances", "RecordBatch", "RecordNuisances", "RecordsLoss", "as_record_batch"]
+__all__ = [
+    "Initialisation",
+    "Nuisances",
+    "RecordBatch",
+    "RecordNuisances",
+    "RecordsLoss",
+    "as_record_batch",
+    "initialise",
+]
 
 
 class Nuisances(eqx.Module):
@@ -426,3 +434,79 @@ def _record_nmse(loss: RecordsLoss, model: Any, extra: Any, batch: RecordBatch) 
     residuals = loss.residuals(model, extra, batch).reshape(batch.count, -1)[:, :width]
     # a record's residuals are its errors / (spread * sqrt(scored / width)): their squares sum to width x its NMSE
     return jnp.sum(residuals**2, axis=1) / width
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# test-time initialisation
+# ----------------------------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Initialisation:
+    """A record's nuisances estimated from its first samples by `fj.initialise`: `offset` [N] (0 when not
+    estimated), `state0` (the model's state entering the record's first sample, for `fj.simulate(model, motion,
+    state0)`), `window_nmse` the NMSE (fraction) left on the window, and `steps` the solver steps taken."""
+
+    offset: float
+    state0: Any
+    window_nmse: float
+    steps: int
+
+
+def initialise(
+    model: Any, window: FrictionData, *, offset: bool = True, initial_state: bool = True, max_steps: int = 50
+) -> Initialisation:
+    """Estimate a record's force offset and the model's initial state from its initialisation window (the record's
+    first samples) by a short least-squares fit of both through the model's free run on the window
+    (`fj.simulate(model, motion, state0=...)`, Levenberg-Marquardt), the model's parameters fixed. This is how a
+    fitted model starts on a record it was not fitted on: an unknown offset and an unknown memory (a hysteretic
+    model's state) at the first sample; nuisances of other records (a training record's drift) are never used.
+
+    The initial state is `init_state() + delta * scale` per state leaf (`scale`: the RMS of the leaf along the
+    window), so that a small window that barely moves the state leaves it near rest.
+
+    **Arguments:** `model` a fitted friction model; `window` the record's first samples (`fj.FrictionData`, at least
+    2); `offset`, `initial_state` which to estimate; `max_steps` the solver's budget.
+
+    ```python
+    >>> import numpy as np, fricjax as fj
+    >>> model = fj.Dahl(sigma0=2e4, Fc=1.0, alpha=1.0)
+    >>> motion = fj.Motion.from_position(1e-3 * np.sin(np.linspace(0, 6, 600)), dt=1e-3)
+    >>> state = fj.DahlState(F=np.asarray(0.6))
+    >>> force = np.asarray(fj.simulate(model, motion, state)) + 0.25  # from a state that is not rest, offset 0.25 N
+    >>> start = fj.initialise(model, fj.FrictionData(motion, force).slice(0, 60))
+    >>> round(start.offset, 3), round(float(start.state0.F), 3)
+    (0.25, 0.6)
+    ```
+    """
+    import optimistix as optx
+
+    if not isinstance(window, FrictionData):
+        raise TypeError(f"initialise: `window` must be an fj.FrictionData, got {type(window).__name__}.")
+    if window.length < 2:
+        raise ValueError("initialise: the window needs at least 2 samples; pass more of the record.")
+    physical = unwrap(model)
+    if isinstance(physical, AbstractModel):
+        physical.check_inputs(window.motion)
+    batch = RecordBatch.from_records([window], requires=frozenset(getattr(physical, "requires", ())), argument="window")
+    loss = RecordsLoss(SimulationLoss(), Nuisances(offset, False, initial_state)).bind(physical, batch)
+    extra0 = loss.init_extra(physical, batch)
+    if not offset and not initial_state:
+        nmse = float(_record_nmse(loss, physical, extra0, batch)[0])
+        return Initialisation(0.0, physical.init_state(), nmse, 0)
+    solved, steps = _solve_nuisances(loss, physical, extra0, batch, max_steps, optx.LevenbergMarquardt(1e-6, 1e-9))
+    found = loss._recorded(physical, solved, batch, jnp.asarray(0))
+    nmse = float(_record_nmse(loss, physical, solved, batch)[0])
+    return Initialisation(float(found.offset), jax.tree_util.tree_map(np.asarray, found.state0), nmse, int(steps))
+
+
+@eqx.filter_jit
+def _solve_nuisances(
+    loss: RecordsLoss, model: Any, extra: RecordExtra, batch: RecordBatch, max_steps: int, solver: Any
+) -> tuple[RecordExtra, Array]:
+    import optimistix as optx
+
+    solution = optx.least_squares(
+        lambda e, args: loss.residuals(args, e, batch), solver, extra, args=model, max_steps=max_steps, throw=False
+    )
+    return solution.value, solution.stats["num_steps"]
