@@ -506,7 +506,7 @@ def _solve_nuisances(
 ) -> tuple[RecordExtra, Array]:
     import optimistix as optx
 
-    solution = optx.least_squares(
+    solution: Any = optx.least_squares(
         lambda e, args: loss.residuals(args, e, batch), solver, extra, args=model, max_steps=max_steps, throw=False
     )
     return solution.value, solution.stats["num_steps"]
