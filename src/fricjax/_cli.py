@@ -44,11 +44,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     compare.add_argument(
         "--data",
-        default="tribometer:mixed",
-        help="the training record: tribometer:presliding|mixed|sliding[:seed=N,offset=F,drift=F,duration=S] "
+        nargs="+",
+        default=["tribometer:mixed"],
+        metavar="RECORD",
+        help="the training record(s): tribometer:presliding|mixed|sliding[:seed=N,offset=F,drift=F,duration=S] "
         "(synthetic), emps (real EMPS data), or FILE.npz/.csv with columns t (time) or dt, x (position, "
-        "displacement) and/or v (velocity), force (F, friction); units in brackets, e.g. 'x [um]' "
-        "(default: %(default)s)",
+        "displacement) and/or v (velocity), force (F, friction); units in brackets, e.g. 'x [um]', or as a suffix, "
+        "e.g. displacement_in. Several records (quoted globs allowed: 'char/*.npz') are fitted together: one "
+        "model, each record with its own force offset, initial state and drift, validated on the last 20 %% of "
+        "each (or on --validation records) (default: tribometer:mixed)",
+    )
+    compare.add_argument(
+        "--validation",
+        nargs="+",
+        metavar="RECORD",
+        help="whole validation records (choice among starts) for several --data records, which are then trained "
+        "on whole",
     )
     compare.add_argument(
         "--test",
@@ -65,6 +76,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         metavar=("TRAIN_END", "VALIDATION_END"),
         help="split --data at these fractions: train, validation (choice among starts), test part (default "
         "0.6 0.8: 60/20/20; 0.8 1.0 with --test)",
+    )
+    compare.add_argument(
+        "--init",
+        choices=("state", "offset"),
+        default="state",
+        help="how a model starts on a --test record: state (the force offset and the model's initial state fitted "
+        "on the initialisation window, fj.initialise) or offset (a run from rest, the window's mean error as the "
+        "offset) (default: %(default)s)",
     )
     compare.add_argument(
         "--init-window",
@@ -112,6 +131,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         choices=("linear", "leaky", "none"),
         help="force-sensor drift fitted with every model (fj.SensorDrift), restarting at 0 on each test record "
         "(default: %(default)s)",
+    )
+    compare.add_argument(
+        "--test-drift",
+        choices=("none", "window", "carry"),
+        default="none",
+        help="a training record's drift on --test records: none (a drift belongs to its record), window (estimated "
+        "on the initialisation window with --init state), carry (the training drift carried over, restarting at 0) "
+        "(default: %(default)s)",
+    )
+    compare.add_argument(
+        "--normal-force-column",
+        nargs="+",
+        metavar="COLUMN",
+        help="the column(s) of the file records that give the normal load (several are summed, e.g. "
+        "actuator_force1_lb actuator_force2_lb); default: a column normal_force / N if present",
+    )
+    compare.add_argument(
+        "--velocity",
+        choices=("auto", "file", "derive"),
+        default="auto",
+        help="the velocity of file records: auto (the file's if it agrees with the displacement's derivative, an "
+        "error otherwise), file, derive (from the displacement) (default: %(default)s)",
     )
     compare.add_argument("--dt", type=float, default=None, help="sample time [s] of the file records (overrides t)")
     compare.add_argument("--x-unit", default=None, help="displacement unit of the file records (m, mm, um, nm, in)")
@@ -184,6 +225,7 @@ def _run(args: argparse.Namespace) -> int:
         run_compare(
             data=args.data,
             test=args.test,
+            validation=args.validation,
             split_at=args.split,
             init_window=args.init_window,
             models=args.models,
@@ -196,6 +238,10 @@ def _run(args: argparse.Namespace) -> int:
             dt=args.dt,
             x_unit=args.x_unit,
             force_unit=args.force_unit,
+            velocity=args.velocity,
+            normal_force_column=args.normal_force_column,
+            init=args.init,
+            test_drift=args.test_drift,
             out=args.out,
             seed=args.seed,
             progress=not args.no_progress,

@@ -2,8 +2,10 @@
 
 The recipe registry (`default_models`: each model's start from the training record and its fit recipe; the
 names in `PHYSICS_MODELS`, fitted by default, `NEURAL_MODELS` and `LINEAR_MODELS`, `MODEL_NAMES` for all),
-data (`load_record_spec`, `load_split`, `split_record`, `Split`, `TestRecord`: a test part or another record, with an
-initialisation window that estimates the force offset), budgets (`FitSettings`), fitting and exact-mode scoring
+data (`load_record_spec`, `load_split`, `split_record`, `Split`, `TrainingRecords`: several training records of one
+device, `TestRecord`: a test part or another record, with an initialisation window that estimates the force offset
+and, on another record, the model's initial state: `predict_test_record`), budgets (`FitSettings`), fitting and
+exact-mode scoring
 (`fit_and_score`, `free_run`, `score`, `score_prediction`, `reference_scores`: the noise floor;
 `paired_validation_gain`: whether a neural model's output-error stage improved on its least-squares start), ensembles of
 the fitted models (`add_ensembles`) and the comparison table (`format_table`). Figures:
@@ -24,6 +26,7 @@ from ._protocols.compare._recipes import ModelSpec as ModelSpec
 from ._protocols.compare._records import LoadedRecord as LoadedRecord
 from ._protocols.compare._records import Split as Split
 from ._protocols.compare._records import TestRecord as TestRecord
+from ._protocols.compare._records import TrainingRecords as TrainingRecords
 from ._protocols.compare._records import default_init_window as default_init_window
 from ._protocols.compare._records import load_record_spec as load_record_spec
 from ._protocols.compare._records import load_split as load_split
@@ -41,6 +44,7 @@ from ._protocols.compare._scoring import Score as Score
 from ._protocols.compare._scoring import count_parameters as count_parameters
 from ._protocols.compare._scoring import free_run as free_run
 from ._protocols.compare._scoring import paired_validation_gain as paired_validation_gain
+from ._protocols.compare._scoring import predict_test_record as predict_test_record
 from ._protocols.compare._scoring import reference_scores as reference_scores
 from ._protocols.compare._scoring import score as score
 from ._protocols.compare._scoring import score_prediction as score_prediction

@@ -445,16 +445,33 @@ def _record_nmse(loss: RecordsLoss, model: Any, extra: Any, batch: RecordBatch) 
 class Initialisation:
     """A record's nuisances estimated from its first samples by `fj.initialise`: `offset` [N] (0 when not
     estimated), `state0` (the model's state entering the record's first sample, for `fj.simulate(model, motion,
-    state0)`), `window_nmse` the NMSE (fraction) left on the window, and `steps` the solver steps taken."""
+    state0)`), `window_nmse` the NMSE (fraction) left on the window, `steps` the solver steps taken, and `drift`
+    [N/s] (0 unless asked for: the record's force is then `simulate(...) + offset + drift * t`, t = k dt)."""
 
     offset: float
     state0: Any
     window_nmse: float
     steps: int
+    drift: float = 0.0
+
+    def predict(self, model: Any, motion: Motion) -> np.ndarray:
+        """The record's force as `model` predicts it from these nuisances: the free run from `state0` plus the
+        offset and drift [N] (NumPy, over the whole `motion`)."""
+        from .._simulate import simulate
+
+        force = np.asarray(simulate(model, motion, self.state0), dtype=float)
+        t = np.arange(force.shape[-1]) * float(np.asarray(motion.dt)) if self.drift else 0.0
+        return force + self.offset + self.drift * t
 
 
 def initialise(
-    model: Any, window: FrictionData, *, offset: bool = True, initial_state: bool = True, max_steps: int = 50
+    model: Any,
+    window: FrictionData,
+    *,
+    offset: bool = True,
+    initial_state: bool = True,
+    drift: bool = False,
+    max_steps: int = 50,
 ) -> Initialisation:
     """Estimate a record's force offset and the model's initial state from its initialisation window (the record's
     first samples) by a short least-squares fit of both through the model's free run on the window
@@ -466,7 +483,9 @@ def initialise(
     window), so that a small window that barely moves the state leaves it near rest.
 
     **Arguments:** `model` a fitted friction model; `window` the record's first samples (`fj.FrictionData`, at least
-    2); `offset`, `initial_state` which to estimate; `max_steps` the solver's budget.
+    2); `offset`, `initial_state`, `drift` (a linear sensor drift [N/s], extrapolated beyond the window: off by
+    default) which to estimate; `max_steps` the solver's budget. `Initialisation.predict(model, motion)` gives the
+    record's force from them.
 
     ```python
     >>> import numpy as np, fricjax as fj
@@ -489,15 +508,16 @@ def initialise(
     if isinstance(physical, AbstractModel):
         physical.check_inputs(window.motion)
     batch = RecordBatch.from_records([window], requires=frozenset(getattr(physical, "requires", ())), argument="window")
-    loss = RecordsLoss(SimulationLoss(), Nuisances(offset, False, initial_state)).bind(physical, batch)
+    loss = RecordsLoss(SimulationLoss(), Nuisances(offset, drift, initial_state)).bind(physical, batch)
     extra0 = loss.init_extra(physical, batch)
-    if not offset and not initial_state:
+    if not (offset or initial_state or drift):
         nmse = float(_record_nmse(loss, physical, extra0, batch)[0])
         return Initialisation(0.0, physical.init_state(), nmse, 0)
     solved, steps = _solve_nuisances(loss, physical, extra0, batch, max_steps, optx.LevenbergMarquardt(1e-6, 1e-9))
     found = loss._recorded(physical, solved, batch, jnp.asarray(0))
     nmse = float(_record_nmse(loss, physical, solved, batch)[0])
-    return Initialisation(float(found.offset), jax.tree_util.tree_map(np.asarray, found.state0), nmse, int(steps))
+    state0 = jax.tree_util.tree_map(np.asarray, found.state0)
+    return Initialisation(float(found.offset), state0, nmse, int(steps), float(found.rate))
 
 
 @eqx.filter_jit

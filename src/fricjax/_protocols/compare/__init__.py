@@ -13,7 +13,8 @@ Gauss-Newton start). Neural models (`NEURAL_MODELS`): the output layer by least 
 One job per module, each depending only on those before it:
 
 - `_settings`: `DataScales`, `FitSettings`, `RESULT_CODES`, `CompareError`;
-- `_records`: `Split`, `TestRecord`, `LoadedRecord` and the records named on the command line;
+- `_records`: `Split`, `TrainingRecords` (several records), `TestRecord`, `LoadedRecord` and the records named on
+  the command line;
 - `_scoring`: exact-mode free runs and scores, `ModelScore` (a row of the table), `paired_validation_gain`;
 - `_recipes`: `ModelSpec` and the fit recipes shared by the families; `_physics_recipes`, `_blackbox_recipes`:
   each family's starts and fits; `_registry`: the model names and `default_models`;

@@ -27,7 +27,7 @@ from ..._models.physics._static import BoPavelescu
 from ..._models.physics._stribeck import ExponentialStribeck
 from ..._smoothing import Smooth
 from ._recipes import ModelSpec, lm_recipe
-from ._records import Split
+from ._records import Split, TrainingRecords
 from ._settings import DataScales, FitSettings
 
 
@@ -125,9 +125,9 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
     reuses the first's compiled programs (benchmarks/README.md).
     """
 
-    def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
-        train, validation = split.train, split.until_validation_end
-        scales = DataScales.from_data(train)
+    def run(start: Any, split: Split | TrainingRecords, seed: int, progress: bool) -> FitResult:
+        train, records = split.fit_arguments(start, drift=settings.drift != "none")
+        scales = DataScales.from_data(split.train)
         eps_end = max(1e-3 * scales.dx, 1e-12)
         prefix = "model." if isinstance(start, SensorDrift) else ""
         viscous_scale = 0.1 * scales.Fc / scales.v_fast  # a viscous force of 10 % of Fc at the fast end
@@ -146,25 +146,23 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
                 train,
                 loss=tangent,  # the documented results' derivative path
                 scaling=ParameterScaling({f"{prefix}sigma2": viscous_scale}),
-                validation=validation,
-                validation_burn_in=split.train_end,
                 solver=adam,
                 steps=8 * settings.steps,
                 continuation=Continuation(100 * eps_end, eps_end, stages=3),
                 multistart=multistart,
                 seed=seed,
                 progress=progress,
+                **records,
             )
             polished = fit(
                 coarse.model,
                 train,
                 scaling=ParameterScaling({f"{prefix}sigma2": viscous_scale}),
-                validation=validation,
-                validation_burn_in=split.train_end,
                 solver=lm,
                 steps=settings.steps,
                 tolerance=settings.tolerance,
                 compute_std=True,
+                **records,
             )
             end = "slow" if vs == scales.vs else "fast"
             if polished.success and polished.train_loss <= coarse.train_loss:

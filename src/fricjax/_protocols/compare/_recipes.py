@@ -18,7 +18,7 @@ from ..._estimation._solution import FitResult
 from ..._estimation._strategies import MultiStart, ParameterScaling
 from ..._metrics import nmse
 from ..._models.combine._sensor import SensorDrift
-from ._records import Split
+from ._records import Split, TrainingRecords
 from ._scoring import SIGNIFICANT_T, VALIDATION_BLOCKS, free_run, paired_validation_gain
 from ._settings import DataScales, FitSettings
 
@@ -45,21 +45,22 @@ def lm_recipe(separable: tuple[str, ...], starts: int, settings: FitSettings) ->
     """Levenberg-Marquardt with parameter scaling from `starts` starts (the validation part choosing), the
     parameters `separable` (and the drift rate) solved by least squares inside each step."""
 
-    def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
+    def run(start: Any, split: Split | TrainingRecords, seed: int, progress: bool) -> FitResult:
+        data, records = split.fit_arguments(start, drift=settings.drift != "none")
         return fit(
             start,
-            split.train,
+            data,
             scaling=ParameterScaling(),
-            validation=split.until_validation_end,
-            validation_burn_in=split.train_end,
             solver=levenberg_marquardt(),
             steps=settings.steps,
             tolerance=settings.tolerance,
-            separable=separable_paths(start, separable),
+            # several records: every parameter by LM (the per-record nuisances are decision variables of the loss)
+            separable=() if split.several else separable_paths(start, separable),
             multistart=_multistart(starts),
             seed=seed,
             progress=progress,
             compute_std=True,
+            **records,
         )
 
     return run

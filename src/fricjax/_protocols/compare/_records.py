@@ -1,6 +1,7 @@
-"""The records of `compare`: the training record's split into train / validation / test parts (`Split`), the
-records the models are scored on (`TestRecord`, with its initialisation window), and the records named on the
-command line (`load_record_spec`: built-in synthetic tribometer records or CSV / NPZ files)."""
+"""The records of `compare`: the training record's split into train / validation / test parts (`Split`), several
+training records of one device (`TrainingRecords`), the records the models are scored on (`TestRecord`, with its
+initialisation window), and the records named on the command line (`load_record_spec`: built-in synthetic
+tribometer records or CSV / NPZ files; `expand_record_specs`: file globs)."""
 
 from __future__ import annotations
 
@@ -95,6 +96,17 @@ class Split:
         return self.full.slice(0, self.train_end)
 
     @property
+    def several(self) -> bool:
+        """False: one training record (`TrainingRecords` is the several-record form)."""
+        return False
+
+    def fit_arguments(self, model: Any, drift: bool = False) -> tuple[Any, dict[str, Any]]:
+        """`fj.fit`'s data and validation arguments: the train part, and the record up to the validation part's end
+        with the train part as burn-in (hysteretic models enter the validation part in the state their history
+        gives them). `model` and `drift` are for `TrainingRecords` (one record: the drift is a model wrapper)."""
+        return self.train, {"validation": self.until_validation_end, "validation_burn_in": self.train_end}
+
+    @property
     def until_validation_end(self) -> FrictionData:
         return self.full.slice(0, self.validation_end)
 
@@ -114,6 +126,117 @@ class Split:
 
 
 @dataclasses.dataclass(frozen=True)
+class TrainingRecords:
+    """Several training records of one device (`--data A B ...`): one model, fitted on all of them with per-record
+    nuisances (force offset, initial state, and a drift with `--drift`: `fj.fit(model, [records], nuisances=...)`).
+    Record i is trained on its samples `[0, train_ends[i])`; the rest of it is its validation part (simulated from
+    the record's start, scored after the train part), unless `validation` holds whole validation records
+    (`--validation FILE ...`; the training records are then trained on whole).
+
+    `train` and `full`, the attributes the single-record code reads of a `Split`, are the training parts joined end
+    to end (for the data scales starting models are built from, and the statistics warnings)."""
+
+    records: tuple[FrictionData, ...]
+    train_ends: tuple[int, ...]
+    names: tuple[str, ...]
+    validation: tuple[FrictionData, ...] = ()
+    validation_names: tuple[str, ...] = ()
+
+    @classmethod
+    def build(
+        cls, trainings: Sequence[LoadedRecord], validations: Sequence[LoadedRecord], train_fraction: float | None
+    ) -> TrainingRecords:
+        """The records with their train parts: whole records with `validations`, else the first `train_fraction`
+        (default 0.8) of each."""
+        if validations and train_fraction is not None:
+            raise CompareError("--split and --validation: with validation records the training records are whole")
+        fraction = 1.0 if validations else (0.8 if train_fraction is None else float(train_fraction))
+        if not 0 < fraction <= 1:
+            raise CompareError(f"--split {fraction}: the train fraction of each record must be in (0, 1]")
+        ends = tuple(max(1, min(t.data.length, int(round(fraction * t.data.length)))) for t in trainings)
+        if not validations and any(end >= t.data.length for end, t in zip(ends, trainings, strict=True)):
+            raise CompareError("--split leaves no validation part in a training record; lower TRAIN_END")
+        return cls(
+            tuple(t.data for t in trainings),
+            ends,
+            tuple(short_name(t.name) for t in trainings),
+            tuple(v.data for v in validations),
+            tuple(short_name(v.name) for v in validations),
+        )
+
+    @property
+    def several(self) -> bool:
+        return True
+
+    @property
+    def train_records(self) -> list[FrictionData]:
+        return [r.slice(0, end) for r, end in zip(self.records, self.train_ends, strict=True)]
+
+    @property
+    def train(self) -> FrictionData:
+        from ..._data._record import concatenate
+
+        parts = self.train_records
+        return concatenate(parts) if len(parts) > 1 else parts[0]
+
+    @property
+    def full(self) -> FrictionData:
+        return self.train
+
+    def validation_batch(self, model: Any) -> Any:
+        """The validation records as one `fj.RecordBatch`: each training record simulated from its start with only
+        its validation part scored, or the `--validation` records whole."""
+        from ..._estimation._records import RecordBatch
+
+        requires = frozenset(getattr(model, "requires", frozenset())) & {"a", "normal_force"}
+        if self.validation:
+            return RecordBatch.from_records(
+                list(self.validation), names=self.validation_names, requires=requires, argument="--validation"
+            )
+        return RecordBatch.from_records(
+            list(self.records), score_from=self.train_ends, names=self.names, requires=requires, argument="--data"
+        )
+
+    def fit_arguments(self, model: Any, drift: bool = False) -> tuple[Any, dict[str, Any]]:
+        """`fj.fit`'s data and validation arguments: the train parts as a list, the validation batch, and the
+        per-record nuisances (offset and initial state always; a linear drift per record with `drift`)."""
+        from ..._estimation._records import Nuisances, RecordBatch
+
+        requires = frozenset(getattr(model, "requires", frozenset())) & {"a", "normal_force"}
+        train = RecordBatch.from_records(self.train_records, names=self.names, requires=requires, argument="--data")
+        return train, {
+            "validation": self.validation_batch(model),
+            "nuisances": Nuisances(offset=True, drift=drift, initial_state=True),
+        }
+
+
+def short_name(spec: str) -> str:
+    """A record's name for tables: a file's name without its folder (built-in records as they are)."""
+    import os
+
+    return os.path.basename(spec) if os.sep in spec else spec
+
+
+def expand_record_specs(specs: Sequence[str], option: str) -> list[str]:
+    """The records named by an option: built-in names as they are, file names with `*`, `?` or `[` expanded as
+    globs (sorted; a glob that matches no file is an error naming it)."""
+    import glob
+
+    out: list[str] = []
+    for spec in specs:
+        if spec.startswith("tribometer") or spec == "emps" or not any(c in spec for c in "*?["):
+            out.append(spec)
+            continue
+        matches = sorted(glob.glob(spec))
+        if not matches:
+            raise CompareError(
+                f"{option} {spec}: the pattern matches no file (quote it so the shell does not expand it)"
+            )
+        out.extend(matches)
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
 class LoadedRecord:
     """A record named on the command line: the data (SI), its data card, its units, and for built-in synthetic
     records the true model and the noise-free sensor reading (`reference`)."""
@@ -130,7 +253,14 @@ _TRIBOMETER_KEYS = {"seed": int, "offset": float, "duration": float, "drift": fl
 
 
 def load_record_spec(
-    spec: str, *, seed: int = 0, dt: float | None = None, x_unit: str | None = None, force_unit: str | None = None
+    spec: str,
+    *,
+    seed: int = 0,
+    dt: float | None = None,
+    x_unit: str | None = None,
+    force_unit: str | None = None,
+    velocity: str = "auto",
+    normal_force_column: Sequence[str] | None = None,
 ) -> LoadedRecord:
     """Resolve a record named on the command line: `tribometer:REGIME[:key=value,...]` (keys `seed`, `offset`
     [N] force-cell offset, `drift` [N], `duration` [s]; e.g. `tribometer:mixed:seed=1,offset=0.3`), or a `.npz`
@@ -171,7 +301,14 @@ def load_record_spec(
     if not path.is_file():
         raise CompareError(f"{spec}: no such file (use tribometer:presliding|mixed|sliding, emps, or a .csv / .npz)")
     try:
-        full, info = read_record(path, dt=dt, x_unit=x_unit, force_unit=force_unit)
+        full, info = read_record(
+            path,
+            dt=dt,
+            x_unit=x_unit,
+            force_unit=force_unit,
+            velocity=velocity,
+            normal_force_column=None if not normal_force_column else tuple(normal_force_column),
+        )
     except ValueError as err:
         raise CompareError(str(err)) from err
     card = {
@@ -208,7 +345,7 @@ def load_split(spec: str, *, seed: int = 0) -> tuple[Split, dict[str, Any], Any]
     return split_record(loaded), loaded.card, loaded.truth
 
 
-def statistics_warnings(split: Split, tests: list[TestRecord], units: Units) -> list[str]:
+def statistics_warnings(split: Split | TrainingRecords, tests: list[TestRecord], units: Units) -> list[str]:
     """Warnings when a test record's scored part differs sharply from the training part: force spread 3x
     (its NMSE is then normalised by a very different variance) or displacement range 10x (the model is
     extrapolated)."""

@@ -17,14 +17,15 @@ from ._recipes import ModelSpec
 from ._settings import DataScales, FitSettings
 
 
-def default_models(settings: FitSettings | None = None) -> dict[str, ModelSpec]:
+def default_models(settings: FitSettings | None = None, several: bool = False) -> dict[str, ModelSpec]:
     """Every model `compare` can fit (`MODEL_NAMES`: the physics, neural and linear-in-parameters models), keyed by
-    their command-line names; `settings` sets the step budgets and element counts (`FitSettings()` by default)."""
+    their command-line names; `settings` sets the step budgets and element counts (`FitSettings()` by default).
+    `several`: fitted on several records, where a drift is a per-record nuisance of the fit, not a model wrapper."""
     settings = FitSettings() if settings is None else settings
     specs = physics_models(settings)
     specs.update(neural_models(settings))
     specs.update(linear_in_parameters_models(settings))
-    if settings.drift == "none":
+    if settings.drift == "none" or several:
         return specs
     return {name: _with_drift(spec, settings.drift) for name, spec in specs.items()}
 

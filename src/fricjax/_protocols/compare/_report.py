@@ -16,7 +16,7 @@ from ..._smoothing import exact
 from ..._version import fricjax_version
 from ._names import NEURAL_MODELS
 from ._output import versions
-from ._records import LoadedRecord, Split, TestRecord
+from ._records import LoadedRecord, Split, TestRecord, TrainingRecords
 from ._scoring import ModelScore, Score
 from ._settings import RESULT_CODES, FitSettings
 
@@ -70,18 +70,37 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
     return "\n".join(lines)
 
 
+def format_record_nuisances(rows: list[ModelScore]) -> str:
+    """Each model's per-record nuisances after a fit to several records: the force offset [N], drift [N/s] and
+    training NMSE of every training record (`fj.RecordNuisances`)."""
+    lines = ["per training record (offset [N], drift [N/s], training NMSE):"]
+    for r in sorted(rows, key=by_score):
+        if r.records is None:
+            continue
+        lines.append(f"  {r.label}:")
+        for row in r.records.table():
+            text = f"    {row['name']}: NMSE {row['train_nmse_percent']:.3g} %"
+            if row["offset_N"] is not None:
+                text += f", offset {row['offset_N']:.4g} N"
+            if row["drift_N_per_s"] is not None:
+                text += f", drift {row['drift_N_per_s']:.4g} N/s"
+            lines.append(text)
+    return "\n".join(lines)
+
+
 def compare_report(
     *,
     data: str,
     seed: int,
     training: LoadedRecord,
-    split: Split,
+    split: Split | TrainingRecords,
     tests: list[TestRecord],
     cards: dict[str, Any],
     floor: dict[str, Score],
     settings: FitSettings,
     rows: list[ModelScore],
     started: float,
+    training_cards: list[dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """The contents of `report.json`: `data` and `seed` as given, the training record's data card and units, the
     split, each test record (its windows, noise floor and, for other records, its data card from `cards`), the
@@ -93,7 +112,7 @@ def compare_report(
         "versions": versions(),
         "data": data,
         "seed": seed,
-        "data_card": training.card,
+        "data_card": training.card if training_cards is None else training_cards,
         "units": {
             "x": units.x,
             "v": units.v,
@@ -101,13 +120,7 @@ def compare_report(
             "internal": "SI (m, m/s, N)",
             "parameters": "SI, whatever the record's units: each model's parameter_units",
         },
-        "split": {
-            "train": [0, split.train_end],
-            "validation": [split.train_end, split.validation_end],
-            "test_part": [split.validation_end, split.full.length]
-            if split.validation_end < split.full.length
-            else None,
-        },
+        "split": _split_report(split),
         "test_records": [
             {
                 "name": t.name,
@@ -123,8 +136,15 @@ def compare_report(
             **dataclasses.asdict(settings),
             "solvers": "Levenberg-Marquardt (optimistix) with separable least squares for linear parameters; "
             "GMS: Adam with smoothing continuation from gms_starts starts, then a Levenberg-Marquardt polish",
-            "scoring": "free run in exact mode from each record's first sample; the force offset is the mean "
-            "error over the initialisation window, which is not scored",
+            "scoring": "free run in exact mode from each record's first sample; on records the model was not fitted "
+            + (
+                "on, the force offset and the model's initial state are fitted on the initialisation window "
+                "(fj.initialise), which is not scored"
+                if settings.init == "state"
+                else "on, from rest, the force offset the mean error over the initialisation window, which is not "
+                "scored"
+            )
+            + f"; a training record's drift on other records: {settings.test_drift}",
         },
         "result_codes": RESULT_CODES,
         "reference": {
@@ -148,10 +168,28 @@ def compare_report(
                 "parameters": _parameters(r.model),
                 "parameter_units": _units(_parameters(r.model)),
                 "parameter_std": _estimated_std(r.std) if r.std is not None else None,
+                "training_records": r.records.table() if r.records is not None else None,
             }
             for r in sorted(rows, key=by_score)
         ],
         "total_time_s": time.perf_counter() - started,
+    }
+
+
+def _split_report(split: Split | TrainingRecords) -> dict[str, Any]:
+    """The split of the training data: one record's parts, or each training record's train and validation parts."""
+    if isinstance(split, TrainingRecords):
+        return {
+            "training_records": [
+                {"name": name, "samples": record.length, "train": [0, end], "validation": [end, record.length]}
+                for name, record, end in zip(split.names, split.records, split.train_ends, strict=True)
+            ],
+            "validation_records": list(split.validation_names) or None,
+        }
+    return {
+        "train": [0, split.train_end],
+        "validation": [split.train_end, split.validation_end],
+        "test_part": [split.validation_end, split.full.length] if split.validation_end < split.full.length else None,
     }
 
 

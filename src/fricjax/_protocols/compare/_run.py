@@ -11,6 +11,8 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import numpy as np
+
 from ..._estimation._interrupts import check_interrupt
 from ..._estimation._placement import check_device, choose_device, forced_device, resolve_device
 from ..._estimation._serialise import save_model
@@ -21,16 +23,24 @@ from ._ensembles import add_ensembles
 from ._figures import plot_prediction_errors, plot_test_loops
 from ._output import Staging, check_writable, remove_stale_staging, strict_json
 from ._plausibility import command_line_advice, half_excursion, implausible
-from ._records import Split, TestRecord, load_record_spec, split_record, statistics_warnings
+from ._records import (
+    Split,
+    TestRecord,
+    TrainingRecords,
+    expand_record_specs,
+    load_record_spec,
+    split_record,
+    statistics_warnings,
+)
 from ._registry import MODEL_NAMES, PHYSICS_MODELS, default_models
-from ._report import compare_report, format_table
-from ._scoring import ModelScore, count_parameters, free_run, reference_scores, score_row
+from ._report import compare_report, format_record_nuisances, format_table
+from ._scoring import ModelScore, count_parameters, free_run, predict_test_record, reference_scores, score_row
 from ._settings import CompareError, DataScales, FitSettings
 
 
 def fit_and_score(
     names: list[str],
-    split: Split,
+    split: Split | TrainingRecords,
     *,
     tests: list[TestRecord] | None = None,
     settings: FitSettings | None = None,
@@ -42,9 +52,22 @@ def fit_and_score(
     """Fit each named model on the train part (the validation part chooses among starts), then score it by
     free-run simulation in exact mode on every test record (default: the split's test part, with the default
     initialisation window). `device` as `fj.fit`'s, for each model's fit and scoring: `"auto"` the host CPU for
-    sequential work when the default device is an accelerator (stated in the log), `"cpu"`, `"gpu"`."""
-    specs = default_models(settings)
-    tests = [split.test_record()] if tests is None else list(tests)
+    sequential work when the default device is an accelerator (stated in the log), `"cpu"`, `"gpu"`. With several
+    training records (`TrainingRecords`) only the physics models can be fitted."""
+    settings = FitSettings() if settings is None else settings
+    specs = default_models(settings, several=split.several)
+    if split.several:
+        others = [name for name in names if name not in PHYSICS_MODELS]
+        if others:
+            raise CompareError(
+                f"--models {' '.join(others)}: several training records are fitted by the physics models "
+                f"({', '.join(PHYSICS_MODELS)}); fit the others on one --data record"
+            )
+    if tests is None:
+        if not isinstance(split, Split):
+            raise CompareError("several training records: name the records to test on (--test)")
+        tests = [split.test_record()]
+    tests = list(tests)
     scales = DataScales.from_data(split.train)
     rows = []
     for name in names:
@@ -59,22 +82,35 @@ def fit_and_score(
             else f"fitting {spec.label} on {target.platform} ({reason}) ..."
         )
         with forced_device(target):
-            row = _fit_and_score_one(name, spec, start, split, tests, seed, progress, start_time)
+            row = _fit_and_score_one(name, spec, start, split, tests, seed, progress, start_time, settings)
         rows.append(row)
         log(f"  {spec.label}: test NMSE {row.nmse:.3f} %, MAX {row.max_error:.3f}, {row.fit_time:.1f} s: {row.message}")
     return rows
 
 
 def _fit_and_score_one(
-    name: str, spec: Any, start: Any, split: Split, tests: list[TestRecord], seed: int, progress: bool, t0: float
+    name: str,
+    spec: Any,
+    start: Any,
+    split: Split | TrainingRecords,
+    tests: list[TestRecord],
+    seed: int,
+    progress: bool,
+    t0: float,
+    settings: FitSettings,
 ) -> ModelScore:
-    """`fit_and_score` for one model: fit `start` (None: identified from the split), then score it."""
+    """`fit_and_score` for one model: fit `start` (None: identified from the split), then score it: on the
+    training record's own test part by the free run from its start (its history and drift), on other records as
+    `settings.init` and `settings.test_drift` say (`predict_test_record`)."""
     result = spec.fit(start, split, seed, progress)
     elapsed = time.perf_counter() - t0
     model = result.model
-    full_prediction = free_run(model, split.full)
+    full_prediction = None if split.several else free_run(model, split.full)
     predictions = {
-        test.name: full_prediction if test.record is split.full else free_run(model, test.record) for test in tests
+        test.name: full_prediction
+        if full_prediction is not None and test.record is split.full
+        else predict_test_record(model, test, settings.init, settings.test_drift)
+        for test in tests
     }
     return score_row(
         name,
@@ -91,13 +127,16 @@ def _fit_and_score_one(
             [command_line_advice(result.message), *implausible(model, half_excursion(split.train.motion))]
         ),
         std=result.std,
+        validation_nmse=100 * result.val_loss if split.several else None,
+        records=result.records,
     )
 
 
 def run_compare(
     *,
-    data: str = "tribometer:mixed",
+    data: str | Sequence[str] = "tribometer:mixed",
     test: Sequence[str] | None = None,
+    validation: Sequence[str] | None = None,
     split_at: Sequence[float] | None = None,
     init_window: int | None = None,
     models: Sequence[str] = PHYSICS_MODELS,
@@ -110,15 +149,21 @@ def run_compare(
     dt: float | None = None,
     x_unit: str | None = None,
     force_unit: str | None = None,
+    velocity: str = "auto",
+    normal_force_column: Sequence[str] | None = None,
+    init: str = "state",
+    test_drift: str = "none",
     out: str | os.PathLike[str] = "fricjax-compare",
     seed: int = 0,
     progress: bool = True,
     device: str = "auto",
 ) -> None:
     """`fricjax compare` with the command line's options as arguments (`fricjax compare --help` says what each
-    does): fit every model on the training record `data`, score each by free run on the test records (`test`, or
-    the record's own test part), add ensembles, print the table, and write the models, the figures and
-    `report.json` to `out`. `data="emps"`: the EMPS table instead (`emps_table`). Files are staged in a folder
+    does): fit every model on the training record `data` (or several records: a list, file globs allowed; each
+    record's last 20 % or the `validation` records choose among starts, and each record gets its own offset,
+    initial state and drift), score each by free run on the test records (`test`, or the record's own test part),
+    add ensembles (one training record), print the table, and write the models, the figures and `report.json` to
+    `out`. `data="emps"`: the EMPS table instead (`emps_table`). Files are staged in a folder
     inside `out` and published together (`Staging`: all or none of them); staging folders of killed runs are
     removed first. Under the command line's signal handlers (`stop_on_signals`), SIGINT / SIGTERM stop the run at
     the next check: between models, within fits, before the ensembles and before each file is written.
@@ -154,7 +199,19 @@ def run_compare(
         starts=starts,
         drift=drift,
         neural_steps=neural_steps,
+        init=init,
+        test_drift=test_drift,
     )
+    if velocity not in ("auto", "file", "derive"):
+        raise CompareError(f"--velocity must be auto, file or derive, got {velocity!r}")
+    data_specs = expand_record_specs([data] if isinstance(data, str) else list(data), "--data")
+    validation_specs = expand_record_specs(list(validation or []), "--validation")
+    if not data_specs:
+        raise CompareError("--data: name at least one training record")
+    several = len(data_specs) > 1 or bool(validation_specs)
+    if "emps" in data_specs and len(data_specs) > 1:
+        raise CompareError("--data emps runs the EMPS table on its own; give it alone")
+    data = data_specs[0] if not several else " ".join(data_specs)
     check_writable(
         out, ("report.json",) if data == "emps" else ("test_errors.png", "hysteresis_loops.png", "report.json")
     )
@@ -162,13 +219,30 @@ def run_compare(
     if data == "emps":
         emps_table(out)
         return
-    units_kw: dict[str, Any] = {"dt": dt, "x_unit": x_unit, "force_unit": force_unit}
-    training = load_record_spec(data, seed=seed, **units_kw)
-    test_specs = list(test or [])
-    split = split_record(training, split_at, tested_elsewhere=bool(test_specs))
+    units_kw: dict[str, Any] = {
+        "dt": dt,
+        "x_unit": x_unit,
+        "force_unit": force_unit,
+        "velocity": velocity,
+        "normal_force_column": normal_force_column,
+    }
+    test_specs = expand_record_specs(list(test or []), "--test")
+    if several:
+        trainings = [load_record_spec(spec, seed=seed, **units_kw) for spec in data_specs]
+        validations = [load_record_spec(spec, seed=seed, **units_kw) for spec in validation_specs]
+        _check_together([*trainings, *validations])
+        training, training_cards = trainings[0], [t.card for t in trainings]
+        split: Split | TrainingRecords = TrainingRecords.build(
+            trainings, validations, None if split_at is None else split_at[0]
+        )
+        if not test_specs:
+            raise CompareError("several --data records: name the records to test on with --test")
+    else:
+        training, training_cards = load_record_spec(data, seed=seed, **units_kw), None
+        split = split_record(training, split_at, tested_elsewhere=bool(test_specs))
     tests: list[TestRecord] = []
     cards: dict[str, Any] = {}  # the data cards of the other test records, by test name
-    if split.validation_end < training.data.length:
+    if isinstance(split, Split) and split.validation_end < training.data.length:
         tests.append(split.test_record(init_window, training.reference))
     for spec in test_specs:
         loaded = load_record_spec(spec, seed=seed, **units_kw)
@@ -178,9 +252,21 @@ def run_compare(
     if not tests:
         raise CompareError("nothing to test on: the split leaves no test part; pass --test records")
     units = training.units
+    if isinstance(split, TrainingRecords):
+        parts = [
+            f"{name} ({end} train, {record.length - end} validation)"
+            for name, end, record in zip(split.names, split.train_ends, split.records, strict=True)
+        ]
+        if split.validation:
+            parts.append("validation: " + ", ".join(split.validation_names))
+        described = f"{len(split.records)} training records: " + "; ".join(parts)
+    else:
+        described = (
+            f"{data}, {split.full.length} samples (train {split.train_end}, "
+            f"validation {split.validation_end - split.train_end})"
+        )
     print(
-        f"fricjax {fricjax_version()} compare: {data}, {split.full.length} samples (train {split.train_end}, "
-        f"validation {split.validation_end - split.train_end}); test: "
+        f"fricjax {fricjax_version()} compare: {described}; test: "
         + "; ".join(
             f"{t.name} ({t.record.length - t.scored_start} scored after a {t.init_window}-sample initialisation window)"
             for t in tests
@@ -194,10 +280,15 @@ def run_compare(
         list(models), split, tests=tests, settings=settings, seed=seed, progress=progress, device=device
     )
     check_interrupt()
-    rows += add_ensembles(rows, split, tests)
+    if isinstance(split, Split):
+        rows += add_ensembles(rows, split, tests)
+    else:
+        print("ensembles: not formed with several training records (their weights come from one validation part)")
     floor = reference_scores(tests)
     print()
     print(format_table(rows, floor))
+    if isinstance(split, TrainingRecords):
+        print(format_record_nuisances(rows))
     try:
         staging = Staging(out)  # the files are written there, then moved into `out` together (or not at all)
     except OSError as err:
@@ -218,6 +309,7 @@ def run_compare(
             settings=settings,
             rows=rows,
             started=started,
+            training_cards=training_cards,
         )
         staging.write("report.json", lambda path: path.write_text(strict_json(report)))  # the report last
         staging.publish()
@@ -225,3 +317,29 @@ def run_compare(
         f"\nreport: {out / 'report.json'}; figures: {out / 'test_errors.png'}, {out / 'hysteresis_loops.png'}; "
         f"models: {out / 'models'} ({time.perf_counter() - started:.0f} s)"
     )
+
+
+def _check_together(records: Sequence[Any]) -> None:
+    """Records fitted together: one sample time, and scales that agree (a record read in the wrong units shows as a
+    force or displacement 10x / 100x off the others'); one line naming the file and the fix."""
+    first = records[0]
+    for other in records[1:]:
+        dt, reference = other.card.get("dt_s", 0.0), first.card.get("dt_s", 0.0)
+        if abs(dt - reference) > 1e-9 * max(reference, 1e-300):
+            raise CompareError(
+                f"{other.name}: sampled at dt = {dt:.6g} s, {first.name} at {reference:.6g} s; records fitted together "
+                "need one sample time (resample them, or pass --dt when the files' time columns are rounded)"
+            )
+    force = [float(np.std(np.asarray(r.data.force))) for r in records]
+    travel = [float(np.ptp(np.asarray(r.data.motion.samples().x))) for r in records]
+    for values, what, limit, option in (
+        (force, "force spread", 10.0, "--force-unit"),
+        (travel, "travel", 100.0, "--x-unit"),
+    ):
+        middle = float(np.median(values))
+        for record, value in zip(records, values, strict=True):
+            if middle > 0 and not 1 / limit <= value / middle <= limit:
+                raise CompareError(
+                    f"{record.name}: its {what} is {value / middle:.3g}x the records' median (in SI units): check "
+                    f"its units (a unit in the column header, e.g. 'force [kN]', or {option} for files without one)"
+                )

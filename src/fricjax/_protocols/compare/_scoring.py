@@ -44,6 +44,25 @@ def free_run(model: Any, record: FrictionData) -> np.ndarray:
     return np.asarray(simulate(exact(model), record.motion))  # type: ignore[arg-type]
 
 
+def predict_test_record(model: Any, test: TestRecord, init: str = "state", test_drift: str = "none") -> np.ndarray:
+    """`model`'s exact-mode prediction over the whole of a record it was not fitted on (`--test`). A training
+    record's drift (`fj.SensorDrift`) belongs to that record: it is left out (`test_drift="none"`), estimated on
+    the initialisation window (`"window"`), or carried over restarting at 0 (`"carry"`, the former default). With
+    `init="state"` and a window, the record's offset and the model's initial state are fitted on the window
+    (`fj.initialise`); otherwise the model runs from rest (and `score_prediction` takes the window's mean error as
+    the offset)."""
+    from ..._estimation._records import initialise
+    from ..._models.combine._sensor import SensorDrift
+
+    friction = model.model if isinstance(model, SensorDrift) and test_drift != "carry" else model
+    if init == "offset" or test.init_window == 0 or test_drift == "carry":
+        return free_run(friction, test.record)
+    window = test.record.slice(test.start, test.scored_start)
+    found = initialise(exact(friction), window, drift=test_drift == "window")
+    # without the offset: `score_prediction` takes the window's mean error, which is the offset fitted with the state
+    return found.predict(exact(friction), test.record.motion) - found.offset
+
+
 def score(model: Any, test: TestRecord | Split) -> tuple[float, float, np.ndarray]:
     """Exact-mode NMSE [%] and normalised MAX error of `model` on a test record (a `Split` stands for its test
     part without an initialisation window), and its free-run prediction over the whole record."""
@@ -110,6 +129,7 @@ class ModelScore:
     test_predictions: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
     validation_nmse: float = float("nan")
     std: Any = None
+    records: Any = None  # several training records: the fit's `fj.RecordNuisances`
 
 
 def count_parameters(model: Any) -> int:
@@ -128,20 +148,25 @@ def score_row(
     name: str,
     label: str,
     model: Any,
-    full_prediction: np.ndarray,
+    full_prediction: np.ndarray | None,
     test_predictions: dict[str, np.ndarray],
-    split: Split,
+    split: Any,
     tests: list[TestRecord],
+    validation_nmse: float | None = None,
     **extra: Any,
 ) -> ModelScore:
     """A row of the table from a model's free-run predictions (`full_prediction` over the training record,
     `test_predictions` over each whole test record): each test record scored (`score_prediction`) and the
-    validation part's NMSE; `extra` fills the other fields of `ModelScore`."""
+    validation part's NMSE (given as `validation_nmse` for several training records); `extra` fills the other
+    fields of `ModelScore`."""
     scores, corrected = {}, {}
     for test in tests:
         scores[test.name], corrected[test.name] = score_prediction(test_predictions[test.name], test)
-    measured = np.asarray(split.full.force)
-    val = slice(split.train_end, split.validation_end)
+    if validation_nmse is None:
+        assert full_prediction is not None
+        measured = np.asarray(split.full.force)
+        val = slice(split.train_end, split.validation_end)
+        validation_nmse = float(nmse(measured[val], full_prediction[val]))
     first = scores[tests[0].name]
     return ModelScore(
         name,
@@ -153,6 +178,6 @@ def score_row(
         full_prediction=full_prediction,
         tests=scores,
         test_predictions=test_predictions,
-        validation_nmse=float(nmse(measured[val], full_prediction[val])),
+        validation_nmse=validation_nmse,
         **extra,
     )

@@ -76,7 +76,13 @@ class FitSettings:
       `neural_models`), after their teacher-forced stage.
     - `drift`: the force sensor's drift fitted with every model (`fj.SensorDrift`): `"linear"` (default),
       `"leaky"` (a leaky integrator, its time constant fitted from the training record's duration) or
-      `"none"`. It restarts at 0 on each test record; the record's offset is the initialisation window's.
+      `"none"`. With several training records, a linear drift per record (a nuisance of the fit). A drift belongs
+      to its record: on other records it is not carried (`test_drift`).
+    - `init`: how a model starts on a test record it was not fitted on (`--init`): `"state"` the force offset and
+      the model's initial state fitted on the initialisation window (`fj.initialise`), `"offset"` a run from rest
+      with the mean error over the window as the offset.
+    - `test_drift`: the drift on such test records: `"none"` (left out), `"window"` (estimated on the window with
+      the offset, `init="state"` only) or `"carry"` (the training record's drift model carried over, restarting at 0).
     """
 
     steps: int = 40
@@ -87,10 +93,16 @@ class FitSettings:
     tolerance: float = 1e-4
     drift: str = "linear"
     neural_steps: int = 600
+    init: str = "state"
+    test_drift: str = "none"
 
     def __post_init__(self) -> None:
         if self.drift not in ("linear", "leaky", "none"):
             raise CompareError(f"--drift must be linear, leaky or none, got {self.drift!r}")
+        if self.init not in ("state", "offset"):
+            raise CompareError(f"--init must be state or offset, got {self.init!r}")
+        if self.test_drift not in ("none", "window", "carry"):
+            raise CompareError(f"--test-drift must be none, window or carry, got {self.test_drift!r}")
         try:  # the command line's options, named as the user typed them (its error line names the command)
             for name in ("steps", "gms_elements", "maxwell_elements", "gms_starts", "starts", "neural_steps"):
                 object.__setattr__(self, name, positive_int(getattr(self, name), f"--{name.replace('_', '-')}", ""))

@@ -1,0 +1,113 @@
+"""`fricjax compare` with several training records: globs, per-record nuisances in the table and report.json, test
+records started from the state and offset fitted on their initialisation window, and one-line errors for records
+that cannot be fitted together."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import fricjax as fj
+from fricjax import main
+
+DT = 1e-3
+OFFSETS = (0.3, -0.2, 0.1, 0.5)
+
+
+def _truth() -> fj.LuGre:
+    return fj.LuGre(
+        fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3),
+        sigma0=1e5,
+        sigma1=300.0,
+        sigma2=40.0,
+        smoothing=fj.Smooth(1e-5),
+    )
+
+
+def _write(path, amplitude, frequency, n, offset, seed, dt=DT, scale=1.0):
+    t = np.arange(n) * dt
+    x = amplitude * np.sin(2 * np.pi * frequency * t) * np.minimum(1.0, t / 0.3)
+    motion = fj.Motion.from_position(x, dt=dt)
+    force = np.asarray(fj.simulate(_truth(), motion)) + offset + 0.01 * np.random.default_rng(seed).normal(size=n)
+    np.savetxt(path, np.c_[t, x, scale * force], delimiter=",", header="t,x,force", comments="")
+    return path
+
+
+@pytest.fixture(scope="module")
+def records(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("records")
+    shapes = ((1e-3, 1.0, 1200), (2e-3, 1.5, 1000), (5e-4, 2.0, 900))
+    for i, (amplitude, frequency, n) in enumerate(shapes):
+        _write(folder / f"char_{i}.csv", amplitude, frequency, n, OFFSETS[i], i)
+    test = _write(folder / "other.csv", 1.5e-3, 1.2, 1100, OFFSETS[3], 9)
+    return folder, test
+
+
+def test_several_records_from_a_glob_per_record_offsets_in_table_and_report(records, tmp_path, capsys):
+    folder, test = records
+    out = tmp_path / "out"
+    code = main(["compare", "--data", str(folder / "char_*.csv"), "--test", str(test), "--models", "lugre",
+                 "--steps", "40", "--drift", "none", "--out", str(out), "--no-progress"])  # fmt: skip
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    assert "3 training records: char_0.csv" in printed and "per training record" in printed
+    report = json.loads((out / "report.json").read_text())
+    parts = report["split"]["training_records"]
+    assert [p["name"] for p in parts] == ["char_0.csv", "char_1.csv", "char_2.csv"]
+    assert parts[0]["train"] == [0, 960] and parts[0]["validation"] == [960, 1200]  # the last 20 % of each
+    assert isinstance(report["data_card"], list) and len(report["data_card"]) == 3
+    (lugre,) = report["models"]
+    offsets = [row["offset_N"] for row in lugre["training_records"]]
+    np.testing.assert_allclose(offsets, OFFSETS[:3], atol=0.05)
+    assert lugre["parameters"]["offset"] == 0.0  # one offset per record instead of the model's own
+    score = lugre["test_scores"][str(test)]
+    assert abs(score["offset"] - OFFSETS[3]) < 0.05 and score["nmse"] < 1.0, score
+    assert "initial state" in report["settings"]["scoring"]
+
+
+def test_records_that_do_not_go_together_are_refused_in_one_line(records, tmp_path, capsys):
+    folder, test = records
+    other_dt = _write(tmp_path / "slow.csv", 1e-3, 1.0, 600, 0.0, 3, dt=2e-3)
+    in_kilonewton = _write(tmp_path / "kn.csv", 1e-3, 1.0, 600, 0.0, 4, scale=1e-3)  # forces in kN, header says N
+    cases = [
+        (["--data", str(folder / "char_0.csv"), str(other_dt)], "slow.csv: sampled at dt = 0.002 s"),
+        (["--data", str(folder / "char_0.csv"), str(in_kilonewton)], "kn.csv: its force spread is"),
+        (["--data", str(tmp_path / "none_*.csv")], "the pattern matches no file"),
+        (["--data", str(folder / "char_0.csv"), str(folder / "char_1.csv")], "name the records to test on"),
+        (["--data", str(folder / "char_*.csv"), "--test", str(test), "--models", "mlp"], "fitted by the physics"),
+        (
+            [
+                "--data",
+                str(folder / "char_0.csv"),
+                "--validation",
+                str(test),
+                "--split",
+                "0.5",
+                "0.6",
+                "--test",
+                str(test),
+            ],
+            "with validation records the training records are whole",
+        ),  # fmt: skip
+    ]
+    for arguments, message in cases:
+        code = main(["compare", *arguments, "--out", str(tmp_path / "never"), "--no-progress"])
+        err = capsys.readouterr().err
+        assert code == 2 and message in err and len(err.strip().splitlines()) == 1, (arguments, err)
+    assert not (tmp_path / "never" / "report.json").exists()
+
+
+def test_a_test_record_starts_from_the_state_fitted_on_its_window():
+    """`predict_test_record`: a record cut mid-loop, scored after its window: starting from the fitted state beats
+    the run from rest with the window's mean error as offset (the former default, `--init offset`)."""
+    from fricjax.compare import TestRecord, predict_test_record, score_prediction
+
+    t = np.arange(2400) * DT
+    motion = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * 1.0 * t), dt=DT)
+    record = fj.FrictionData(motion, np.asarray(fj.simulate(_truth(), motion)) + 0.4).slice(1100, 2400)
+    test = TestRecord("cut", record, 0, 100)
+    state, _ = score_prediction(predict_test_record(_truth(), test, "state"), test)
+    rest, _ = score_prediction(predict_test_record(_truth(), test, "offset"), test)
+    assert abs(state.offset - 0.4) < 1e-4 and state.nmse < 1e-2 * rest.nmse  # NMSE in %
