@@ -111,3 +111,31 @@ def test_a_test_record_starts_from_the_state_fitted_on_its_window():
     state, _ = score_prediction(predict_test_record(_truth(), test, "state"), test)
     rest, _ = score_prediction(predict_test_record(_truth(), test, "offset"), test)
     assert abs(state.offset - 0.4) < 1e-4 and state.nmse < 1e-2 * rest.nmse  # NMSE in %
+
+
+@pytest.mark.slow
+def test_records_with_a_normal_load_scale_the_physics_models(tmp_path, capsys):
+    """A normal-load column named on the command line: the physics models are wrapped in `fj.NormalLoad`, so a
+    record at another load is predicted from the load alone (the training loads 100 and 200 N, the test at 150 N)."""
+    truth = fj.NormalLoad(_truth(), reference=100.0)
+    paths = []
+    for i, (load, n) in enumerate(((100.0, 1200), (200.0, 1000), (150.0, 1100))):
+        t = np.arange(n) * DT
+        x = 1e-3 * np.sin(2 * np.pi * 1.2 * t) * np.minimum(1.0, t / 0.3)
+        normal = load * (1 + 0.2 * np.sin(2 * np.pi * 0.4 * t))
+        motion = fj.Motion(x=x, v=fj.Motion.from_position(x, dt=DT).v, dt=DT, normal_force=normal)
+        force = np.asarray(fj.simulate(truth, motion)) + 0.01 * np.random.default_rng(i).normal(size=n)
+        path = tmp_path / f"load_{i}.csv"
+        np.savetxt(path, np.c_[t, x, force, normal / 2, normal / 2], delimiter=",", comments="",
+                   header="t,x,force,press_a [N],press_b [N]")  # fmt: skip
+        paths.append(str(path))
+    out = tmp_path / "out"
+    options = ["--normal-force-column", "press_a", "press_b", "--models", "lugre", "--steps", "40", "--drift", "none"]
+    code = main(["compare", "--data", *paths[:2], "--test", paths[2], *options, "--out", str(out), "--no-progress"])
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    assert "scale with it" in printed and "LuGre x N" in printed
+    report = json.loads((out / "report.json").read_text())
+    (lugre,) = report["models"]
+    assert lugre["test_scores"][paths[2]]["nmse"] < 1.0, lugre["test_scores"]
+    assert report["data_card"][0]["columns"]["normal_force"] == "press_a [N] + press_b [N]"

@@ -129,7 +129,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--drift",
         default="linear",
         choices=("linear", "leaky", "none"),
-        help="force-sensor drift fitted with every model (fj.SensorDrift), restarting at 0 on each test record "
+        help="force-sensor drift fitted with every model (fj.SensorDrift; with several --data records one drift "
+        "per record), so that it stays out of the friction parameters; it belongs to its record: see --test-drift "
         "(default: %(default)s)",
     )
     compare.add_argument(

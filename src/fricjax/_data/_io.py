@@ -245,13 +245,14 @@ def read_record(
     ignored = []
     for raw, values in entries:
         role, unit = _column_role(raw)
-        if raw.strip().lower() in named:
+        key = _named(raw, named)
+        if key:
             if role not in (None, "normal_force"):
                 raise RecordError(
                     f"{path}: column {raw!r} gives {role!r}; it cannot also be the normal force (normal_force_column)"
                 )
             values = _one_signal(path, raw, values)
-            normal[raw.strip().lower()] = (raw, values, _force_unit_of(raw) if role is None else unit)
+            normal[key] = (raw, values, _force_unit_of(raw) if role is None else unit)
             continue
         if role is None or (role == "normal_force" and named):
             if raw.strip():
@@ -396,7 +397,7 @@ def _read_table(path: pathlib.Path, named: dict[str, str]) -> tuple[list[tuple[s
         if suffix == ".npz":
             return _read_npz(path)
         if suffix == ".csv":
-            return read_csv(path, lambda name: _column_role(name)[0] is not None or name.strip().lower() in named), None
+            return read_csv(path, lambda name: _column_role(name)[0] is not None or bool(_named(name, named))), None
     except RecordError:
         raise
     except CSVError as err:
@@ -561,6 +562,15 @@ def _force_unit_of(raw: str) -> str | None:
         return unit
     head, sep, suffix = name.rpartition("_")
     return suffix if sep and head and _is_unit("force", suffix) else None
+
+
+def _named(raw: str, named: dict[str, str]) -> str:
+    """The key of `named` (lower-case names given for the normal force) that column `raw` matches, as written or
+    without its bracketed unit ('press_a' names the column 'press_a [N]'); `""` for none."""
+    for key in (raw.strip().lower(), _split_unit(raw)[0].strip().lower()):
+        if key in named:
+            return key
+    return ""
 
 
 def _split_unit(raw: str) -> tuple[str, str | None]:

@@ -19,14 +19,13 @@ from ..._estimation._fit import fit, levenberg_marquardt
 from ..._estimation._losses import SimulationLoss
 from ..._estimation._solution import FitResult
 from ..._estimation._strategies import Continuation, MultiStart, ParameterScaling
-from ..._models.combine._sensor import SensorDrift
 from ..._models.physics._gms import GMS
 from ..._models.physics._lugre import LuGre
 from ..._models.physics._maxwell_slip import MaxwellSlip
 from ..._models.physics._static import BoPavelescu
 from ..._models.physics._stribeck import ExponentialStribeck
 from ..._smoothing import Smooth
-from ._recipes import ModelSpec, lm_recipe
+from ._recipes import ModelSpec, friction_of, lm_recipe, with_friction, wrapper_prefix
 from ._records import Split, TrainingRecords
 from ._settings import DataScales, FitSettings
 
@@ -88,22 +87,12 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
     }
 
 
-def _friction(model: Any) -> Any:
-    """The friction model of a start: `model` itself, or the one inside its `SensorDrift`."""
-    return model.model if isinstance(model, SensorDrift) else model
-
-
-def _with_friction(model: Any, friction: Any) -> Any:
-    """`model` with its friction model (`_friction`) replaced by `friction`."""
-    return eqx.tree_at(lambda m: m.model, model, friction) if isinstance(model, SensorDrift) else friction
-
-
 def _with_stribeck_velocity(model: Any, vs: float) -> Any:
-    """`model` (a GMS, possibly inside a `SensorDrift`) with its Stribeck velocity set to `vs` [m/s]."""
-    gms = _friction(model)
+    """`model` (a GMS, possibly inside its wrappers) with its Stribeck velocity set to `vs` [m/s]."""
+    gms = friction_of(model)
     old = gms.stribeck.vs
     new = Positive(vs, transform=old.transform, name="vs", dtype=old.raw.dtype)
-    return _with_friction(model, eqx.tree_at(lambda g: g.stribeck.vs, gms, new))
+    return with_friction(model, eqx.tree_at(lambda g: g.stribeck.vs, gms, new))
 
 
 def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
@@ -129,7 +118,7 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         train, records = split.fit_arguments(start, drift=settings.drift != "none")
         scales = DataScales.from_data(split.train)
         eps_end = max(1e-3 * scales.dx, 1e-12)
-        prefix = "model." if isinstance(start, SensorDrift) else ""
+        prefix = wrapper_prefix(start)
         viscous_scale = 0.1 * scales.Fc / scales.v_fast  # a viscous force of 10 % of Fc at the fast end
         per_end = max(max(settings.gms_starts, settings.starts) // 2, 1)
         if per_end <= 2:

@@ -8,12 +8,12 @@ from typing import Any
 import numpy as np
 
 from ..._constraints import unwrap
-from ..._models.combine._sensor import SensorDrift
 from ..._models.physics._gms import GMS
 from ..._models.physics._lugre import LuGre
 from ..._models.physics._maxwell_slip import MaxwellSlip, SpringForces
 from ..._models.physics._static import AbstractStaticFriction
 from ..._models.physics._stribeck import ExponentialStribeck
+from ._recipes import friction_of
 
 # a fraction of the force or of the elements below which a part of the model does nothing
 NEGLIGIBLE = 1e-3
@@ -24,7 +24,7 @@ def implausible(model: Any, record_excursion: float | None = None) -> list[str]:
     below its Coulomb level (`Fs < Fc`), a damping coefficient held at its bound 0, GMS elements carrying almost none
     of the force, Maxwell-slip elements that never slip on a record whose reversals span `record_excursion` [m]
     (half the largest displacement swing), or all of them."""
-    friction = unwrap(model.model if isinstance(model, SensorDrift) else model)
+    friction = unwrap(friction_of(model))
     notes = []
     stribeck = getattr(friction, "stribeck", None)
     levels = stribeck if isinstance(stribeck, ExponentialStribeck) else friction

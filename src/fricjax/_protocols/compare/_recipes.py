@@ -10,6 +10,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import equinox as eqx
 import numpy as np
 import optax
 
@@ -17,6 +18,7 @@ from ..._estimation._fit import fit, levenberg_marquardt
 from ..._estimation._solution import FitResult
 from ..._estimation._strategies import MultiStart, ParameterScaling
 from ..._metrics import nmse
+from ..._models.combine._normal_load import NormalLoad
 from ..._models.combine._sensor import SensorDrift
 from ._records import Split, TrainingRecords
 from ._scoring import SIGNIFICANT_T, VALIDATION_BLOCKS, free_run, paired_validation_gain
@@ -34,11 +36,35 @@ class ModelSpec:
     fit: Callable[[Any, Split, int, bool], FitResult]
 
 
+WRAPPERS = (SensorDrift, NormalLoad)  # the sensor and the normal load around a friction model, outermost first
+
+
+def wrapper_prefix(model: Any) -> str:
+    """The dotted prefix of the friction model inside its wrappers (`"model."` per `SensorDrift` / `NormalLoad`)."""
+    prefix = ""
+    while isinstance(model, WRAPPERS):
+        prefix, model = prefix + "model.", model.model
+    return prefix
+
+
+def friction_of(model: Any) -> Any:
+    """The friction model inside its wrappers (`SensorDrift`, `NormalLoad`)."""
+    while isinstance(model, WRAPPERS):
+        model = model.model
+    return model
+
+
+def with_friction(model: Any, friction: Any) -> Any:
+    """`model` with the friction model inside its wrappers replaced by `friction`."""
+    if isinstance(model, WRAPPERS):
+        return eqx.tree_at(lambda m: m.model, model, with_friction(model.model, friction))
+    return friction
+
+
 def separable_paths(start: Any, paths: tuple[str, ...]) -> tuple[str, ...]:
-    """The linear parameters of a (possibly drift-wrapped) model: the friction model's, and the drift rate."""
-    if isinstance(start, SensorDrift):
-        return (*(f"model.{path}" for path in paths), "rate")
-    return paths
+    """The linear parameters of a (possibly wrapped) model: the friction model's, and the drift rate."""
+    prefixed = tuple(wrapper_prefix(start) + path for path in paths)
+    return (*prefixed, "rate") if isinstance(start, SensorDrift) else prefixed
 
 
 def lm_recipe(separable: tuple[str, ...], starts: int, settings: FitSettings) -> Callable[..., FitResult]:

@@ -55,7 +55,13 @@ def fit_and_score(
     sequential work when the default device is an accelerator (stated in the log), `"cpu"`, `"gpu"`. With several
     training records (`TrainingRecords`) only the physics models can be fitted."""
     settings = FitSettings() if settings is None else settings
-    specs = default_models(settings, several=split.several)
+    load = split.train.motion.normal_force
+    normal_load = None if load is None else float(np.mean(np.abs(np.asarray(load))))
+    if normal_load is not None:
+        log(
+            f"the records hold the normal load (mean {normal_load:.4g} N): physics models scale with it (fj.NormalLoad)"
+        )
+    specs = default_models(settings, several=split.several, normal_load=normal_load)
     if split.several:
         others = [name for name in names if name not in PHYSICS_MODELS]
         if others:
@@ -251,6 +257,13 @@ def run_compare(
         cards[name] = loaded.card
     if not tests:
         raise CompareError("nothing to test on: the split leaves no test part; pass --test records")
+    if split.train.motion.normal_force is not None:
+        for t in tests:
+            if t.record.motion.normal_force is None:
+                raise CompareError(
+                    f"{t.name}: no normal load, but the training records hold one and the models scale with it; "
+                    "give it a normal_force column or name it with --normal-force-column"
+                )
     units = training.units
     if isinstance(split, TrainingRecords):
         parts = [
