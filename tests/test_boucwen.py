@@ -58,7 +58,7 @@ def test_load_boucwen_shapes(data):
 def test_load_boucwen_default_path_and_errors(data_dir, tmp_path, monkeypatch):
     monkeypatch.setenv("FRICJAX_DATA", str(data_dir))
     assert load_boucwen().multisine.length == 8192
-    monkeypatch.delenv("FRICJAX_DATA")
+    monkeypatch.setenv("FRICJAX_DATA", str(tmp_path / "nowhere"))
     with pytest.raises(FileNotFoundError, match="FRICJAX_DATA"):
         load_boucwen()
     with pytest.raises(FileNotFoundError, match="FRICJAX_DATA"):

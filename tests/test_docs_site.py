@@ -123,6 +123,21 @@ def _motion(n: int = 300) -> fj.Motion:
     return fj.Motion.from_position(2e-5 * np.sin(2 * np.pi * 2 * t) * (1 + 8 * t), dt=1e-3)
 
 
+def test_search_is_configured_to_work_from_a_file():
+    """mkdocs-material's offline plugin (the search index inlined as search/search_index.js) with a local copy of the
+    iframe-worker shim: browsers refuse Web Workers from file://, and the plugin would add the shim from unpkg.com
+    (a network request) unless extra.polyfills names one already."""
+    config = (ROOT / "mkdocs.yml").read_text()
+    plugins = re.search(r"^plugins:\n((?:  .*\n)+)", config, re.M)
+    assert plugins and re.search(r"^  - offline\b", plugins.group(1), re.M), "mkdocs.yml: no `- offline` plugin"
+    polyfills = re.search(r"^  polyfills:\n((?:    - .*\n)+)", config, re.M)
+    assert polyfills, "mkdocs.yml: no extra.polyfills (the offline plugin would load the shim from unpkg.com)"
+    scripts = re.findall(r"^    - (\S+)", polyfills.group(1), re.M)
+    assert scripts == ["javascripts/iframe-worker-shim.js"], scripts
+    shim = (DOCS / scripts[0]).read_text()
+    assert "window.Worker" in shim and "http" not in shim.split("*/", 1)[1]
+
+
 @pytest.mark.slow  # about 15 s: several compilations of the example model
 def test_write_your_own_model_example_meets_the_model_contract(tmp_path):
     """docs/examples/spring_slider.py through the battery's checks: step loop == simulate == no jit, vmap ==
@@ -248,6 +263,17 @@ def test_built_pages_resolve_paper_keys_and_show_equations(site):
     assert lugre.count("<math") >= 5 and "arithmatex" not in lugre  # MathML, no formula left as TeX
 
 
+@pytest.mark.slow
+def test_built_site_inlines_the_search_index_and_loads_no_script_from_the_network(site):
+    index = (site / "search" / "search_index.js").read_text()
+    assert index.startswith("var __index = {") and '"docs":' in index
+    for path in (site / "index.html", site / "models" / "lugre.html"):
+        page = path.read_text()
+        assert "javascripts/iframe-worker-shim.js" in page, path.name
+        remote = re.findall(r"<script[^>]+src=\"(https?:[^\"]+)\"", page)
+        assert not remote and "unpkg.com" not in page, (path.name, remote)
+
+
 def _chromium() -> str:
     path = os.environ.get("FRICJAX_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
     if not path:
@@ -294,5 +320,34 @@ def test_notebook_pages_render_their_figures_in_chromium(site, tmp_path):
                 assert pixels.shape[0] > 50 and pixels.shape[1] > 50, (path.name, pixels.shape)
                 assert pixels.std() > 5.0, f"{path.name}: the screenshot of its first figure is blank"
                 page.screenshot(path=str(shots / f"{path.stem}-page.png"))
+        finally:
+            browser.close()
+
+
+@pytest.mark.slow
+def test_search_works_from_file_in_chromium(site):
+    """Opened from disk with every network request refused, the search box finds a model page."""
+    playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (the docs extra)")
+    chromium = _chromium()
+    args = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update"]
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium, args=args, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 1000})
+            requests: list[str] = []
+            page.route("http*://**", lambda route: (requests.append(route.request.url), route.abort()))
+            errors: list[str] = []
+            page.on("pageerror", lambda error: errors.append(str(error)))
+            page.goto((site / "index.html").as_uri(), wait_until="load")
+            box = page.locator("input.md-search__input")  # material hides it when its search worker fails
+            box.wait_for(state="visible", timeout=15_000)
+            box.click()
+            box.press_sequentially("Maxwell", delay=20)  # keystrokes, as a reader types (fill() sends no keys)
+            results = page.locator("li.md-search-result__item")
+            results.first.wait_for(timeout=15_000)
+            links = results.locator("a").evaluate_all("links => links.map(a => a.getAttribute('href'))")
+            assert any("maxwell-slip" in (href or "") for href in links), links
+            assert not requests, f"the site asked the network for {requests}"
+            assert not errors, errors
         finally:
             browser.close()

@@ -7,6 +7,7 @@ Motions are 100 samples and the one fit runs 10 steps: the time goes into compil
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import pathlib
@@ -324,3 +325,45 @@ def test_save_refuses_what_it_cannot_describe(tmp_path):
     with pytest.raises(ValueError, match="cannot write"):
         fj.save_model(tmp_path, fj.Coulomb(Fc=1.0))
     assert not path.exists()
+
+
+def _header(path: pathlib.Path) -> dict:
+    """The JSON header of a model file, read as the format says (magic line, 8-byte length, JSON)."""
+    data = path.read_bytes()
+    (length,) = struct.unpack("<Q", data[14:22])
+    return json.loads(data[22 : 22 + length])
+
+
+def test_files_say_whether_the_model_is_exact_or_smooth(tmp_path):
+    path = tmp_path / "model.eqx"
+    smooth = fj.LuGre(stribeck(), sigma0=1e5, sigma1=300.0, sigma2=40.0, smoothing=fj.Smooth(jnp.float32(1e-3)))
+    cases = [
+        (smooth, {"kind": "smooth", "eps": [0.001]}),  # the float32 width's own shortest decimal
+        (fj.exact(smooth), {"kind": "exact"}),
+        ((fj.exact(smooth), fj.with_smoothing(smooth, fj.Smooth(0.3))), {"kind": "mixed", "eps": [0.3]}),
+        ({"k": jnp.ones(2)}, {"kind": "none"}),  # a tree without a smoothing strategy
+    ]
+    for model, expected in cases:
+        fj.save_model(path, model)
+        assert _header(path)["smoothing"] == expected, model
+
+
+def test_load_model_exact_applies_fj_exact(tmp_path):
+    path = tmp_path / "model.eqx"
+    model = fj.Dahl(sigma0=1e5, Fc=1.0, alpha=1.7, smoothing=fj.Smooth(1e-4))
+    fj.save_model(path, model)
+    loaded = fj.load_model(path)
+    assert isinstance(loaded.smoothing, fj.Smooth)  # as saved, unless asked
+    exact = fj.load_model(path, exact=True)
+    assert_same_tree(exact, fj.exact(model))
+    assert isinstance(exact.smoothing, fj.Exact) and str(exact).startswith("Dahl (exact)")
+    np.testing.assert_array_equal(fj.simulate(exact, MOTION), fj.simulate(fj.exact(model), MOTION))
+    # a file written before the header said so (no "smoothing" key) still loads, exact on request too
+    data = path.read_bytes()
+    header = _header(path)
+    del header["smoothing"]
+    old = json.dumps(header, separators=(",", ":")).encode()
+    (length,) = struct.unpack("<Q", data[14:22])
+    body = data[:14] + struct.pack("<Q", len(old)) + old + data[22 + length : -32]
+    (tmp_path / "old.eqx").write_bytes(body + hashlib.sha256(body).digest())
+    assert isinstance(fj.load_model(tmp_path / "old.eqx", exact=True).smoothing, fj.Exact)

@@ -1,4 +1,5 @@
-"""Parameter reparametrisations: positive (log / softplus) and fixed parameters, and `unwrap`.
+"""Parameter reparametrisations: positive (log / softplus) and fixed parameters, and `unwrap`; the parameter table
+(`parameter_arrays`) and the units of the literature symbols (`PARAMETER_UNITS`).
 
 Constructors take physical values and store positive parameters through a wrapper whose leaf is the
 unconstrained value, so an unconstrained optimiser can never make a stiffness or threshold negative.
@@ -241,3 +242,55 @@ def parameter_arrays(tree: Any) -> dict[str, np.ndarray]:
         if eqx.is_array(leaf) and jnp.issubdtype(leaf.dtype, jnp.floating):
             out[jax.tree_util.keystr(path).lstrip(".")] = np.asarray(leaf)
     return out
+
+
+# Units of the literature symbols (DESIGN.md names), by the last component of a parameter's path.
+PARAMETER_UNITS = {
+    "Fc": "N",
+    "Fs": "N",
+    "vs": "m/s",
+    "delta": "-",
+    "Fv": "N s/m",
+    "sigma0": "N/m",
+    "sigma1": "N s/m",
+    "sigma2": "N s/m",
+    "offset": "N",
+    "z0": "m",
+    "k": "N/m",
+    "alpha": "-",
+    "C": "1/s",
+    "thresholds": "m",
+    "rate": "N/s",
+    "tau": "s",
+    "Fc_pos": "N",
+    "Fc_neg": "N",
+    "Fs_pos": "N",
+    "Fs_neg": "N",
+    "Fv_pos": "N s/m",
+    "Fv_neg": "N s/m",
+    "mass": "kg",
+    "M": "kg",
+    "F0": "N",
+    "gap": "m",
+    "mu": "-",
+    "reference": "N",
+}
+
+
+def parameter_unit(path: str) -> str:
+    """The unit of a parameter path (`"stribeck.Fc"` -> `"N"`), `""` where fricjax does not know it."""
+    return PARAMETER_UNITS.get(path.split(".")[-1], "")
+
+
+def parameter_line(path: str, value: Any, std: Any = None, unit: str = "") -> str:
+    """One parameter array as a line of text: `"sigma0 = 100000 ± 312 [N/m]"` (the `±` part only where every
+    entry of `std` is finite); an array of more than 8 entries by its shape and range. `Solution.summary` and
+    `str(model)` write their parameters so."""
+    value = np.asarray(value)
+    suffix = f" [{unit}]" if unit else ""
+    if value.size > 8:
+        return f"{path}: shape {value.shape}, range [{value.min():.4g}, {value.max():.4g}]" + suffix
+    text = np.array2string(value, formatter={"float_kind": lambda x: f"{x:.6g}"})
+    if std is not None and np.all(np.isfinite(std)):
+        text += " ± " + np.array2string(np.asarray(std), formatter={"float_kind": lambda x: f"{x:.3g}"})
+    return f"{path} = {text}{suffix}"

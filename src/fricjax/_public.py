@@ -21,6 +21,7 @@ from ._data._differentiators import al_alaoui_coefficients as al_alaoui_coeffici
 from ._data._differentiators import al_alaoui_derivative as al_alaoui_derivative
 from ._data._emps import EMPSRecord as EMPSRecord
 from ._data._emps import load_emps as load_emps
+from ._data._folder import data_folder as data_folder
 from ._data._io import RecordError as RecordError
 from ._data._io import load_record as load_record
 from ._data._preprocessing import Normaliser as Normaliser

@@ -18,6 +18,8 @@ import equinox as eqx
 import numpy as np
 import scipy.io
 
+from ._folder import data_folder
+
 BOUCWEN_DT = 1.0 / 750.0
 """Sample time of the benchmark records [s] (fs = 750 Hz)."""
 
@@ -62,12 +64,13 @@ class BoucWenData(NamedTuple):
 def _folder(path: str | os.PathLike[str] | None) -> str:
     if path is not None:
         return os.fspath(path)
-    root = os.environ.get("FRICJAX_DATA")
-    if not root:
+    try:
+        root = data_folder()
+    except FileNotFoundError as err:
         raise FileNotFoundError(
-            "load_boucwen: no `path` given and FRICJAX_DATA is not set; set FRICJAX_DATA to the data folder that "
-            "holds boucwen/ (e.g. export FRICJAX_DATA=/path/to/data) or pass path='/path/to/data/boucwen'."
-        )
+            f"load_boucwen: no `path` given, and no data folder: {err} The folder must hold boucwen/; or pass "
+            "path='/path/to/data/boucwen'."
+        ) from None
     return os.path.join(root, "boucwen")
 
 
@@ -122,7 +125,8 @@ def load_boucwen(path: str | os.PathLike[str] | None = None) -> BoucWenData:
     """Read the Bouc-Wen benchmark (Noël & Schoukens 2016): the training realisation and the two test records.
 
     **Arguments:** `path` the folder holding `uval_multisine.mat`, `yval_multisine.mat`, `uval_sinesweep.mat`,
-    `yval_sinesweep.mat` and `generated_train_forgione/train.h5`; default `$FRICJAX_DATA/boucwen`.
+    `yval_sinesweep.mat` and `generated_train_forgione/train.h5`; default `boucwen/` in `fj.data_folder()`
+    (`$FRICJAX_DATA`, else `shared/data` beside the fricjax checkout).
 
     **Returns:** a `BoucWenData(train, multisine, sinesweep)` of `BoucWenRecord`s (u [N], y [m], dt = 1/750 s).
     The protocol: fit and select on `train` only; score the free-run simulation RMSE [m] on `multisine` (one

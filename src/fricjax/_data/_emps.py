@@ -68,7 +68,7 @@ def load_emps(path: str | os.PathLike[str]) -> EMPSRecord:
 
     ```python
     >>> import fricjax as fj
-    >>> rec = fj.load_emps("../shared/data/emps/DATA_EMPS.mat")  # doctest: +SKIP
+    >>> rec = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS.mat")  # doctest: +SKIP
     >>> rec.length, rec.dt, rec.pulses is None  # doctest: +SKIP
     (24841, 0.001, True)
     ```

@@ -5,7 +5,10 @@ A model file holds, in this order:
 1. the magic line `fricjax-model\\n` (14 bytes);
 2. the length N of the header, an unsigned 64-bit little-endian integer (8 bytes);
 3. the header, N bytes of UTF-8 JSON: `{"format": "fricjax-model", "format_version": 2, "fricjax": <version>,
-   "checksum": "sha256", "tree": <node>}`, where a node is one of
+   "checksum": "sha256", "smoothing": <smoothing>, "tree": <node>}`, where `<smoothing>` says whether the saved
+   model is exact or smooth: `{"kind": "exact" | "smooth" | "mixed" | "none"}` (every smoothing strategy in it
+   `Exact()`, every one `Smooth(eps)`, some of each, none at all), with `"eps": [...]` (the distinct widths) where
+   any is smooth (files saved before fricjax recorded it lack the key), and a node is one of
    - `{"kind": "module", "module": ..., "qualname": ..., "static": {name: value}, "fields": {name: node}}` for
      an equinox Module (static values: numbers, strings, bools, None, and lists / `{"tuple": [...]}` of those),
    - `{"kind": "tuple" | "list", "items": [node, ...]}`, `{"kind": "dict", "items": [[key, node], ...]}`,
@@ -47,6 +50,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._smoothing import AbstractSmoothing, Exact, Smooth
+from .._smoothing import exact as exact_model
 from .._version import fricjax_version
 from ._model_checks import check_loaded
 
@@ -70,9 +75,10 @@ def save_model(path: str | pathlib.Path, model: Any) -> None:
     Format (`.eqx` is the usual extension): the line `fricjax-model`, the length of the header (8 bytes,
     unsigned little-endian), the header, then the arrays as `equinox.tree_serialise_leaves` writes them (one
     `.npy` record per array, in `jax.tree_util.tree_leaves` order). The header is UTF-8 JSON with the format
-    name and version, the fricjax version and the tree: for each equinox Module its class (module and
-    qualname), its static fields and its children; tuples, lists, dicts and None as such; arrays by shape and
-    dtype; Python numbers and strings by value. The file ends with the SHA-256 digest of all that precedes it.
+    name and version, the fricjax version, whether the model is exact or smooth (`"smoothing"`: `{"kind": "exact"}`,
+    `{"kind": "smooth", "eps": [...]}`, ...) and the tree: for each equinox Module its class (module and qualname),
+    its static fields and its children; tuples, lists, dicts and None as such; arrays by shape and dtype; Python
+    numbers and strings by value. The file ends with the SHA-256 digest of all that precedes it.
 
     The file is written to a temporary file in the same folder and then renamed over `path`, so a save that
     fails leaves an existing file at `path` untouched.
@@ -96,9 +102,10 @@ def save_model(path: str | pathlib.Path, model: Any) -> None:
     ```
     """
     path = pathlib.Path(path)
+    tree = _describe(model)  # first: it names what a model file cannot hold
     header = {
         "format": FORMAT, "format_version": FORMAT_VERSION, "fricjax": fricjax_version(), "checksum": "sha256",
-        "tree": _describe(model),
+        "smoothing": _smoothing(model), "tree": tree,
     }  # fmt: skip
     try:
         header_bytes = json.dumps(header, separators=(",", ":")).encode("utf-8")
@@ -116,7 +123,7 @@ def save_model(path: str | pathlib.Path, model: Any) -> None:
     _write_atomically(path, write)
 
 
-def load_model(path: str | pathlib.Path, *, classes: Iterable[type] = ()) -> Any:
+def load_model(path: str | pathlib.Path, *, classes: Iterable[type] = (), exact: bool = False) -> Any:
     """Load a model written by `save_model`; never executes code from the file and never unpickles.
 
     The header is read first: a file that does not start with the fricjax magic line (a pickle, say) is
@@ -130,8 +137,12 @@ def load_model(path: str | pathlib.Path, *, classes: Iterable[type] = ()) -> Any
     - `path`: a file written by `save_model`.
     - `classes`: your own equinox Module classes that the file holds (a model you wrote, or `eqx.nn` layers),
       e.g. `classes=(MyModel,)`. Only pass classes whose files you trust to hold sensible field values.
+    - `exact`: return `fj.exact(model)`: every smoothing strategy replaced by `Exact()` (a fit saves the smooth
+      model it trained; `fricjax compare` scores, and reports the parameters of, the exact one). The file's header
+      says which the saved model is (`"smoothing"`), and so does `print(model)`.
 
-    **Returns:** the saved model (or tree of models), with the same classes, static fields and array values.
+    **Returns:** the saved model (or tree of models), with the same classes, static fields and array values
+    (smoothing replaced by `Exact()` with `exact=True`).
 
     Raises `ValueError` naming the file when it is missing, is not a fricjax model file, is damaged (its SHA-256
     checksum does not match; files saved before checksums have none and still load), names a class that is
@@ -144,6 +155,9 @@ def load_model(path: str | pathlib.Path, *, classes: Iterable[type] = ()) -> Any
     >>> fj.save_model(path, fj.Dahl(sigma0=1e5, Fc=1.0))
     >>> type(fj.load_model(path)).__name__
     'Dahl'
+    >>> fj.save_model(path, fj.Coulomb(Fc=2.0, smoothing=fj.Smooth(1e-3)))
+    >>> type(fj.load_model(path, exact=True).smoothing).__name__
+    'Exact'
     ```
     """
     path = pathlib.Path(path)
@@ -176,12 +190,32 @@ def load_model(path: str | pathlib.Path, *, classes: Iterable[type] = ()) -> Any
     if handle.read(1):
         raise ValueError(f"load_model: {path} is damaged (unexpected data after the arrays).")
     check_loaded(model, path)
-    return model
+    return exact_model(model) if exact else model
 
 
 # ----------------------------------------------------------------------------------------------------------------
 # saving
 # ----------------------------------------------------------------------------------------------------------------
+
+
+def _smoothing(model: Any) -> dict[str, Any]:
+    """The header's `"smoothing"` entry: whether the smoothing strategies in `model` are exact or smooth."""
+    strategies = [
+        leaf
+        for leaf in jax.tree_util.tree_leaves(model, is_leaf=lambda x: isinstance(x, AbstractSmoothing))
+        if isinstance(leaf, AbstractSmoothing)
+    ]
+    smooth = [s for s in strategies if isinstance(s, Smooth)]
+    if not strategies:
+        return {"kind": "none"}
+    if all(isinstance(s, Exact) for s in strategies):
+        return {"kind": "exact"}
+    kind = "mixed" if any(isinstance(s, Exact) for s in strategies) else "smooth"
+    if any(not eqx.is_array(s.eps) or isinstance(s.eps, jax.core.Tracer) for s in smooth):
+        return {"kind": kind}  # a traced model: _describe refuses it with its own message
+    # str() of a NumPy scalar: the shortest decimal of its own dtype (a float32 0.001 is 0.001, not 0.0010000000474)
+    widths = {float(str(w)) for s in smooth for w in np.asarray(s.eps).reshape(-1)}
+    return {"kind": kind, "eps": sorted(widths)}
 
 
 def _describe(node: Any, where: str = "model") -> dict[str, Any]:

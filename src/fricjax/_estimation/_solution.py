@@ -12,7 +12,8 @@ from typing import Any
 import equinox as eqx
 import numpy as np
 
-from .._constraints import parameter_arrays, unwrap
+from .._constraints import PARAMETER_UNITS as PARAMETER_UNITS
+from .._constraints import parameter_arrays, parameter_line, parameter_unit, unwrap
 from .._smoothing import exact
 
 
@@ -62,40 +63,6 @@ class FitFailed(RuntimeError):
     def __init__(self, solution: Solution):
         super().__init__(f"fit: {solution.code}: {solution.message}")
         self.solution = solution
-
-
-# Units of the literature symbols (DESIGN.md names), by the last component of a parameter's path.
-PARAMETER_UNITS = {
-    "Fc": "N",
-    "Fs": "N",
-    "vs": "m/s",
-    "delta": "-",
-    "Fv": "N s/m",
-    "sigma0": "N/m",
-    "sigma1": "N s/m",
-    "sigma2": "N s/m",
-    "offset": "N",
-    "z0": "m",
-    "k": "N/m",
-    "alpha": "-",
-    "C": "1/s",
-    "thresholds": "m",
-    "rate": "N/s",
-    "tau": "s",
-    "Fc_pos": "N",
-    "Fc_neg": "N",
-    "Fs_pos": "N",
-    "Fs_neg": "N",
-    "Fv_pos": "N s/m",
-    "Fv_neg": "N s/m",
-    "mass": "kg",
-    "M": "kg",
-}
-
-
-def parameter_unit(path: str) -> str:
-    """The unit of a parameter path (`"stribeck.Fc"` -> `"N"`), `""` where fricjax does not know it."""
-    return PARAMETER_UNITS.get(path.split(".")[-1], "")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,26 +135,27 @@ class Solution:
             rows.append({"path": path, "value": value, "std": std, "unit": parameter_unit(path)})
         return rows
 
+    def _validation_text(self) -> str:
+        """The validation part of the summary's loss line; never a bare "nan": without validation data (the losses
+        and their history all NaN) it says so."""
+        if np.isfinite(self.val_loss) or np.isfinite(self.exact_val_loss):
+            return f"validation loss {self.val_loss:.4g} (exact {self.exact_val_loss:.4g})"
+        history = np.asarray(self.history.get("val_loss", []), dtype=float)
+        if np.any(np.isfinite(history)):
+            return "validation loss not finite"
+        if self.code == "diverged":
+            return "no finite validation loss (no validation data, or the fit diverged before one was computed)"
+        return "no validation data"
+
     def summary(self, max_parameters: int = 20) -> str:
         """A short human-readable report: result, losses, and at most `max_parameters` parameter lines (arrays of
         more than 8 entries are summarised by shape and range)."""
         effort = f" after {self.evaluations} steps in {self.wall_time:.2f} s" if self.evaluations else ""
-        losses = f"train loss {self.train_loss:.4g}, "
-        if np.isnan(self.val_loss) and np.isnan(self.exact_val_loss) and self.code != "diverged":
-            losses += "no validation data"
-        else:
-            losses += f"validation loss {self.val_loss:.4g} (exact {self.exact_val_loss:.4g})"
+        losses = f"train loss {self.train_loss:.4g}, " + self._validation_text()
         lines = [f"{type(self).__name__}: {self.code}{effort}: {self.message}", losses]
         rows = self.parameter_table()
         for row in rows[:max_parameters]:
-            path, value, std, unit = row["path"], row["value"], row["std"], row["unit"]
-            if value.size > 8:
-                lines.append(f"  {path}: shape {value.shape}, range [{value.min():.4g}, {value.max():.4g}]")
-                continue
-            text = np.array2string(value, formatter={"float_kind": lambda x: f"{x:.6g}"})
-            if np.all(np.isfinite(std)):
-                text += " ± " + np.array2string(std, formatter={"float_kind": lambda x: f"{x:.3g}"})
-            lines.append(f"  {path} = {text}" + (f" [{unit}]" if unit else ""))
+            lines.append("  " + parameter_line(row["path"], row["value"], row["std"], row["unit"]))
         if len(rows) > max_parameters:
             lines.append(f"  ... and {len(rows) - max_parameters} more parameter arrays (Solution.parameters())")
         if self.records is not None:

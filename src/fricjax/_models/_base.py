@@ -19,6 +19,7 @@ import jax
 from jaxtyping import Array
 
 from .._inputs import InputRecord, Motion, MotionSample
+from ._display import model_text
 
 
 class AbstractModel(eqx.Module):
@@ -42,6 +43,24 @@ class AbstractModel(eqx.Module):
     # vector that the loop body unpacks, at this scan unrolling (faster loops on XLA:CPU for some models; see
     # `fricjax._simulate.run` and benchmarks/README.md). Derivatives are those of the plain scan.
     packed_unroll: ClassVar[int | None] = None
+
+    def __repr__(self) -> str:
+        """The model's class, its smoothing and one line per parameter array with its unit (physical values:
+        constraint wrappers resolved). Traced or shape-only leaves print as equinox prints a Module; so does
+        `eqx.tree_pformat(model)` always (the structural view).
+
+        ```python
+        >>> import fricjax as fj
+        >>> print(fj.Dahl(sigma0=1e5, Fc=fj.Fixed(1.0), smoothing=fj.Smooth(1e-3)))
+        Dahl (smooth, eps 0.001)
+          sigma0 = 100000 [N/m]
+          Fc = 1 [N] (fixed)
+          alpha = 1 [-]
+          offset = 0 [N]
+          F0 = 0 [N]
+        ```
+        """
+        return model_text(self)
 
     def parameter_ranges(self) -> dict[str, float]:
         """The physical magnitude of real fields that may start at 0 (`{field: magnitude}` in the field's

@@ -111,7 +111,7 @@ class EMPSOpenLoopLoss(AbstractLoss):
 
     ```python
     >>> import fricjax as fj
-    >>> train = fj.load_emps("../shared/data/emps/DATA_EMPS.mat")  # doctest: +SKIP
+    >>> train = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS.mat")  # doctest: +SKIP
     >>> idm = fj.fit_emps_idm(train, fj.CoulombViscous)  # doctest: +SKIP
     >>> start = fj.with_smoothing(idm.plant(), fj.Smooth(1e-3))  # doctest: +SKIP
     >>> loss, solver = fj.EMPSOpenLoopLoss(), fj.levenberg_marquardt()  # doctest: +SKIP
@@ -234,7 +234,7 @@ def score_emps_open_loop(
 
     ```python
     >>> import fricjax as fj
-    >>> test = fj.load_emps("../shared/data/emps/DATA_EMPS_PULSES.mat")  # doctest: +SKIP
+    >>> test = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS_PULSES.mat")  # doctest: +SKIP
     >>> plant = fj.EMPSPlant(95.1089, fj.CoulombViscous(Fc=20.3935, Fv=203.5034, offset=-3.1648))  # doctest: +SKIP
     >>> round(fj.score_emps_open_loop(plant, test), 2)  # doctest: +SKIP
     8.49
@@ -366,8 +366,8 @@ def fit_emps_open_loop(
 
     ```python
     >>> import fricjax as fj
-    >>> train = fj.load_emps("../shared/data/emps/DATA_EMPS.mat")  # doctest: +SKIP
-    >>> test = fj.load_emps("../shared/data/emps/DATA_EMPS_PULSES.mat")  # doctest: +SKIP
+    >>> train = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS.mat")  # doctest: +SKIP
+    >>> test = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS_PULSES.mat")  # doctest: +SKIP
     >>> fitted = fj.fit_emps_open_loop(train, fj.CoulombViscous)  # doctest: +SKIP
     >>> round(fj.score_emps_open_loop(fitted.plant, test), 2)  # doctest: +SKIP
     6.12
