@@ -4,13 +4,13 @@ training and the test file (`emps_table`)."""
 
 from __future__ import annotations
 
-import os
 import pathlib
 from typing import Any
 
 import numpy as np
 
 from ..._data._emps import load_emps
+from ..._data._folder import data_folder
 from ..._models.physics._static import BoPavelescu, CoulombViscous, Threlfall, Tustin
 from ..._version import fricjax_version
 from .._emps_idm import fit_emps_idm
@@ -20,11 +20,15 @@ from ._settings import CompareError
 
 def emps_table(out: pathlib.Path) -> None:
     """Fit the IDM with every law on `DATA_EMPS.mat`, score it on `DATA_EMPS_PULSES.mat` (both read from
-    `$FRICJAX_DATA/emps`, default `../shared/data/emps`), print the table and write `out/report.json`.
+    `fj.data_folder("emps")`: `$FRICJAX_DATA/emps`, else `shared/data/emps` beside the checkout), print the table
+    and write `out/report.json`.
 
     **Raises:** `CompareError` when the EMPS files are missing or unreadable.
     """
-    root = pathlib.Path(os.environ.get("FRICJAX_DATA", pathlib.Path.cwd().parent / "shared" / "data")) / "emps"
+    try:
+        root = data_folder("emps")
+    except FileNotFoundError as err:
+        raise CompareError(f"--data emps: {err}") from None
     train_path, test_path = root / "DATA_EMPS.mat", root / "DATA_EMPS_PULSES.mat"
     if not train_path.is_file() or not test_path.is_file():
         raise CompareError(f"--data emps: EMPS files not found in {root}; set FRICJAX_DATA to the data folder")
