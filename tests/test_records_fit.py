@@ -195,3 +195,8 @@ def test_initialise_recovers_the_offset_and_state_a_record_starts_in():
     assert np.max(np.abs(from_rest - np.asarray(record.force))) > 10 * np.max(np.abs(predicted - record.force))
     with pytest.raises(ValueError, match="at least 2 samples"):
         fj.initialise(truth, record.slice(0, 1))
+    # a window without sliding (a pre-sliding branch) cannot tell the offset from the initial state: it says so
+    small = fj.Motion.from_position(2e-6 * np.sin(2 * np.pi * 1.0 * t[:300]), dt=DT)
+    presliding = fj.FrictionData(small, np.asarray(fj.simulate(truth, small)) + 0.4)
+    with pytest.warns(UserWarning, match="not determined"):
+        fj.initialise(truth, presliding.slice(0, 100))

@@ -33,6 +33,7 @@ from ._problem import (
     Selector,
     evaluate,
     gauss_newton_std,
+    initial_state_paths,
     nonnegative_flags,
     nonnegative_mask,
     offset_paths,
@@ -400,7 +401,8 @@ def _several_records(
     model: Any, data: Any, validation: Any, validation_burn_in: Any, loss: Any, nuisances: Any, freeze: Any
 ) -> tuple[RecordBatch, Any, RecordsLoss, Any]:
     """A fit to several records: the padded batches, the loss summed over records, and the model's own offsets
-    frozen where each record has one."""
+    frozen where each record has one (and the fields that set its state at rest, where each record's initial state
+    is estimated)."""
     nuisances = Nuisances() if nuisances is None else nuisances
     if not isinstance(nuisances, Nuisances):
         raise TypeError(f"fit: `nuisances` must be fj.Nuisances(offset=, drift=, initial_state=), got {nuisances!r}.")
@@ -417,11 +419,14 @@ def _several_records(
         validation = as_record_batch(validation, model, "validation", starts)
     elif validation is not None and not isinstance(validation, RecordBatch):
         raise TypeError(f"fit: `validation` must be records like `data`, got {type(validation).__name__}.")
-    if nuisances.offset:  # one offset per record replaces the model's own
-        offsets = tuple(path for path in offset_paths(model))
-        if offsets:
-            items = [freeze] if isinstance(freeze, str) or callable(freeze) else list(freeze or ())
-            freeze = (*items, *offsets)
+    # one offset and one initial state per record replace the model's own
+    held = [
+        *(offset_paths(model) if nuisances.offset else []),
+        *(initial_state_paths(model) if nuisances.initial_state else []),
+    ]
+    if held:
+        items = [freeze] if isinstance(freeze, str) or callable(freeze) else list(freeze or ())
+        freeze = (*items, *held)
     return batch, validation, RecordsLoss(loss, nuisances), freeze
 
 

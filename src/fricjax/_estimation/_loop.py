@@ -46,13 +46,18 @@ def run_steps(
 ) -> tuple[Any, Any, jax.Array, jax.Array, Any, jax.Array]:
     """Up to `n` steps of `solver` for every start (`ys` batched along axis 0, `args` too with `batched_args`), from
     solver states `states` (None: `solver.init` of each start). Returns `(ys, states, steps, done, result, bad)`: the
-    states' array part, the steps each start took, whether its solver's convergence test ended it, the solver's
-    verdict (`fj.RESULTS`), and whether it met a non-finite step (its parameters are then the last finite ones)."""
+    solver states (their arrays batched, their other leaves, such as an optimistix solver's jaxprs, as the trace made
+    them: passed back, they continue the solver where it stopped), the steps each start took, whether its solver's
+    convergence test ended it, the solver's verdict (`fj.RESULTS`), and whether it met a non-finite step (its
+    parameters are then the last finite ones)."""
+    arrays, static_in = (None, None) if states is None else eqx.partition(states, eqx.is_array)
+    static_out: list[Any] = []  # the non-array part of the solver state, as traced
 
-    def one(y: Any, state: Any, a: Any) -> Any:
-        state = solver.init(problem, y, a) if state is None else state
+    def one(y: Any, state_arrays: Any, a: Any) -> Any:
+        state = solver.init(problem, y, a) if state_arrays is None else eqx.combine(state_arrays, static_in)
         # as optimistix's loop: only the arrays of the state are carried (a solver may keep jaxprs in its state)
         dynamic, static = eqx.partition(state, eqx.is_array)
+        static_out.append(static)
         done, result = solver.terminate(problem, y, a, state)
 
         def cond(carry: Any) -> jax.Array:
@@ -71,13 +76,14 @@ def run_steps(
         carry = (jnp.asarray(0), y, dynamic, done, result, jnp.asarray(False))
         return jax.lax.while_loop(cond, body, carry)
 
-    in_axes = (0, None if states is None else 0, 0 if batched_args else None)
+    in_axes = (0, None if arrays is None else 0, 0 if batched_args else None)
     if _batch_size(ys) == 1:  # one start: the unbatched program (vmap of a batch of one compiles ~2x longer)
         squeeze = lambda tree, axis: tree if axis is None else jax.tree_util.tree_map(lambda leaf: leaf[0], tree)  # noqa: E731
-        out = one(*(squeeze(tree, axis) for tree, axis in zip((ys, states, args), in_axes, strict=True)))
+        out = one(*(squeeze(tree, axis) for tree, axis in zip((ys, arrays, args), in_axes, strict=True)))
         steps, ys, states, done, result, bad = jax.tree_util.tree_map(lambda leaf: jnp.asarray(leaf)[None], out)
-        return ys, states, steps, done, result, bad
-    steps, ys, states, done, result, bad = jax.vmap(one, in_axes=in_axes)(ys, states, args)
+        return ys, eqx.combine(states, static_out[0]), steps, done, result, bad
+    steps, ys, states, done, result, bad = jax.vmap(one, in_axes=in_axes)(ys, arrays, args)
+    states = eqx.combine(states, static_out[0])
     return ys, states, steps, done, result, bad
 
 
@@ -94,6 +100,14 @@ def batched_losses(problem: Any, ys: Any, args: Any, batched_args: bool = False)
         return problem.objective(y, a), problem.val_objective(y, a)
 
     return jax.vmap(both, in_axes=(0, 0 if batched_args else None))(ys, args)
+
+
+def _trees_equal(a: Any, b: Any) -> bool:
+    """Whether two pytrees of arrays hold the same values (host side)."""
+    return all(
+        bool(np.array_equal(np.asarray(x), np.asarray(y)))
+        for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b), strict=True)
+    )
 
 
 def _where_tree(condition: Any, new: Any, old: Any) -> Any:
@@ -217,21 +231,24 @@ def run_stage(
     outcome = StageOutcome()
     if states is None and not solver.restarts_at_checks:
         states = init_states(solver, problem, search.ys, args, batched_args)
-    done = 0
+    done, restart = 0, True
     while done < budget:
         check_interrupt()  # SIGINT / SIGTERM under `fricjax compare`: stop between chunks (a no-op elsewhere)
         n = min(check_every, budget - done)
-        if solver.restarts_at_checks:
+        if solver.restarts_at_checks and restart:
             states = None  # initialised inside `run_steps`, from the (projected) iterate
         ys, states, steps, finished, result, bad = run_steps(
             solver, problem, search.ys, states, args, jnp.asarray(n), batched_args
         )
-        ys = problem.project(ys)  # bounds (elementwise); a no-op for solvers that project at every step
+        projected = problem.project(ys)  # bounds (elementwise); a no-op for solvers that project at every step
+        # a solver that keeps copies of the iterate goes on from its state unless the bounds moved the iterate
+        restart = not _trees_equal(projected, ys)
+        ys = projected
         train, val = map(np.asarray, batched_losses(problem, ys, args, batched_args))
         done += n
         search.observe(ys, int(np.max(np.asarray(steps))), np.asarray(bad) | ~np.isfinite(train), train, val, eps)
         ended = np.asarray(finished)
-        outcome.states = states
+        outcome.states = eqx.filter(states, eqx.is_array)
         outcome.results = [
             "successful" if f and ok else ("max_steps" if ok else "solver_failed")
             for f, ok in zip(ended, np.asarray(result == RESULTS.successful).reshape(-1), strict=True)

@@ -186,6 +186,17 @@ def offset_paths(model: Any) -> list[str]:
     return out
 
 
+def initial_state_paths(model: Any) -> list[str]:
+    """Dotted paths of the fields that only set a model's state at rest (`initial_state_fields`: LuGre `z0`)."""
+    out = []
+    for prefix, node in submodels(model):
+        for name in sorted(getattr(type(node), "initial_state_fields", ())):
+            value = getattr(node, name, None)
+            if not isinstance(value, Fixed) and jax.tree_util.tree_leaves(eqx.filter(value, eqx.is_inexact_array)):
+                out.append(prefix + name)
+    return out
+
+
 def _nonnegative_paths(model: Any) -> list[str]:
     return [
         prefix + field.name

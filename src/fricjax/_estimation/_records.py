@@ -13,11 +13,13 @@ mean NMSE of 1 %.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
 import equinox as eqx
 import jax
+import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
@@ -46,7 +48,8 @@ class Nuisances(eqx.Module):
     parameters.
 
     - `offset`: the force-cell offset of each record [N] (default True). The model's own `offset` fields are then
-      held at their initial values (one offset per record replaces them).
+      held at their initial values (one offset per record replaces them), as, with `initial_state`, the fields that
+      only set the state at rest (LuGre `z0`, Dahl `F0`).
     - `drift`: a linear sensor drift of each record [N/s], zero at the record's first sample (default False: a
       drift is a property of one record and is never carried to another).
     - `initial_state`: each record's initial state (the model's memory at the first sample; default True), as
@@ -374,6 +377,7 @@ class RecordsLoss(AbstractLoss):
         return residuals.reshape(-1)
 
 
+@eqx.filter_jit
 def _record_states(model: Any, batch: RecordBatch, states: bool = True) -> tuple[Array, Any]:
     """The initial model's forces (R, T) and, with `states`, its states (leaves (R, T, ...)) along every record."""
 
@@ -517,7 +521,31 @@ def initialise(
     found = loss._recorded(physical, solved, batch, jnp.asarray(0))
     nmse = float(_record_nmse(loss, physical, solved, batch)[0])
     state0 = jax.tree_util.tree_map(np.asarray, found.state0)
+    if offset and initial_state and _offset_share(loss, physical, solved, batch) < 0.02:
+        warnings.warn(
+            "fj.initialise: on this window the force offset and the model's initial state change the force alike "
+            "(no sliding in the window: a pre-sliding branch is an offset plus a stiffness), so their split is not "
+            "determined; lengthen the window to include sliding (compare: --init-window) or pass initial_state=False.",
+            stacklevel=2,
+        )
     return Initialisation(float(found.offset), state0, nmse, int(steps), float(found.rate))
+
+
+@eqx.filter_jit
+def _offset_share(loss: RecordsLoss, model: Any, extra: RecordExtra, batch: RecordBatch) -> Array:
+    """How much of the offset's effect on the window's residuals the initial state cannot reproduce: the relative
+    norm of the offset's Jacobian column left after its least-squares fit by the state's columns (0: the offset is
+    indistinguishable from a change of the initial state)."""
+    flat_state, unravel = jax.flatten_util.ravel_pytree(extra.state)
+
+    def residuals(offset: Array, theta: Array) -> Array:
+        e = RecordExtra(offset, extra.rate, unravel(theta), extra.inner)
+        return loss.residuals(model, e, batch)
+
+    column = jax.jacfwd(residuals, argnums=0)(extra.offset, flat_state).reshape(-1)
+    states = jax.jacfwd(residuals, argnums=1)(extra.offset, flat_state).reshape(column.shape[0], -1)
+    fit, *_ = jnp.linalg.lstsq(states, column)
+    return jnp.linalg.norm(column - states @ fit) / jnp.maximum(jnp.linalg.norm(column), 1e-300)
 
 
 @eqx.filter_jit

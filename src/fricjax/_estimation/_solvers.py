@@ -8,8 +8,8 @@ needs):
   (the loop then keeps the last good `y` and stops that start);
 - `terminate(problem, y, args, state) -> (done, result)`: the solver's own convergence test and its verdict (a
   `fj.RESULTS` item);
-- `restarts_at_checks`: True for solvers that restart (`init`) at each check of the loop after the first, where
-  the iterate may have been projected onto its bounds (`Problem.project`); most solvers keep their state;
+- `restarts_at_checks`: True for solvers that restart (`init`) at a check of the loop where the projection onto the
+  bounds (`Problem.project`) moved the iterate (they keep copies of it); most solvers keep their state;
 - `failure(state) -> str`: a few words on a failure the solver reported (for the fit's message).
 
 `problem` is the fit's `Problem`: `problem.objective(y, args)` (a scalar loss), `problem.residuals(y, args)` (the
@@ -109,9 +109,9 @@ class OptimistixSolver(AbstractSolver):
     `optx.minimise` step it: the same `init`, `step` and `terminate` calls, a start stopping at its solver's
     convergence test or a non-finite iterate.
 
-    optimistix solvers keep copies of the iterate in their state; at a check where the loop projected the iterate
-    onto the problem's bounds (damping coefficients back to >= 0), the solver restarts from it
-    (`restarts_at_checks`).
+    optimistix solvers keep copies of the iterate in their state; at a check where the loop's projection onto the
+    problem's bounds (damping coefficients back to >= 0) moved the iterate, the solver restarts from it
+    (`restarts_at_checks`); otherwise it goes on from its state (its trust region and pending step intact).
     """
 
     solver: optx.AbstractLeastSquaresSolver | optx.AbstractMinimiser

@@ -39,6 +39,9 @@ class AbstractModel(eqx.Module):
     # real (not reparametrised) fields that are physically >= 0 (damping coefficients): separable least squares
     # keeps them >= 0 (`fj.fit(..., separable=...)`)
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset()
+    # fields that only set the state at rest (`init_state`: LuGre `z0`, Dahl `F0`): a fit to several records, which
+    # estimates each record's initial state, holds them (`fj.Nuisances(initial_state=True)`)
+    initial_state_fields: ClassVar[frozenset[str]] = frozenset()
     # performance only: when set, the free run outside derivatives runs with the parameters packed into one
     # vector that the loop body unpacks, at this scan unrolling (faster loops on XLA:CPU for some models; see
     # `fricjax._simulate.run` and benchmarks/README.md). Derivatives are those of the plain scan.

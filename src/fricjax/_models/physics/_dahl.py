@@ -74,6 +74,7 @@ class Dahl(AbstractFrictionModel):
     smoothing: AbstractSmoothing
 
     requires: ClassVar[frozenset[str]] = frozenset({"x"})
+    initial_state_fields: ClassVar[frozenset[str]] = frozenset({"F0"})
 
     def __init__(
         self,

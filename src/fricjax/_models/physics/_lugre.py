@@ -85,6 +85,7 @@ class LuGre(AbstractFrictionModel):
     smoothing: AbstractSmoothing
 
     requires: ClassVar[frozenset[str]] = frozenset({"v", "dt"})
+    initial_state_fields: ClassVar[frozenset[str]] = frozenset({"z0"})
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"sigma1", "sigma2"})
 
     def __init__(

@@ -358,4 +358,3 @@ def _check_together(records: Sequence[Any]) -> None:
                     f"{record.name}: its {what} is {value / middle:.3g}x the records' median (in SI units): check "
                     f"its units (a unit in the column header, e.g. 'force [kN]', or {option} for files without one)"
                 )
-
