@@ -1,8 +1,9 @@
 """Hostile conditions for `fricjax compare`'s output (issue 31 item 2): its files are published into --out as one
 unit. A move that fails part-way, a folder where a file must go and a full disk while drawing the figures leave
 --out exactly as it was, with one line on stderr that names the file and what to do (exit 2); the staging folders
-of killed runs are removed by the next run. The tests that need a fit are slow (its compilation: 10-25 s on the
-2-core machine, once per test process; each one after the first takes about a second)."""
+of killed runs are removed by the next run; a second run into a folder that a live run writes to fails at once,
+naming it (a lock file, taken over from a killed run). The tests that need a fit are slow (its compilation: 10-25 s
+on the 2-core machine, once per test process; each one after the first takes about a second)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import sys
 import time
 
 import matplotlib.figure
+import numpy as np
 import pytest
 
 import fricjax as fj
@@ -153,4 +155,76 @@ def test_a_complete_run_replaces_its_own_files_and_keeps_the_users(tmp_path):
     for name in ("report.json", "test_errors.png", "hysteresis_loops.png", "models/stribeck.eqx"):
         assert after[name] != before[name]  # replaced by this run's
     assert after["notes.txt"] == before["notes.txt"] and after["models/gms.eqx"] == before["models/gms.eqx"]
-    assert not list(out.glob(".partial-*"))
+    assert not list(out.glob(".partial-*")) and not (out / ".fricjax-compare.lock").exists()
+
+
+LOCK = ".fricjax-compare.lock"
+
+
+def _lock(out: pathlib.Path, pid: int) -> bytes:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / LOCK).write_text(json.dumps({"pid": pid, "host": socket.gethostname(), "token": "theirs"}))
+    return (out / LOCK).read_bytes()
+
+
+class _StdoutAt:
+    """Standard output that calls `action` once, at the run's first line (records loaded, nothing fitted yet)."""
+
+    def __init__(self, stream, action):
+        self.stream, self.action = stream, action
+
+    def write(self, text: str) -> int:
+        if self.action is not None and "compare:" in text:
+            action, self.action = self.action, None
+            action()
+        return self.stream.write(text)
+
+    def __getattr__(self, name):
+        return getattr(self.stream, name)
+
+
+def test_a_second_run_into_the_folder_of_a_live_run_fails_at_once(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "out"
+    t = np.arange(500) * 1e-3
+    record = tmp_path / "record.csv"
+    np.savetxt(record, np.c_[t, 1e-5 * np.sin(20 * t), np.sin(20 * t)], delimiter=",", header="t,x,force", comments="")
+    seen = {}
+
+    def second_run():  # while the first run holds --out (its records loaded), a second one into the same folder
+        seen["lock"] = json.loads((out / LOCK).read_text())
+        started = time.perf_counter()
+        seen["code"] = fj.main(["compare", "--data", str(record), "--out", str(out), "--no-progress"])
+        seen["seconds"] = time.perf_counter() - started
+        seen["err"] = capsys.readouterr().err
+        raise fj.compare.CompareError("stopped by the test before the fit")
+
+    monkeypatch.setattr(sys, "stdout", _StdoutAt(sys.stdout, second_run))
+    assert fj.main(["compare", "--models", "stribeck", "--data", str(record), "--out", str(out)]) == 2
+    assert seen["lock"]["pid"] == os.getpid()
+    assert seen["code"] == 2 and seen["seconds"] < 2, seen
+    line = _one_line(seen["err"])
+    assert f"--out {out}: another fricjax compare (pid {os.getpid()}) is writing there" in line, line
+    assert "stopped by the test" in capsys.readouterr().err
+    assert not (out / LOCK).exists()  # the first run removed its lock as it ended
+
+    with subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"]) as other:  # another process's
+        try:
+            held = _lock(out, other.pid)
+            assert fj.main(["compare", "--data", str(record), "--out", str(out)]) == 2
+            line = _one_line(capsys.readouterr().err)
+            assert f"--out {out}: another fricjax compare (pid {other.pid}) is writing there" in line, line
+            assert f"delete {out / LOCK}" in line and (out / LOCK).read_bytes() == held  # left to its owner
+        finally:
+            other.kill()
+
+
+def test_the_lock_of_a_killed_run_is_taken_over(tmp_path, capsys):
+    out = tmp_path / "out"
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    for pid in (int(gone.stdout), 0, 2**80):  # a process that has ended; damaged files
+        _lock(out, pid)
+        # taken over: the run goes on to its missing record, and removes its own lock as it ends
+        assert fj.main(["compare", "--data", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
+        line = _one_line(capsys.readouterr().err)
+        assert "missing.csv" in line and "another fricjax compare" not in line, line
+        assert sorted(path.name for path in out.iterdir()) == [], pid

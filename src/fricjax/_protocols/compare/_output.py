@@ -1,11 +1,15 @@
-"""Where `compare` writes: a check that the output folder takes files (`check_writable`), a file replaced in one
-rename (`write_atomic`), a run's files staged and published as one unit (`Staging`) with the staging folders of
-killed runs removed (`remove_stale_staging`), strict JSON with non-finite numbers as `null` (`strict_json`), and
-the versions a report records (`versions`)."""
+"""Where `compare` writes: a check that the output folder takes files (`check_writable`), one run at a time in it
+(`lock_output`, within a run decorated with `releasing_output_locks`), a file replaced in one rename
+(`write_atomic`), a run's files staged and published as one unit (`Staging`) with the staging folders of killed
+runs removed (`remove_stale_staging`), strict JSON with non-finite numbers as `null` (`strict_json`), and the
+versions a report records (`versions`)."""
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import errno
+import functools
 import json
 import os
 import pathlib
@@ -16,7 +20,7 @@ import time
 import uuid
 import warnings
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -25,6 +29,8 @@ from ._settings import CompareError
 
 STAGING_PREFIX = ".partial-"  # the staging folders inside --out
 STALE_AFTER = 3600.0  # seconds: a staging folder this old belongs to no live run (a run stages for seconds)
+LOCK_NAME = ".fricjax-compare.lock"  # inside --out while a run writes there: its owner (pid, host)
+UNFINISHED_LOCK_AFTER = 10.0  # seconds: an empty lock file this old was left by a run killed as it created it
 
 
 def check_writable(out: pathlib.Path, files: tuple[str, ...] = ()) -> None:
@@ -43,6 +49,131 @@ def check_writable(out: pathlib.Path, files: tuple[str, ...] = ()) -> None:
     for name in files:
         if (out / name).is_dir() and not (out / name).is_symlink():
             raise CompareError(f"--out {out}: {name} is a folder; move it away or choose another --out")
+
+
+_Run = TypeVar("_Run", bound=Callable[..., Any])
+_LOCKS: contextvars.ContextVar[contextlib.ExitStack | None] = contextvars.ContextVar("fricjax_locks", default=None)
+
+
+def releasing_output_locks(run: _Run) -> _Run:
+    """Decorate a run (`run_compare`) so that the `--out` locks it takes (`lock_output`) are released when it
+    returns or raises, wherever in its body it took them."""
+
+    @functools.wraps(run)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        with contextlib.ExitStack() as locks:
+            token = _LOCKS.set(locks)
+            try:
+                return run(*args, **kwargs)
+            finally:
+                _LOCKS.reset(token)
+
+    return wrapper  # type: ignore[return-value]
+
+
+def lock_output(out: pathlib.Path) -> None:
+    """Make this run the only one writing to `out` until the decorated run (`releasing_output_locks`) ends: a
+    second `fricjax compare` into the same folder fails at once with a one-line `CompareError` naming the folder
+    and the run that holds it, before its fit (two runs publishing together would mix their files, and one's undo
+    could move the other's). The lock is the file `out/.fricjax-compare.lock`, created with `O_EXCL` and holding
+    its owner's process id and host; it is removed when the run ends. One left by a killed run (its process is
+    gone) is taken over."""
+    locks = _LOCKS.get()
+    if locks is None:
+        raise RuntimeError("lock_output: call it within a run decorated with releasing_output_locks")
+    locks.enter_context(_OutputLock(out))
+
+
+class _OutputLock:
+    """The lock file of `out` (`lock_output`), as a context manager."""
+
+    def __init__(self, out: pathlib.Path):
+        self.out, self.path = out, out / LOCK_NAME
+        self.text = json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "token": uuid.uuid4().hex})
+
+    def __enter__(self) -> _OutputLock:
+        for _ in range(5):  # each turn: create it, or take over a dead run's (another run may be doing the same)
+            try:
+                handle = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            except FileExistsError:
+                pass
+            except OSError as err:
+                raise CompareError(f"--out {self.out}: could not create {LOCK_NAME} ({_reason(err)})") from None
+            else:
+                with os.fdopen(handle, "w") as stream:
+                    stream.write(self.text)
+                return self
+            try:
+                seen = self.path.read_bytes()
+                age = time.time() - self.path.stat().st_mtime
+            except FileNotFoundError:
+                continue  # its run just ended
+            except OSError as err:
+                raise CompareError(f"--out {self.out}: could not read {LOCK_NAME} ({_reason(err)})") from None
+            owner = _lock_owner(seen)
+            if owner is None and age < UNFINISHED_LOCK_AFTER:
+                owner = {"pid": "?", "host": socket.gethostname()}  # being written by a run starting now
+            if owner is not None and _alive(owner["pid"], owner["host"]) is not False:
+                where = "" if owner["host"] == socket.gethostname() else f" on {owner['host']}"
+                raise CompareError(
+                    f"--out {self.out}: another fricjax compare (pid {owner['pid']}{where}) is writing there; wait "
+                    f"for it to end or choose another --out (if no such run is going on, delete {self.path})"
+                )
+            _take_over(self.path, seen)
+        raise CompareError(f"--out {self.out}: other runs keep taking {LOCK_NAME}; run again")
+
+    def __exit__(self, *exc: Any) -> None:
+        try:
+            if self.path.read_text() == self.text:  # ours still (not one a user deleted and another run made)
+                self.path.unlink()
+        except OSError:
+            pass
+
+
+def _lock_owner(text: bytes) -> dict[str, Any] | None:
+    """The `pid` and `host` a lock file records, or None where it records none (being written, or damaged)."""
+    try:
+        owner = json.loads(text)
+        return {"pid": int(owner["pid"]), "host": str(owner["host"])}
+    except (ValueError, KeyError, TypeError):
+        return None
+
+
+def _take_over(path: pathlib.Path, seen: bytes) -> None:
+    """Remove the lock file `path` of a run that has ended, if it still holds `seen`. It is first renamed aside
+    (one atomic step, which one run only can do), then compared: when another run has replaced it meanwhile with
+    a lock of its own, that one is linked back (`os.link` fails rather than overwrite a third run's)."""
+    aside = path.with_name(f"{LOCK_NAME}.{uuid.uuid4().hex[:12]}.stale")
+    try:
+        os.rename(path, aside)
+    except FileNotFoundError:
+        return
+    except OSError as err:
+        raise CompareError(f"--out {path.parent}: could not remove the stale {LOCK_NAME} ({_reason(err)})") from None
+    try:
+        if aside.read_bytes() != seen:
+            os.link(aside, path)
+    except OSError:
+        pass
+    finally:
+        aside.unlink(missing_ok=True)
+
+
+def _alive(pid: int | str, host: str) -> bool | None:
+    """Whether process `pid` runs: True or False on this host, None where that cannot be told (another host)."""
+    if host != socket.gethostname() or not isinstance(pid, int):
+        return None
+    if pid == os.getpid():
+        return True
+    if not 0 < pid < 2**31:
+        return False  # no process has it (a damaged file)
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True  # it exists (another user's process)
+    return True
 
 
 def write_atomic(path: pathlib.Path, text: str) -> None:
@@ -221,15 +352,7 @@ def _stale(folder: pathlib.Path, now: float) -> bool:
         pid, host = int(owner["pid"]), str(owner["host"])
     except (OSError, ValueError, KeyError, TypeError):
         return False  # being created, or written by an older fricjax: the age decides
-    if host != socket.gethostname() or pid == os.getpid():
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    except OSError:
-        return False  # it exists (another user's process)
-    return False
+    return _alive(pid, host) is False
 
 
 def strict_json(report: Any) -> str:

@@ -21,7 +21,14 @@ from ..._version import fricjax_version
 from ._emps_table import emps_table
 from ._ensembles import add_ensembles
 from ._figures import plot_prediction_errors, plot_test_loops
-from ._output import Staging, check_writable, remove_stale_staging, strict_json
+from ._output import (
+    Staging,
+    check_writable,
+    lock_output,
+    releasing_output_locks,
+    remove_stale_staging,
+    strict_json,
+)
 from ._plausibility import command_line_advice, half_excursion, implausible
 from ._records import (
     Split,
@@ -138,6 +145,7 @@ def _fit_and_score_one(
     )
 
 
+@releasing_output_locks
 def run_compare(
     *,
     data: str | Sequence[str] = "tribometer:mixed",
@@ -171,8 +179,9 @@ def run_compare(
     add ensembles (one training record), print the table, and write the models, the figures and `report.json` to
     `out`. `data="emps"`: the EMPS table instead (`emps_table`). Files are staged in a folder
     inside `out` and published together (`Staging`: all or none of them); staging folders of killed runs are
-    removed first. Under the command line's signal handlers (`stop_on_signals`), SIGINT / SIGTERM stop the run at
-    the next check: between models, within fits, before the ensembles and before each file is written.
+    removed first; one run at a time writes to `out` (`lock_output`: a second fails at once, naming the first).
+    Under the command line's signal handlers (`stop_on_signals`), SIGINT / SIGTERM stop the run at the next check:
+    between models, within fits, before the ensembles and before each file is written.
 
     **Raises:** `CompareError` for bad input or a failed write (one line); `Interrupted` after SIGINT / SIGTERM
     (nothing written to `out`).
@@ -223,6 +232,7 @@ def run_compare(
     check_writable(
         out, ("report.json",) if data == "emps" else ("test_errors.png", "hysteresis_loops.png", "report.json")
     )
+    lock_output(out)  # until this run ends: a second run into `out` fails here, at once, naming this one
     remove_stale_staging(out)
     if data == "emps":
         emps_table(out)
