@@ -149,8 +149,10 @@ def test_one_step_and_multiple_shooting_losses_take_record_lists():
 
 def test_multistart_sweep_and_validation_records():
     records = _records()
-    solution = fj.fit(_start(), records[:2], validation=records[2:], steps=10, multistart=2, seed=0)
+    named = {"slow": records[0], "fast": records[1]}
+    solution = fj.fit(_start(), named, validation=records[2:], steps=10, multistart=2, seed=0)
     assert solution.num_starts == 2 and np.isfinite(solution.val_loss)
+    assert solution.records.names == ("slow", "fast")
     result = fj.sweep([_start(), _start()], records[:2], validation=records[2:], steps=5, learning_rate=[1e-2, 3e-3])
     assert result.train_loss.shape == (2,) and np.all(np.isfinite(result.val_loss))
 

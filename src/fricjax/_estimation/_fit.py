@@ -94,9 +94,10 @@ def fit(
       `EMPSPlant` with `EMPSOpenLoopLoss`); every floating leaf is trained except `Fixed` ones and smoothing
       widths (narrow it with `train` / `freeze`).
     - `data`: training data (`FrictionData` for the friction losses; the loss's `data_type` otherwise), or a list of
-      `FrictionData` records of one device (different lengths, one sample time): the model's parameters are shared,
-      each record gets its own nuisances (`nuisances`), the records are simulated side by side in one program
-      (padded, masked), and the loss is the mean over records of each record's NMSE (`fj.RecordsLoss`).
+      `FrictionData` records of one device (different lengths, one sample time; a dict `{name: record}` names
+      them): the model's parameters are shared, each record gets its own nuisances (`nuisances`), the records are
+      simulated side by side in one program (padded, masked), and the loss is the mean over records of each
+      record's NMSE (`fj.RecordsLoss`).
     - `loss`: `SimulationLoss()` (default), `MultipleShootingLoss(L)`, `OneStepLoss()`.
     - `solver`: an optax transformation (default `optax.adam(1e-2)`; parameters are in log space for positive
       ones, so a learning rate of 1e-2 is a 1 % step), an optimistix least-squares solver
@@ -174,7 +175,7 @@ def fit(
     loss = SimulationLoss() if loss is None else loss
     if not isinstance(loss, AbstractLoss):
         raise TypeError(f"fit: `loss` must be a fricjax loss (fj.SimulationLoss(), ...), got {type(loss).__name__}.")
-    if isinstance(data, (list, tuple, RecordBatch)):  # several records: shared parameters, per-record nuisances
+    if isinstance(data, (list, tuple, dict, RecordBatch)):  # several records: shared parameters, per-record nuisances
         data, validation, loss, freeze = _several_records(
             model, data, validation, validation_burn_in, loss, nuisances, freeze
         )
@@ -183,7 +184,7 @@ def fit(
         raise ValueError(
             "fit: `nuisances` are per-record parameters of a fit to several records; pass a list of records as `data`."
         )
-    elif isinstance(validation, (list, tuple, RecordBatch)):
+    elif isinstance(validation, (list, tuple, dict, RecordBatch)):
         raise ValueError("fit: a list of validation records needs a list of training records as `data`.")
     _check_records(model, data, validation, loss)
     steps = positive_int(steps, "steps", "fit")
@@ -411,7 +412,7 @@ def _several_records(
     batch = as_record_batch(data, model, "data")
     if isinstance(validation, FrictionData):
         validation = [validation]
-    if isinstance(validation, (list, tuple)):
+    if isinstance(validation, (list, tuple, dict)):
         burn_in = (
             None if validation_burn_in is None else nonnegative_int(validation_burn_in, "validation_burn_in", "fit")
         )

@@ -136,7 +136,7 @@ class RecordBatch(eqx.Module):
             if not 0 <= start < length:
                 raise ValueError(f"fit: {name} of `{argument}` scores from sample {start} of {length}: nothing left.")
         total = max(lengths)
-        padded = [_padded(r, total, requires) for r in records]
+        padded = [_padded(r, total, requires, all(with_normal)) for r in records]
         data = jax.tree_util.tree_map(lambda *leaves: jnp.stack([jnp.asarray(a) for a in leaves]), *padded)
         index = np.arange(total)
         mask = np.stack([(index >= s) & (index < n) for s, n in zip(starts, lengths, strict=True)])
@@ -177,9 +177,10 @@ class RecordBatch(eqx.Module):
         return FrictionData(motion, one.force[cut])
 
 
-def _padded(record: FrictionData, total: int, requires: frozenset[str]) -> FrictionData:
-    """`record` with its position, velocity (and acceleration / normal load where the model reads them) derived
-    once at its own length, then padded to `total` samples at rest (last position held, velocity 0)."""
+def _padded(record: FrictionData, total: int, requires: frozenset[str], normal: bool) -> FrictionData:
+    """`record` with its position, velocity (and acceleration where the model reads it) derived once at its own
+    length, then padded to `total` samples at rest (last position held, velocity 0); its normal load with `normal`
+    (every record of the batch holds one)."""
     samples = record.motion.samples(requires & {"a", "normal_force"})
     extra = total - record.length
 
@@ -189,15 +190,19 @@ def _padded(record: FrictionData, total: int, requires: frozenset[str]) -> Frict
     def zero(a: Any) -> Any:
         return None if a is None else jnp.concatenate([a, jnp.zeros((extra,), a.dtype)])
 
-    normal = record.motion.normal_force
+    load = record.motion.normal_force if normal else None
     motion = Motion(
-        x=hold(samples.x), v=zero(samples.v), dt=record.motion.dt, a=zero(samples.a), normal_force=hold(normal)
+        x=hold(samples.x), v=zero(samples.v), dt=record.motion.dt, a=zero(samples.a), normal_force=hold(load)
     )
     return FrictionData(motion, hold(record.force))
 
 
 def as_record_batch(value: Any, model: Any, argument: str, score_from: Sequence[int] | None = None) -> Any:
-    """`value` as a `RecordBatch` where it is a list / tuple of records (a `RecordBatch` as it is)."""
+    """`value` as a `RecordBatch` where it is a list / tuple of records, or a dict `{name: record}` (the names label
+    the records in reports); a `RecordBatch` as it is."""
+    names = None
+    if isinstance(value, dict):
+        names, value = [str(name) for name in value], list(value.values())
     if isinstance(value, RecordBatch) or not isinstance(value, (list, tuple)):
         return value
     if isinstance(model, AbstractModel):
@@ -210,7 +215,7 @@ def as_record_batch(value: Any, model: Any, argument: str, score_from: Sequence[
                     "fj.FrictionData(motion, force)."
                 )
     requires = frozenset(getattr(model, "requires", frozenset()))
-    return RecordBatch.from_records(value, score_from=score_from, requires=requires, argument=argument)
+    return RecordBatch.from_records(value, score_from=score_from, names=names, requires=requires, argument=argument)
 
 
 # ----------------------------------------------------------------------------------------------------------------

@@ -144,12 +144,12 @@ def sweep(
 
     one = jax.tree_util.tree_map(lambda leaf: leaf[0] if eqx.is_array(leaf) else leaf, batch)
     val_loss_fn: AbstractLoss = SimulationLoss(burn_in=validation_burn_in)
-    if isinstance(data, (list, tuple, RecordBatch)):  # several records: per-record nuisances, as fj.fit
+    if isinstance(data, (list, tuple, dict, RecordBatch)):  # several records: per-record nuisances, as fj.fit
         nuisances = Nuisances() if nuisances is None else nuisances
         data = as_record_batch(data, one, "data")
         loss = RecordsLoss(loss, nuisances).bind(one, data)
         val_loss_fn = loss.validation_loss()
-        if isinstance(validation, (list, tuple)):
+        if isinstance(validation, (list, tuple, dict)):
             starts = [validation_burn_in] * len(validation)
             validation = as_record_batch(validation, one, "validation", starts)
     elif nuisances is not None:
