@@ -1,9 +1,14 @@
 """Hostile record files and requests: `t` and `dt` that disagree, bad sample times named by their column, quoted
 numbers, `;` and tab separators, short errors naming the first bad line, memory within a small multiple of the
-file's size, and requests refused before they allocate more memory than there is."""
+file's size, requests and files refused before they allocate more memory than there is, and forces of 1e200 N or
+1e-200 N scored as the record in newtons (every loss and score scales before it squares: the metrics, the kernel
+NARX and local-model scores, the Bouc-Wen loss, the stage's tracking NRMSE)."""
 
 from __future__ import annotations
 
+import builtins
+import io
+import os
 import tracemalloc
 
 import numpy as np
@@ -110,6 +115,37 @@ def test_requests_beyond_the_memory_are_refused_before_allocating():
             fj.make_tribometer("mixed", duration=duration)
 
 
+@pytest.mark.parametrize("source", ["MemAvailable", "sysconf"])
+def test_a_table_too_big_for_the_memory_is_refused_before_reading(tmp_path, monkeypatch, capsys, source):
+    """The memory available (Linux's MemAvailable, else the free pages) made small: a 1000-row file's table does
+    not fit, and it is refused by size before any row is parsed (its bad row 500 is not reached), in one line from
+    the command too. The same file with the memory there is read as far as that row."""
+    lines = rows()[:-1] * 7  # 1043 rows
+    lines[500] = "0.5,abc,1.0"
+    path = tmp_path / "big.csv"
+    path.write_text(table("t,x,force", lines))
+    with pytest.raises(fj.RecordError, match=r"line 502"):
+        fj.load_record(path)
+    opened = builtins.open
+
+    def small_meminfo(file, *args, **kwargs):
+        if str(file) == "/proc/meminfo":  # 10 kB, or none said (then the free pages decide: 2 x 4 kB)
+            return io.BytesIO(b"MemTotal: 1000 kB\n" + (b"MemAvailable: 10 kB\n" if source == "MemAvailable" else b""))
+        return opened(file, *args, **kwargs)
+
+    sysconf = os.sysconf
+    pages = {"SC_AVPHYS_PAGES": 2, "SC_PAGE_SIZE": 4096}
+    monkeypatch.setattr(builtins, "open", small_meminfo)
+    monkeypatch.setattr(os, "sysconf", lambda name: pages[name] if name in pages else sysconf(name))
+    available = "10.2 kB" if source == "MemAvailable" else "8.19 kB"
+    message = rf"big.csv: its 1045 lines need about 50.2 kB of memory, more than the {available} available; split"
+    with pytest.raises(fj.RecordError, match=message):
+        fj.load_record(path)
+    assert fj.main(["compare", "--data", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "more than the" in err and "Traceback" not in err, err
+
+
 def extreme_record(scale: float) -> tuple[fj.Motion, np.ndarray]:
     motion = fj.Motion.from_position(X, 1e-3)
     clean = np.asarray(fj.simulate(fj.Coulomb(Fc=1.0, smoothing=fj.Smooth(1e-4)), motion))
@@ -141,3 +177,61 @@ def test_fits_of_huge_and_tiny_forces_report_the_same_loss():
         start = fj.Coulomb(Fc=0.5 * scale, offset=fj.Fixed(0.0), smoothing=fj.Smooth(1e-4))
         losses.append(fj.fit(start, fj.FrictionData(motion, scale * force), steps=5).train_loss)
     assert losses[0] > 0.01 and losses[1:] == pytest.approx([losses[0]] * 2, rel=1e-9), losses
+
+
+@pytest.mark.parametrize("scale", [1e150, 1e-150, 1e200, 1e-200])
+def test_kernel_narx_scores_huge_and_tiny_forces_as_in_newtons(scale):
+    """Its regressors' force scale (`np.std`) was inf at 1e200 N ("`output_scale` must be finite") and its scores
+    NaN at 1e-200 N (squares below the smallest float)."""
+    motion, force = extreme_record(1.0)
+    options = {"input_lags": 2, "output_lags": 1, "degree": [1, 2], "ridge": 0.1, "validation_burn_in": 75}
+    results = []
+    for factor in (1.0, scale):
+        data = fj.FrictionData(motion, factor * force)
+        results.append(fj.identify_kernel_narx(data, validation=data, **options))
+    unit, scaled = results
+    assert 0 < unit.train_nmse < 100 and np.isfinite(unit.validation_nmse)
+    assert scaled.train_nmse == pytest.approx(unit.train_nmse, rel=1e-5)  # the ridge solve amplifies round-off
+    assert scaled.validation_nmse == pytest.approx(unit.validation_nmse, rel=1e-5)
+    for score in ("one_step_nmse", "free_run_nmse"):  # every candidate's
+        values = [[getattr(candidate, score) for candidate in r.candidates] for r in results]
+        assert np.all(np.isfinite(values[0])) and values[1] == pytest.approx(values[0], rel=1e-5), (score, values)
+
+
+@pytest.mark.parametrize("scale", [1e150, 1e-150, 1e200, 1e-200])
+def test_local_models_score_huge_and_tiny_forces_as_in_newtons(scale):
+    motion, force = extreme_record(1.0)
+    grid = {"embedding": (2,), "delay": (1, 2), "neighbours": (3, 5), "validation_burn_in": 75}
+    scores = []
+    for factor in (1.0, scale):
+        data = fj.FrictionData(motion, factor * force)
+        scores.append(np.asarray(fj.identify_local_model(data, validation=data, **grid).scores))
+    assert np.all(np.isfinite(scores[0]) & (scores[0] > 0)) and scores[0].min() < 100, scores[0]
+    np.testing.assert_allclose(scores[1], scores[0], rtol=1e-9)
+
+
+@pytest.mark.parametrize("scale", [1e150, 1e200, 1e-150, 1e-200])
+def test_tracking_nrmse_of_huge_and_tiny_signals(scale):
+    reference = np.sin(K / 20)
+    error = 0.01 * np.cos(K / 7)
+    expected = fj.tracking_nrmse(error, reference)
+    assert 0.5 < expected < 1.5 and fj.tracking_nrmse(scale * error, scale * reference) == pytest.approx(expected)
+
+
+@pytest.mark.parametrize("scale", [1e150, 1e-150])
+def test_boucwen_loss_and_rmse_of_huge_and_tiny_records(scale):
+    """Force and displacement scaled by `scale` (the system too: `beta / scale`, so that its output scales with its
+    input; at 1e200 its state's squares would overflow in the system itself): the same loss, `scale` times the
+    RMSE. At 1e-150 the displacements' squares fell below the smallest normal float and the loss was inf."""
+    true = fj.unwrap(fj.BoucWen.benchmark())
+    parameters = {name: float(getattr(true, name)) for name in ("m", "c", "k", "alpha", "beta", "gamma", "delta")}
+    u = 50.0 * np.sin(2 * np.pi * 13 * K * fj.BOUCWEN_DT) + 20.0 * np.sin(2 * np.pi * 41 * K * fj.BOUCWEN_DT)
+    y = np.asarray(fj.simulate(fj.BoucWen(**parameters, substeps=2), fj.boucwen_inputs(u, fj.BOUCWEN_DT)))
+    values = []
+    for factor in (1.0, scale):
+        changed = {"k": 0.8 * parameters["k"], "beta": parameters["beta"] / factor}  # a start off the true system
+        system = fj.BoucWen(**{**parameters, **changed}, substeps=2)
+        record = fj.BoucWenRecord(factor * u, factor * y, fj.BOUCWEN_DT, "test", "synthetic")
+        loss = float(fj.BoucWenLoss(burn_in=10)(system, None, record))
+        values.append((loss, fj.boucwen_rmse(system, record)[0] / factor))
+    assert values[0][0] > 1e-4 and values[1] == pytest.approx(values[0], rel=1e-6), values

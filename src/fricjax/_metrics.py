@@ -5,11 +5,14 @@ predicting the mean", < 5 good, < 1 excellent.
 
 Every metric scales before it squares (`scaled_std`, `_norm`: divide by the largest magnitude first), so forces of
 1e200 N or 1e-200 N give the same scores as the record in newtons, instead of inf / 0 from overflowing squares.
+`numpy_std`, `numpy_rmse` and `numpy_nmse` do the same in NumPy, in float64 whatever `jax_enable_x64` says, for
+the estimators that score their candidates on the host (kernel NARX, local models, record statistics).
 """
 
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike
 
 
@@ -79,3 +82,40 @@ def fit_percent(y: ArrayLike, yhat: ArrayLike) -> Array:
     y, yhat = _pair(y, yhat)
     centred = y - jnp.mean(y, axis=-1, keepdims=True)
     return 100.0 * (1.0 - _norm(y - yhat) / _norm(centred))
+
+
+def _numpy_magnitude(y: np.ndarray, axis: int | None) -> np.ndarray:
+    """`max|y|` along `axis` (kept), or 1 where that is 0 or `y` is empty: `_magnitude` in NumPy."""
+    if not y.size:
+        return np.ones_like(np.sum(y, axis=axis, keepdims=True))
+    m = np.max(np.abs(y), axis=axis, keepdims=True)
+    return np.where(m > 0, m, 1.0)
+
+
+def numpy_std(y: ArrayLike, axis: int | None = None) -> np.ndarray:
+    """`np.std(y, axis)` in float64, scaled before squaring (`scaled_std` in NumPy): finite for |y| ~ 1e200,
+    nonzero for |y| ~ 1e-200."""
+    y = np.asarray(y, np.float64)
+    m = _numpy_magnitude(y, axis)
+    with np.errstate(invalid="ignore"):
+        return np.squeeze(m, axis) * np.std(y / m, axis=axis)
+
+
+def numpy_rmse(error: ArrayLike, axis: int | None = None) -> np.ndarray:
+    """`sqrt(mean(error^2))` along `axis` in float64, scaled before squaring (`rmse` in NumPy)."""
+    error = np.asarray(error, np.float64)
+    m = _numpy_magnitude(error, axis)
+    with np.errstate(invalid="ignore"):
+        return np.squeeze(m, axis) * np.sqrt(np.mean((error / m) ** 2, axis=axis))
+
+
+def numpy_nmse(y: ArrayLike, yhat: ArrayLike, axis: int = -1) -> np.ndarray:
+    """`100 * mean((y - yhat)^2) / var(y)` [%] along `axis` in float64 (`nmse` in NumPy), both scaled by
+    `max|y|` before squaring; `yhat` may hold several predictions of the one `y` (broadcast). A constant `y`
+    divides by the smallest normal float instead of 0; a prediction that is not finite scores inf or NaN
+    (silently: the callers map those to inf)."""
+    y, yhat = np.asarray(y, np.float64), np.asarray(yhat, np.float64)
+    m = _numpy_magnitude(y, axis)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        error = np.mean(((yhat - y) / m) ** 2, axis=axis)
+        return 100.0 * error / np.maximum(np.var(y / m, axis=axis), np.finfo(np.float64).tiny)

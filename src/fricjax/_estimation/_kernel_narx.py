@@ -37,6 +37,7 @@ import numpy as np
 
 from .._constraints import unwrap
 from .._data._record import FrictionData
+from .._metrics import numpy_nmse
 from .._models.blackbox._kernel import ExponentialKernel, KernelNARX
 from .._models.blackbox._regressors import NARXRegressors
 from .._simulate import simulate
@@ -280,12 +281,11 @@ def identify_kernel_narx(
     fitted = np.asarray(
         _gram_times_jit(kind, param, width_array, jnp.asarray(fit.rows), centres, jnp.asarray(alpha), block)
     )
-    train_nmse = float(100 * np.mean((fit.target - fit.offset - fitted) ** 2) / np.var(fit.target))
+    train_nmse = float(numpy_nmse(fit.target, fit.offset + fitted))
     if validation is not None and select == "one_step":  # the chosen candidate's free run, for the record
         prediction = np.asarray(simulate(model, validation.motion))[validation_burn_in:]
         measured = np.asarray(validation.force, np.float64)[validation_burn_in:]
-        with np.errstate(invalid="ignore", over="ignore"):
-            score = float(100 * np.mean((prediction - measured) ** 2) / np.var(measured))
+        score = float(numpy_nmse(measured, prediction))  # scaled before squaring: forces of 1e200 N score too
         candidate = candidates[chosen] = candidate._replace(free_run_nmse=score if np.isfinite(score) else np.inf)
     return KernelNARXResult(
         model=model,
@@ -380,8 +380,7 @@ def _scores(
     for w, width in enumerate(widths):
         alphas = jnp.asarray(solved.alphas[w]).T  # (m, R)
         predicted = np.asarray(_gram_times_jit(kind, degree, jnp.asarray(width), rows, centres, alphas, block))
-        errors = target[:, None] - (template.b + predicted)
-        one_step[w] = 100 * np.mean(errors**2, axis=0) / np.var(target)
+        one_step[w] = numpy_nmse(target[:, None], template.b + predicted, axis=0)
     one_step = np.where(np.isfinite(one_step), one_step, np.inf)
     if not free_runs:
         return one_step, np.full(shape, np.nan)
@@ -397,8 +396,7 @@ def _scores(
         )
     )
     measured = np.asarray(validation.force, np.float64)[burn_in:]
-    with np.errstate(invalid="ignore", over="ignore"):
-        free_run = 100 * np.mean((runs[:, burn_in:] - measured) ** 2, axis=1) / np.var(measured)
+    free_run = numpy_nmse(measured, runs[:, burn_in:])  # scaled before squaring: forces of 1e200 N score too
     free_run = np.where(np.isfinite(free_run), free_run, np.inf)
     return one_step, free_run.reshape(shape)
 

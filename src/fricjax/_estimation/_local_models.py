@@ -21,6 +21,7 @@ import numpy as np
 
 from .._constraints import Fixed
 from .._data._record import FrictionData
+from .._metrics import numpy_nmse
 from .._models.blackbox._local import KINDS, LocalModel, delay_columns
 from .._models.blackbox._regressors import PlayOperators
 from .._models.combine._sensor import SensorDrift
@@ -203,8 +204,7 @@ def identify_local_model(
         t_val = dt * np.arange(validation.length)[validation_burn_in:]
         rates = _drift_rates(measured, both[..., 0], t_val - both[..., 1]) if drift else np.zeros(both.shape[:2])
         predictions = both[..., 0] + rates[..., None] * (t_val - both[..., 1])
-    errors = np.mean(np.square(predictions - measured), axis=-1)
-    scores = 100.0 * errors / max(float(np.var(measured)), np.finfo(float).tiny)
+    scores = numpy_nmse(measured, predictions)  # scaled before squaring: forces of 1e200 N score too
     scores = np.where(np.isfinite(scores), scores, np.inf)
     shape = (len(grids["embedding"]), len(grids["delay"]), len(grids["neighbours"]))
     scores, rates = scores.reshape(shape), rates.reshape(shape)

@@ -19,6 +19,7 @@ from jaxtyping import Array, Float
 
 from .._data._boucwen import BoucWenRecord
 from .._estimation._losses import AbstractLoss
+from .._metrics import numpy_rmse, scaled_std
 from .._simulate import simulate
 from .._systems._boucwen import boucwen_inputs
 from .._validation import nonnegative_int, optional, positive_int
@@ -63,7 +64,7 @@ class BoucWenLoss(AbstractLoss):
             )
         y = jnp.asarray(data.y)
         predicted = simulate(model, boucwen_inputs(jnp.asarray(data.u, y.dtype), data.dt))
-        return ((predicted - y) / jnp.std(y))[self.burn_in :]
+        return ((predicted - y) / scaled_std(y))[self.burn_in :]  # scaled before squaring
 
 
 class BoucWenScores(NamedTuple):
@@ -82,7 +83,7 @@ def boucwen_rmse(model: Any, record: BoucWenRecord, *, periods: int = 1) -> tupl
     periods = positive_int(periods, "periods", "boucwen_rmse")
     u = np.tile(np.asarray(record.u), periods)
     predicted = np.asarray(simulate(model, boucwen_inputs(u, record.dt, periodic=periods > 1)))[-record.length :]
-    return float(np.sqrt(np.mean((predicted - np.asarray(record.y)) ** 2))), predicted
+    return float(numpy_rmse(predicted - np.asarray(record.y))), predicted
 
 
 def score_boucwen(model: Any, multisine: BoucWenRecord, sinesweep: BoucWenRecord) -> BoucWenScores:

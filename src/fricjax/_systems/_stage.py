@@ -36,6 +36,7 @@ from jaxtyping import Array, Float
 
 from .._constraints import Fixed, FixedScalar, ParamLike, as_float_array, unwrap
 from .._inputs import MotionSample
+from .._metrics import numpy_rmse, numpy_std
 from .._models._base import AbstractFrictionModel, AbstractSystem
 from .._smoothing import is_concrete
 from ._recursive import ud_update
@@ -311,5 +312,4 @@ def _quantise(x: Array, resolution: Array) -> Array:
 
 def tracking_nrmse(error: Any, reference: Any) -> float:
     """The tracking error's RMS over the reference's RMS about its mean, in % (amthor's NRMSE of Fig. 6)."""
-    error, reference = np.asarray(error, float), np.asarray(reference, float)
-    return float(100.0 * np.sqrt(np.mean(error**2)) / np.std(reference))
+    return float(100.0 * numpy_rmse(error) / numpy_std(reference))  # scaled before squaring

@@ -36,6 +36,7 @@ from jaxtyping import Array, Float
 
 from ..._constraints import Fixed, FixedScalar, as_float_array, unwrap
 from ..._inputs import MotionSample
+from ..._metrics import numpy_std
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from ..._validation import nonnegative_int
 from .._base import AbstractFrictionModel
@@ -358,12 +359,13 @@ def _fixed(value: Any, shape: tuple[int, ...], name: str, positive: bool = False
 def record_statistics(data: Any, signals: Sequence[str]) -> tuple[np.ndarray, np.ndarray, float, float]:
     """The normalisation a black-box model reads off a training record (`fj.FrictionData`): per input signal its
     mean (the displacement's; 0 for the zero-mean v, a, dx) and standard deviation, then the force's mean and
-    standard deviation [N] (a zero deviation becomes 1)."""
+    standard deviation [N] (a zero deviation becomes 1; scaled before squaring: forces of 1e200 N give 1e200, not
+    inf)."""
     samples = data.motion.samples(frozenset("x" if s == "dx" else s for s in signals))
     means, scales = [], []
     for name in signals:
         signal = np.asarray(getattr(samples, name), dtype=float)
         means.append(float(np.mean(signal)) if name == "x" else 0.0)
-        scales.append(float(np.std(signal)) or 1.0)
+        scales.append(float(numpy_std(signal)) or 1.0)
     force = np.asarray(data.force, dtype=float)
-    return np.asarray(means), np.asarray(scales), float(np.mean(force)), float(np.std(force)) or 1.0
+    return np.asarray(means), np.asarray(scales), float(np.mean(force)), float(numpy_std(force)) or 1.0
