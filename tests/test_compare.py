@@ -356,3 +356,25 @@ def test_paired_validation_gain_tells_a_real_improvement_from_none():
     assert 0.5 < gain < 1 and t > 3, (gain, t)
     loss, t_reverse = paired_validation_gain(truth, off, split)
     assert loss < 0 and t_reverse < -3, (loss, t_reverse)
+
+
+def test_loop_figure_shows_distinct_models_one_ensemble_at_most():
+    """The hysteresis figure's panels: the best models by test NMSE with at most one ensemble (the ensembles are
+    near-identical mixtures of the best single model)."""
+    from types import SimpleNamespace
+
+    from fricjax.compare import distinct_models
+
+    rows = [
+        SimpleNamespace(name=name, nmse=value)
+        for name, value in (
+            ("gms", 0.10),
+            ("ensemble_weighted", 0.101),
+            ("ensemble_press", 0.102),
+            ("dnlrx", 2.8),
+            ("nlr", 3.2),
+            ("lugre", 6.0),
+            ("ensemble_average", float("nan")),
+        )  # fmt: skip
+    ]
+    assert [r.name for r in distinct_models(rows, 4)] == ["gms", "ensemble_weighted", "dnlrx", "nlr"]

@@ -9,7 +9,7 @@ exact-mode scoring
 (`fit_and_score`, `free_run`, `score`, `score_prediction`, `reference_scores`: the noise floor;
 `paired_validation_gain`: whether a neural model's output-error stage improved on its least-squares start), ensembles of
 the fitted models (`add_ensembles`) and the comparison table (`format_table`). Figures:
-`plot_prediction_errors`, `plot_test_loops`.
+`plot_prediction_errors`, `plot_test_loops` (the best distinct models: `distinct_models`).
 
 ```python
 >>> import fricjax as fj
@@ -19,6 +19,7 @@ the fitted models (`add_ensembles`) and the comparison table (`format_table`). F
 """
 
 from ._protocols.compare._ensembles import add_ensembles as add_ensembles
+from ._protocols.compare._figures import distinct_models as distinct_models
 from ._protocols.compare._figures import plot_prediction_errors as plot_prediction_errors
 from ._protocols.compare._figures import plot_test_loops as plot_test_loops
 from ._protocols.compare._plausibility import implausible as implausible

@@ -59,7 +59,9 @@ def plot_prediction_errors(rows: Sequence[Any], test: Any, path: Any, *, units: 
 
 
 def plot_test_loops(rows: Sequence[Any], test: Any, path: Any, *, units: Any = None) -> None:
-    """Measured vs predicted friction-displacement loops on a test record's scored part, best four models."""
+    """Measured vs predicted friction-displacement loops on a test record's scored part: the four best distinct
+    models (`distinct_models`: the ensembles, whose predictions are near-identical mixtures of the best single
+    model, count as one)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -68,7 +70,7 @@ def plot_test_loops(rows: Sequence[Any], test: Any, path: Any, *, units: Any = N
     test = _as_test(test)
     x_scale, x_unit, f_unit = _display(units)
     f_scale = 1.0 if units is None else 1.0 / units.force_factor
-    ordered = sorted(rows, key=lambda r: (not np.isfinite(r.nmse), np.nan_to_num(r.nmse)))[:4]
+    ordered = distinct_models(rows, 4)
     x = np.asarray(test.record.motion.samples().x)[test.scored_start :] * x_scale
     measured = np.asarray(test.record.force)[test.scored_start :] * f_scale
     step = _stride(x.size)
@@ -77,10 +79,26 @@ def plot_test_loops(rows: Sequence[Any], test: Any, path: Any, *, units: Any = N
         ax.plot(x[::step], measured[::step], color="0.6", lw=0.8, label="measured")
         ax.plot(x[::step], f_scale * np.asarray(r.prediction)[::step], "r", lw=0.6, label="predicted")
         ax.set(title=f"{r.label}\nNMSE {r.nmse:.3g} %", xlabel=f"x [{x_unit}]", ylabel=f"F [{f_unit}]")
-    axes[0][0].legend(fontsize=8)
+    axes[0][0].legend(fontsize=8, loc="lower right", framealpha=0.9)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def distinct_models(rows: Sequence[Any], count: int) -> list[Any]:
+    """The `count` best rows by test NMSE with at most one ensemble (rows named `ensemble_*`): the best of each
+    model, not three near-identical mixtures of one."""
+    ordered = sorted(rows, key=lambda r: (not np.isfinite(r.nmse), np.nan_to_num(r.nmse)))
+    out, ensemble = [], False
+    for row in ordered:
+        is_ensemble = str(row.name).startswith("ensemble")
+        if is_ensemble and ensemble:
+            continue
+        ensemble |= is_ensemble
+        out.append(row)
+        if len(out) == count:
+            break
+    return out
 
 
 def _as_test(test: Any) -> Any:
