@@ -131,6 +131,9 @@ def test_compare_emps_table(data_dir, tmp_path, monkeypatch, capsys):
     symmetric = report["idm"][0]
     assert abs(symmetric["train_relative_error_percent"] - 4.08) < 0.1
     assert abs(symmetric["test_relative_error_percent"] - 5.98) < 0.1
+    for row in report["idm"]:  # every parameter with its SI unit
+        assert set(row["parameter_units"]) == set(row["parameters"]) and all(row["parameter_units"].values()), row
+    assert "M=95.1" in capsys.readouterr().out  # printed with its unit: "M=95.1... kg"
 
 
 @pytest.mark.parametrize(

@@ -249,6 +249,7 @@ PARAMETER_UNITS = {
     "Fc": "N",
     "Fs": "N",
     "vs": "m/s",
+    "v0": "m/s",
     "delta": "-",
     "Fv": "N s/m",
     "sigma0": "N/m",

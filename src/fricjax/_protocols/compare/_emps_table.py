@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ..._constraints import parameter_unit
 from ..._data._emps import load_emps
 from ..._data._folder import data_folder
 from ..._models.physics._static import BoPavelescu, CoulombViscous, Threlfall, Tustin
@@ -60,9 +61,13 @@ def emps_table(out: pathlib.Path) -> None:
                     "train_relative_error_percent": float(result.relative_error),
                     "test_relative_error_percent": test_error,
                     "parameters": params,
+                    "parameter_units": {k: parameter_unit(k) or None for k in params},
                 }
             )
-            text = ", ".join(f"{k}={np.round(np.asarray(v), 4).tolist()}" for k, v in params.items())
+            text = ", ".join(
+                f"{k}={np.round(np.asarray(v), 4).tolist()}" + (f" {parameter_unit(k)}" if parameter_unit(k) else "")
+                for k, v in params.items()
+            )
             print(f"{name:34s} {float(result.relative_error):18.4f} {test_error:18.4f}  {text}")
     write_atomic(
         out / "report.json",
