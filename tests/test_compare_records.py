@@ -45,6 +45,7 @@ def records(tmp_path_factory):
     return folder, test
 
 
+@pytest.mark.slow
 def test_several_records_from_a_glob_per_record_offsets_in_table_and_report(records, tmp_path, capsys):
     folder, test = records
     out = tmp_path / "out"

@@ -147,6 +147,7 @@ def test_one_step_and_multiple_shooting_losses_take_record_lists():
     assert np.isfinite(solution.train_loss) and solution.records.offset.shape == (3,)
 
 
+@pytest.mark.slow
 def test_multistart_sweep_and_validation_records():
     records = _records()
     named = {"slow": records[0], "fast": records[1]}
