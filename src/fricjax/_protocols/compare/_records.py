@@ -13,6 +13,7 @@ import numpy as np
 
 from ..._data._io import Units, read_record
 from ..._data._record import FrictionData
+from ..._metrics import numpy_std
 from ._settings import CompareError
 
 
@@ -350,13 +351,13 @@ def statistics_warnings(split: Split | TrainingRecords, tests: list[TestRecord],
     (its NMSE is then normalised by a very different variance) or displacement range 10x (the model is
     extrapolated)."""
     out = []
-    train_force = float(np.std(np.asarray(split.train.force)))
+    train_force = float(numpy_std(split.train.force))
     train_x = float(np.ptp(np.asarray(split.train.motion.samples().x)))
     for test in tests:
         force = np.asarray(test.record.force)[test.scored_start :]
         x = np.asarray(test.record.motion.samples().x)[test.scored_start :]
         for what, ours, theirs, unit, factor, limit in (
-            ("force std", float(np.std(force)), train_force, units.force, units.force_factor, 3.0),
+            ("force std", float(numpy_std(force)), train_force, units.force, units.force_factor, 3.0),
             ("displacement range", float(np.ptp(x)), train_x, units.x, units.x_factor, 10.0),
         ):
             if theirs > 0 and ours > 0 and not 1 / limit <= ours / theirs <= limit:

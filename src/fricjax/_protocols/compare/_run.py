@@ -16,6 +16,7 @@ import numpy as np
 from ..._estimation._interrupts import check_interrupt
 from ..._estimation._placement import check_device, choose_device, forced_device, resolve_device
 from ..._estimation._serialise import save_model
+from ..._metrics import numpy_std
 from ..._validation import nonnegative_int
 from ..._version import fricjax_version
 from ._emps_table import emps_table
@@ -355,7 +356,7 @@ def _check_together(records: Sequence[Any]) -> None:
                 f"{other.name}: sampled at dt = {dt:.6g} s, {first.name} at {reference:.6g} s; records fitted together "
                 "need one sample time (resample them, or pass --dt when the files' time columns are rounded)"
             )
-    force = [float(np.std(np.asarray(r.data.force))) for r in records]
+    force = [float(numpy_std(r.data.force)) for r in records]
     travel = [float(np.ptp(np.asarray(r.data.motion.samples().x))) for r in records]
     for values, what, limit, option in (
         (force, "force spread", 10.0, "--force-unit"),
