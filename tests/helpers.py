@@ -9,6 +9,14 @@ import fricjax as fj
 DT = 1e-3
 
 
+def lugre(
+    Fc: float = 1.0, Fs: float = 1.5, vs: float = 1e-3, sigma0: float = 1e5, sigma1: float = 300.0, sigma2: float = 40.0
+) -> fj.LuGre:
+    """A smooth LuGre (eps 1e-5 m/s); its defaults are the true model of the record tests, other values a start."""
+    stribeck = fj.ExponentialStribeck(Fc=Fc, Fs=Fs, vs=vs)
+    return fj.LuGre(stribeck, sigma0=sigma0, sigma1=sigma1, sigma2=sigma2, smoothing=fj.Smooth(1e-5))
+
+
 def presliding_to_sliding(n: int = 400, amplitude: float = 2e-3, dt: float = DT) -> fj.Motion:
     """A sine whose amplitude grows from pre-sliding (um) into gross sliding (mm), with reversals."""
     t = np.arange(n) * dt

@@ -12,18 +12,14 @@ import pytest
 import fricjax as fj
 from fricjax import main
 
+from helpers import lugre
+
 DT = 1e-3
 OFFSETS = (0.3, -0.2, 0.1, 0.5)
 
 
 def _truth() -> fj.LuGre:
-    return fj.LuGre(
-        fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3),
-        sigma0=1e5,
-        sigma1=300.0,
-        sigma2=40.0,
-        smoothing=fj.Smooth(1e-5),
-    )
+    return lugre()
 
 
 def _write(path, amplitude, frequency, n, offset, seed, dt=DT, scale=1.0):

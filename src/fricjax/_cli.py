@@ -132,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="force-sensor drift fitted with every model (fj.SensorDrift; with several --data records one drift "
         "per record), so that it stays out of the friction parameters; it belongs to its record: see --test-drift. "
         "auto: linear for one training record, none for several (per-record drifts did not generalise on the "
-        "damper records: benchmarks/README.md) (default: %(default)s)",
+        "damper's records) (default: %(default)s)",
     )
     compare.add_argument(
         "--test-drift",

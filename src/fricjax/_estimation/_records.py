@@ -30,7 +30,7 @@ from .._inputs import Motion
 from .._metrics import scaled_std
 from .._models._base import AbstractModel, feeds_back
 from .._simulate import run
-from ._losses import AbstractLoss, MultipleShootingLoss, OneStepLoss, SimulationLoss
+from ._losses import AbstractLoss, OneStepLoss, SimulationLoss
 
 __all__ = [
     "Initialisation",
@@ -285,11 +285,8 @@ class RecordsLoss(AbstractLoss):
     data_type = RecordBatch  # type: ignore[assignment]
 
     def __check_init__(self) -> None:
-        if not isinstance(self.loss, (SimulationLoss, OneStepLoss, MultipleShootingLoss)):
-            raise TypeError(
-                f"fit: {type(self.loss).__name__} scores one record only; fit several records with "
-                "fj.SimulationLoss, fj.OneStepLoss or fj.MultipleShootingLoss."
-            )
+        if type(self.loss).scaled_residuals is AbstractLoss.scaled_residuals:  # its error names the losses that do
+            self.loss.scaled_residuals(None, None, None, jnp.ones(()), None)
 
     def validation_loss(self) -> AbstractLoss:
         return RecordsLoss(self.loss.validation_loss(), self.nuisances)
@@ -406,6 +403,18 @@ class RecordNuisances:
     drift: np.ndarray | None
     initial_state: Any
     train_nmse: np.ndarray
+
+    def lines(self) -> list[str]:
+        """One line per record: its name, training NMSE and the nuisances estimated (offset [N], drift [N/s])."""
+        out = []
+        for row in self.table():
+            text = f"{row['name']}: train NMSE {row['train_nmse_percent']:.4g} %"
+            if row["offset_N"] is not None:
+                text += f", offset {row['offset_N']:.4g} N"
+            if row["drift_N_per_s"] is not None:
+                text += f", drift {row['drift_N_per_s']:.4g} N/s"
+            out.append(text)
+        return out
 
     def table(self) -> list[dict[str, Any]]:
         """One row per record: `name`, `offset_N`, `drift_N_per_s`, `train_nmse_percent`."""
@@ -547,8 +556,9 @@ def _offset_share(loss: RecordsLoss, model: Any, extra: RecordExtra, batch: Reco
         e = RecordExtra(offset, extra.rate, unravel(theta), extra.inner)
         return loss.residuals(model, e, batch)
 
-    column = jax.jacfwd(residuals, argnums=0)(extra.offset, flat_state).reshape(-1)
-    states = jax.jacfwd(residuals, argnums=1)(extra.offset, flat_state).reshape(column.shape[0], -1)
+    by_offset, by_state = jax.jacfwd(residuals, argnums=(0, 1))(extra.offset, flat_state)
+    column = by_offset.reshape(-1)
+    states = by_state.reshape(column.shape[0], -1)
     fit, *_ = jnp.linalg.lstsq(states, column)
     return jnp.linalg.norm(column - states @ fit) / jnp.maximum(jnp.linalg.norm(column), 1e-300)
 

@@ -160,13 +160,7 @@ class Solution:
             lines.append(f"  ... and {len(rows) - max_parameters} more parameter arrays (Solution.parameters())")
         if self.records is not None:
             lines.append(f"  per record ({len(self.records.names)}):")
-            for row in self.records.table():
-                text = f"    {row['name']}: train NMSE {row['train_nmse_percent']:.4g} %"
-                if row["offset_N"] is not None:
-                    text += f", offset {row['offset_N']:.4g} N"
-                if row["drift_N_per_s"] is not None:
-                    text += f", drift {row['drift_N_per_s']:.4g} N/s"
-                lines.append(text)
+            lines += ["    " + line for line in self.records.lines()]
         return "\n".join(lines)
 
 

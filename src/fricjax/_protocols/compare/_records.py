@@ -189,7 +189,7 @@ class TrainingRecords:
         its validation part scored, or the `--validation` records whole."""
         from ..._estimation._records import RecordBatch
 
-        requires = frozenset(getattr(model, "requires", frozenset())) & {"a", "normal_force"}
+        requires = _signals(model)
         if self.validation:
             return RecordBatch.from_records(
                 list(self.validation), names=self.validation_names, requires=requires, argument="--validation"
@@ -203,12 +203,17 @@ class TrainingRecords:
         per-record nuisances (offset and initial state always; a linear drift per record with `drift`)."""
         from ..._estimation._records import Nuisances, RecordBatch
 
-        requires = frozenset(getattr(model, "requires", frozenset())) & {"a", "normal_force"}
+        requires = _signals(model)
         train = RecordBatch.from_records(self.train_records, names=self.names, requires=requires, argument="--data")
         return train, {
             "validation": self.validation_batch(model),
             "nuisances": Nuisances(offset=True, drift=drift, initial_state=True),
         }
+
+
+def _signals(model: Any) -> frozenset[str]:
+    """The signals of `model` that a batch of records keeps beside x and v (`"a"`, `"normal_force"`)."""
+    return frozenset(getattr(model, "requires", frozenset())) & {"a", "normal_force"}
 
 
 def short_name(spec: str) -> str:

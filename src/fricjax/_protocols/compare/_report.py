@@ -73,18 +73,11 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
 def format_record_nuisances(rows: list[ModelScore]) -> str:
     """Each model's per-record nuisances after a fit to several records: the force offset [N], drift [N/s] and
     training NMSE of every training record (`fj.RecordNuisances`)."""
-    lines = ["per training record (offset [N], drift [N/s], training NMSE):"]
+    lines = ["per training record (training NMSE, offset [N], drift [N/s]):"]
     for r in sorted(rows, key=by_score):
         if r.records is None:
             continue
-        lines.append(f"  {r.label}:")
-        for row in r.records.table():
-            text = f"    {row['name']}: NMSE {row['train_nmse_percent']:.3g} %"
-            if row["offset_N"] is not None:
-                text += f", offset {row['offset_N']:.4g} N"
-            if row["drift_N_per_s"] is not None:
-                text += f", drift {row['drift_N_per_s']:.4g} N/s"
-            lines.append(text)
+        lines += [f"  {r.label}:", *("    " + line for line in r.records.lines())]
     return "\n".join(lines)
 
 
