@@ -235,3 +235,32 @@ def test_boucwen_loss_and_rmse_of_huge_and_tiny_records(scale):
         loss = float(fj.BoucWenLoss(burn_in=10)(system, None, record))
         values.append((loss, fj.boucwen_rmse(system, record)[0] / factor))
     assert values[0][0] > 1e-4 and values[1] == pytest.approx(values[0], rel=1e-6), values
+
+
+@pytest.mark.parametrize("scale", [1e200, 1e-200])
+def test_velocity_check_of_huge_and_tiny_records(tmp_path, scale):
+    """The load's velocity check squared raw displacements: at 1e200 m a matching velocity column was refused as
+    disagreeing (an RMS of inf / inf), at 1e-200 m one 10x too large passed (an RMS of 0)."""
+    dt = 1e-3
+    v = 1e-3 / 50 / dt * np.cos(K / 50)
+
+    def csv(factor: float) -> str:
+        body = [
+            f"{k * dt:.6f},{scale * x:.17g},{factor * scale * w:.17g},{f:.17g}"
+            for k, x, w, f in zip(K, X, v, F, strict=True)
+        ]
+        return table("t,x,v,F", body)
+
+    record = load(tmp_path, csv(1.0), "matching.csv")
+    assert np.allclose(np.asarray(record.motion.v), scale * v)
+    with pytest.raises(fj.RecordError, match="disagrees"):
+        load(tmp_path, csv(10.0), "ten-times.csv")
+
+
+@pytest.mark.parametrize("scale", [1e200, 1e-200])
+def test_normalise_huge_and_tiny_signals(scale):
+    """`fj.normalise` divided by `np.std`: inf at 1e200 (every value normalised to 0), 0 at 1e-200 (refused as
+    constant)."""
+    z, normaliser = fj.normalise(scale * F)
+    assert np.std(z) == pytest.approx(1.0, rel=1e-12)
+    assert np.allclose(normaliser.inverse(z), scale * F, rtol=1e-12, atol=0.0)

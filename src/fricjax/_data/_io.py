@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from .._inputs import Motion
+from .._metrics import numpy_rmse, numpy_std
 from ._csv import CSVError, read_csv
 from ._record import FrictionData
 
@@ -374,19 +375,21 @@ def _velocity_ratio(x: np.ndarray, v: np.ndarray, dt: float) -> float:
     change of `x`, and short enough that no window spans a period of an oscillation or lets a bias in `v` add up.
     """
     swept = np.concatenate(([0.0], np.cumsum(0.5 * (v[1:] + v[:-1])) * dt))
-    spread = float(np.std(x))
+    spread = float(numpy_std(x))
     if spread == 0:  # `x` that never moves agrees only with `v` = 0
         return 1.0 if not np.any(v) else math.inf
     lag = 1
     while True:
         moved = x[lag:] - x[:-lag]
-        scale = math.sqrt(float(np.mean(moved**2)))
+        scale = float(numpy_rmse(moved))
         if scale >= 0.25 * spread or 2 * lag >= x.size:
             break
         lag *= 2
     integral = swept[lag:] - swept[:-lag]
-    ratio = math.sqrt(float(np.mean(integral**2))) / scale
-    return -ratio if float(np.dot(moved, integral)) < 0 else ratio
+    swept_rms = float(numpy_rmse(integral))
+    ratio = swept_rms / scale
+    agree = float(np.dot(moved / scale, integral / swept_rms)) if swept_rms > 0 and scale > 0 else 0.0
+    return -ratio if agree < 0 else ratio
 
 
 def _read_table(path: pathlib.Path, named: dict[str, str]) -> tuple[list[tuple[str, np.ndarray | None]], str | None]:

@@ -21,6 +21,7 @@ import numpy as np
 import scipy.signal as ss
 from jaxtyping import ArrayLike
 
+from .._metrics import numpy_std
 from .._validation import is_integer, nonnegative_int, positive_int
 
 
@@ -317,7 +318,7 @@ def normalise(data: ArrayLike, *, axis: int | tuple[int, ...] | None = -1) -> tu
     if count < 2:
         raise ValueError(f"`data` needs at least 2 values along `axis={axis}` to compute a standard deviation.")
     mean = np.mean(x, axis=axis, keepdims=True)
-    scale = np.std(x, axis=axis, keepdims=True)
+    scale = np.reshape(numpy_std(x, axis=axis), mean.shape).astype(mean.dtype)  # scaled before squaring
     if np.any(scale <= np.finfo(x.dtype).tiny) or np.any(scale <= 1e-12 * np.abs(mean)):
         raise ValueError(
             "`data` is constant along the normalisation axis (zero standard deviation); drop the constant "

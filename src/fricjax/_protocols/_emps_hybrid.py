@@ -32,6 +32,7 @@ from .._estimation._lstsq import lstsq
 from .._estimation._solution import FitResult
 from .._estimation._strategies import ParameterScaling
 from .._estimation._term_selection import select_terms
+from .._metrics import numpy_rmse
 from .._models.combine._hybrid import HybridFriction
 from .._smoothing import Smooth, with_smoothing
 from .._systems._emps import EMPSPlant, simulate_closed_loop
@@ -292,7 +293,7 @@ class EMPSEnsemble(eqx.Module):
         """The official score of the ensemble on `record`: position RMSE [mm] after the window (20 samples)."""
         q = self.predict(record, positions)
         error = np.asarray(record.qm, np.float64)[20:] - np.asarray(q, np.float64)[20:]
-        return float(1000.0 * np.sqrt(np.mean(error**2)))
+        return float(1000.0 * numpy_rmse(error))
 
 
 class EMPSEnsembleFit(NamedTuple):
@@ -402,9 +403,7 @@ def emps_closed_loop_errors(
     }
     return {
         f"{name}_pct": float(
-            100.0
-            * np.linalg.norm(measured[name][start:] - simulated[name][start:])
-            / np.linalg.norm(measured[name][start:])
+            100.0 * numpy_rmse(measured[name][start:] - simulated[name][start:]) / numpy_rmse(measured[name][start:])
         )
         for name in measured
     }

@@ -28,6 +28,7 @@ import scipy.optimize
 from .._data._emps import EMPSRecord
 from .._estimation._covariance import covariance
 from .._estimation._lstsq import LstsqResult, lstsq
+from .._metrics import numpy_rmse
 from .._models.physics._static import AbstractStaticFriction, BoPavelescu, Coulomb, CoulombViscous, Threlfall, Tustin
 from .._smoothing import AbstractSmoothing, Exact
 from .._systems._emps import EMPSPlant
@@ -122,7 +123,7 @@ class _Problem:
         _, X = self.design(nl)
         if not np.all(np.isfinite(X)):
             return np.inf
-        value = 100.0 * np.linalg.norm(lstsq(X, self.y).residual) / np.linalg.norm(self.y)
+        value = 100.0 * numpy_rmse(lstsq(X, self.y).residual) / numpy_rmse(self.y)
         return float(value) if np.isfinite(value) else np.inf
 
 
@@ -215,7 +216,7 @@ class EMPSIDMResult(eqx.Module):
         problem = _Problem(_SPECS[self.law], self.asymmetric, _as_idm_data(data, self.preprocessing))
         names, X = problem.design(self._nonlinear())
         error = problem.y - X @ self._coefficients(names)
-        return float(100.0 * np.linalg.norm(error) / np.linalg.norm(problem.y))
+        return float(100.0 * numpy_rmse(error) / numpy_rmse(problem.y))
 
     def friction(self, smoothing: AbstractSmoothing = Exact()) -> AbstractStaticFriction:
         """The fitted friction law as a fricjax model, offset included (e.g.
@@ -304,7 +305,7 @@ def fit_emps_idm(
     dof = n - p - len(nl)
     if dof <= 0:
         raise ValueError(f"the IDM data has {n} samples, too few for {p + len(nl)} parameters.")
-    sigma_e = float(np.linalg.norm(error) / np.sqrt(dof))
+    sigma_e = float(numpy_rmse(error) * np.sqrt(n / dof))  # ||e|| / sqrt(dof), scaled before squaring
     return EMPSIDMResult(
         law=law,
         asymmetric=asymmetric,
@@ -312,8 +313,8 @@ def fit_emps_idm(
         offset=_pick(names, theta, "offset", default=0.0),  # type: ignore[arg-type]
         params=_friction_params(spec, names, theta, nl),
         std=_std(spec, names, np.asarray(covariance(X, error, dof))),
-        relative_error=float(100.0 * np.linalg.norm(error) / np.linalg.norm(problem.y)),
-        error_norm=float(np.linalg.norm(error)),
+        relative_error=float(100.0 * numpy_rmse(error) / numpy_rmse(problem.y)),
+        error_norm=float(numpy_rmse(error) * np.sqrt(n)),
         noise_std=sigma_e,
         condition_number=float(np.linalg.cond(X)),  # of the unscaled X, as the reference script reports it
         n_samples=int(n),

@@ -44,6 +44,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._constraints import Parameter, ParamLike, as_float_array, model_dtype, positive, real, unwrap
 from .._inputs import InputRecord
+from .._metrics import rmse
 from .._models._base import AbstractSystem
 from .._models.combine._hybrid import HybridFriction
 from .._models.physics._static import AbstractStaticFriction
@@ -408,5 +409,4 @@ def emps_open_loop_rmse_mm(y_true: ArrayLike, y_sim: ArrayLike, *, skip: int = 2
             f"the records have {y_true.shape[-1] if y_true.ndim else 0} samples, not more than `skip={skip}`; "
             "give longer records."
         )
-    error = y_true[..., skip:] - y_sim[..., skip:]
-    return 1000.0 * jnp.sqrt(jnp.mean(error**2, axis=-1))
+    return 1000.0 * rmse(y_true[..., skip:], y_sim[..., skip:])  # scaled before squaring

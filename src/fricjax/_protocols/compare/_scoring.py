@@ -92,12 +92,13 @@ def paired_validation_gain(reference: Any, candidate: Any, split: Split) -> tupl
     iterates scored from 0.75x to 4x the least-squares start's test error as the records changed by round-off
     or the learning rate and the trained weights were varied (benchmarks/README.md)."""
     record = split.until_validation_end
-    measured = np.asarray(record.force)[split.train_end :]
+    measured = np.asarray(record.force, np.float64)[split.train_end :]
     size = max(len(measured) // VALIDATION_BLOCKS, 1)
     count = len(measured) // size
+    magnitude = float(np.max(np.abs(measured), initial=0.0)) or 1.0  # scale before squaring (forces of 1e200 N)
 
     def block_errors(model: Any) -> np.ndarray:
-        error = free_run(model, record)[split.train_end :] - measured
+        error = (np.asarray(free_run(model, record), np.float64)[split.train_end :] - measured) / magnitude
         return np.mean(error[: count * size].reshape(count, size) ** 2, axis=1)
 
     before, after = block_errors(reference), block_errors(candidate)
