@@ -137,3 +137,33 @@ def test_signals_at_random_moments_end_in_0_or_130_with_nothing_written(tmp_path
     print("\n".join(outcomes))
     assert not wrong, "\n\n".join(wrong)
     assert sum(" exit 130," in outcome for outcome in outcomes) >= 5, outcomes  # most signals came during a run
+
+
+@pytest.mark.slow  # 12 program starts of 2-4 s each
+def test_signals_while_the_program_starts_end_in_130_without_a_traceback(tmp_path):
+    """Before, the handlers came after the command line's imports and argument parsing (~0.1-0.2 s): a Ctrl-C there
+    printed Python's KeyboardInterrupt traceback, a SIGTERM killed the process (exit -15). Now the program's first
+    statement catches them; only Python's own start-up (the first ~30 ms) is as Python does."""
+    record = _write_record(tmp_path / "record.csv")
+    program = pathlib.Path(sys.executable).parent / "fricjax"
+    assert program.exists(), f"the README's install puts the `fricjax` program beside {sys.executable}"
+    rng = random.Random(131)
+    outcomes, wrong = [], []
+    for trial in range(12):
+        out = tmp_path / f"out{trial}"
+        number = rng.choice([signal.SIGINT, signal.SIGTERM])
+        moment = 0.05 + 0.05 * trial  # 50 ms (imports) to 0.6 s (JAX loading), in steps of 50 ms
+        process = subprocess.Popen(
+            [str(program), "compare", "--models", "stribeck", "--steps", "5", "--data", str(record), "--out", str(out)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        time.sleep(moment)
+        process.send_signal(number)
+        _, err = process.communicate(timeout=600)
+        outcome = f"{number.name} at {moment:.2f} s: exit {process.returncode}, {err.strip()[-200:]!r}"
+        outcomes.append(outcome)
+        if process.returncode != 130 or "Traceback" in err or out.exists():
+            wrong.append(outcome)
+    assert not wrong, "\n".join(wrong)

@@ -228,3 +228,42 @@ def test_the_lock_of_a_killed_run_is_taken_over(tmp_path, capsys):
         line = _one_line(capsys.readouterr().err)
         assert "missing.csv" in line and "another fricjax compare" not in line, line
         assert sorted(path.name for path in out.iterdir()) == [], pid
+
+
+_KILLED_WHILE_PUBLISHING = """
+import os, signal, sys
+import fricjax
+out, kill_at = sys.argv[1], int(sys.argv[2])
+replace, moves = os.replace, []
+def killing_replace(source, target):
+    if ".partial-" not in str(target) or "previous" in str(target):  # a move into --out, or one aside
+        moves.append(target)
+        if len(moves) == kill_at:
+            os.kill(os.getpid(), signal.SIGKILL)
+    return replace(source, target)
+os.replace = killing_replace
+sys.exit(fricjax.main([*sys.argv[3:], "--out", out]))
+"""
+
+
+@pytest.mark.slow  # three runs killed while publishing (a compile each: 15-30 s) and three that roll them back
+@pytest.mark.parametrize("kill_at", [2, 4, 7])  # the first file moved aside, not replaced / a model / the report
+def test_a_run_killed_while_publishing_is_rolled_back_by_the_next(tmp_path, kill_at, capsys):
+    """Before, a SIGKILL in the middle of the final renames left `out` with some new files beside old ones and the
+    replaced files in `.partial-*/previous` (kept, with a warning). Now the next run rolls the publishing back from
+    the staging folder's journal: `out` is exactly as before the killed run."""
+    out = tmp_path / "out"
+    before = _previous_run(out)
+    killed = subprocess.run(
+        [sys.executable, "-c", _KILLED_WHILE_PUBLISHING, str(out), str(kill_at), *RUN],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert killed.returncode == -9, killed.stderr[-2000:]
+    visible = {name: data for name, data in _snapshot(out).items() if not name.startswith(".partial-")}
+    assert visible != before  # part-way: something was moved
+    # the next run (stopping at its missing record) rolls the killed one back before anything else
+    assert fj.main(["compare", "--data", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
+    assert _snapshot(out) == before
+    assert "was undone" in capsys.readouterr().out

@@ -1,5 +1,23 @@
-import sys
+"""The `fricjax` program (its console script calls `main`) and `python -m fricjax`.
 
-from ._cli import main
+Its first statement makes SIGINT and SIGTERM set a flag (`_estimation._interrupts`), before the command line is
+imported: a signal at any moment after Python's own start-up (~10 ms) ends the run with exit status 130 and nothing
+written, without a traceback. Importing `fricjax` as a library changes no signal handler.
+"""
 
-sys.exit(main())
+from ._estimation._interrupts import catch_signals
+
+catch_signals()
+
+import sys  # noqa: E402
+
+from ._cli import main as _main  # noqa: E402
+
+
+def main() -> int:
+    """The program: `fricjax ARGS` (`fricjax._cli.main` on `sys.argv`)."""
+    return _main()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

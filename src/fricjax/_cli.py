@@ -5,7 +5,6 @@ and an exit status."""
 from __future__ import annotations
 
 import argparse
-import importlib.metadata
 import os
 import pathlib
 import sys
@@ -31,6 +30,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     **Returns:** the exit status (0 success, 2 a one-line input error, 130 interrupted: Ctrl-C or SIGTERM,
     after which nothing was written to the output folder).
     """
+    from ._estimation._interrupts import check_interrupt, stop_on_signals  # no JAX: installed in milliseconds
+
+    # first of all, before the arguments are parsed and long before JAX loads: from here on SIGINT / SIGTERM only
+    # set a flag, and the run stops at its next check (before the command starts, between models, within a fit,
+    # before each file is written) by raising `Interrupted`: an exception raised by the handler itself could land
+    # inside JAX (module _interrupts says what went wrong). Run as the program (argv None), the signals stay ignored
+    # on the way out: one after the files are published does not turn a finished run into a death by signal
+    with stop_on_signals(restore=argv is not None):
+        command, out = "fricjax", "the output folder"
+        try:
+            args = _parser().parse_args(argv)
+            command, out = f"fricjax {args.command}", args.out
+            check_interrupt()
+            return _run(args)
+        except KeyboardInterrupt:  # `Interrupted`; the staging folder is removed on the way out
+            print(f"{command}: interrupted; nothing was written to {out}", file=sys.stderr)
+            return 130
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The command line's arguments (`--help` and argument errors answer before JAX loads)."""
     parser = argparse.ArgumentParser(prog="fricjax", description="Friction models as JAX scan simulators.")
     sub = parser.add_subparsers(dest="command", required=True)
     demo = sub.add_parser("demo", help="simulate every physics model from pre-sliding into gross sliding")
@@ -172,21 +192,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "the host CPU when it has no time-parallel form or its record is short, as fj.fit(device='auto') chooses; "
         "stated in the log) (default: %(default)s)",
     )
-    args = parser.parse_args(argv)
-    if args.command != "compare":
-        return _run(args)
-    from ._estimation._interrupts import stop_on_signals  # no JAX: installed before JAX loads (seconds)
-
-    # from here on SIGINT / SIGTERM only set a flag, and the run stops at its next check (between models, within a
-    # fit, before each file is written) by raising `Interrupted`: an exception raised by the handler itself could
-    # land inside JAX (module _interrupts says what went wrong). Run as the program (argv None), the signals stay
-    # ignored on the way out: one after the files are published does not turn a finished run into a death by signal
-    with stop_on_signals(restore=argv is not None):
-        try:
-            return _run(args)
-        except KeyboardInterrupt:  # `Interrupted`; the staging folder is removed on the way out
-            print(f"fricjax compare: interrupted; nothing was written to {args.out}", file=sys.stderr)
-            return 130
+    return parser
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -259,6 +265,8 @@ def _run(args: argparse.Namespace) -> int:
 
 def _accelerator_installed() -> bool:
     """Whether a JAX accelerator plugin (CUDA, ROCm, TPU) is installed (without starting JAX's backends)."""
+    import importlib.metadata
+
     names = {(dist.metadata["Name"] or "").lower() for dist in importlib.metadata.distributions()}
     return any(name.startswith(("jax-cuda", "jax_cuda", "jax-rocm", "jax_rocm", "libtpu")) for name in names)
 

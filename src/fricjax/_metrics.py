@@ -84,7 +84,7 @@ def fit_percent(y: ArrayLike, yhat: ArrayLike) -> Array:
     return 100.0 * (1.0 - _norm(y - yhat) / _norm(centred))
 
 
-def _numpy_magnitude(y: np.ndarray, axis: int | None) -> np.ndarray:
+def _numpy_magnitude(y: np.ndarray, axis: int | tuple[int, ...] | None) -> np.ndarray:
     """`max|y|` along `axis` (kept), or 1 where that is 0 or `y` is empty: `_magnitude` in NumPy."""
     if not y.size:
         return np.ones_like(np.sum(y, axis=axis, keepdims=True))
@@ -92,7 +92,7 @@ def _numpy_magnitude(y: np.ndarray, axis: int | None) -> np.ndarray:
     return np.where(m > 0, m, 1.0)
 
 
-def numpy_std(y: ArrayLike, axis: int | None = None) -> np.ndarray:
+def numpy_std(y: ArrayLike, axis: int | tuple[int, ...] | None = None) -> np.ndarray:
     """`np.std(y, axis)` in float64, scaled before squaring (`scaled_std` in NumPy): finite for |y| ~ 1e200,
     nonzero for |y| ~ 1e-200."""
     y = np.asarray(y, np.float64)

@@ -16,8 +16,11 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-from collections.abc import Iterator
-from typing import Any
+
+TYPE_CHECKING = False  # no `typing` (10 ms) before the `fricjax` program's first statement; type checkers read True
+if TYPE_CHECKING:
+    from collections.abc import Iterator
+    from typing import Any
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -55,6 +58,15 @@ def _record(signum: int, frame: Any) -> None:
         _State.received = signum
 
 
+def catch_signals() -> None:
+    """Install the flag-setting handlers now, for the program's whole life: the first statement of the `fricjax`
+    program (`fricjax.__main__`), milliseconds after Python starts, so that a Ctrl-C while Python imports the
+    command line is a recorded signal too (exit 130, no traceback). `stop_on_signals` keeps such a signal."""
+    for number in _SIGNALS:
+        if signal.getsignal(number) is not signal.SIG_IGN:
+            signal.signal(number, _record)
+
+
 @contextlib.contextmanager
 def stop_on_signals(*, restore: bool = True) -> Iterator[None]:
     """Within the block, SIGINT and SIGTERM only set the flag that `check_interrupt` raises on (where a signal is
@@ -70,7 +82,8 @@ def stop_on_signals(*, restore: bool = True) -> Iterator[None]:
         for number, handler in previous.items():
             signal.signal(number, handler)
         previous = {}
-    _State.received = None
+    if not any(handler is _record for handler in previous.values()):  # else kept: `catch_signals` came first
+        _State.received = None
     try:
         yield
     finally:

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from .._estimation._interrupts import check_interrupt
 from .._inputs import Motion
 from .._metrics import nrmse
 from .._models.physics._dahl import Dahl
@@ -58,6 +59,7 @@ def run_demo(out: pathlib.Path, *, figure: bool = True) -> dict[str, Any]:
     forces = {}
     presliding = slice(0, motion.length // 4)
     for name, model in demo_models().items():
+        check_interrupt()  # Ctrl-C / SIGTERM (`fricjax demo` sets the flag): stop before the next model
         start = time.perf_counter()
         force = np.asarray(simulate(model, motion))  # type: ignore[arg-type]
         elapsed = time.perf_counter() - start
@@ -76,6 +78,7 @@ def run_demo(out: pathlib.Path, *, figure: bool = True) -> dict[str, Any]:
                 "simulate_s": elapsed,
             }
         )
+    check_interrupt()  # nothing written yet
     out.mkdir(parents=True, exist_ok=True)
     print(
         f"fricjax {fricjax_version()} demo: {motion.length} samples at {1 / float(motion.dt):.0f} Hz, "

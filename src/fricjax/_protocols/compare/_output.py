@@ -30,14 +30,21 @@ from ._settings import CompareError
 STAGING_PREFIX = ".partial-"  # the staging folders inside --out
 STALE_AFTER = 3600.0  # seconds: a staging folder this old belongs to no live run (a run stages for seconds)
 LOCK_NAME = ".fricjax-compare.lock"  # inside --out while a run writes there: its owner (pid, host)
+JOURNAL_NAME = "publishing.json"  # in a staging folder while its files move into --out: what to undo if killed
 UNFINISHED_LOCK_AFTER = 10.0  # seconds: an empty lock file this old was left by a run killed as it created it
 
 
 def check_writable(out: pathlib.Path, files: tuple[str, ...] = ()) -> None:
     """Raise `CompareError` unless `out` (created if missing) takes new files, its `models` entry, if any, is a
-    folder, and none of the `files` it is to receive is a folder (said before a fit of minutes, not after it)."""
+    folder, and none of the `files` it is to receive is a folder (said before a fit of minutes, not after it).
+    Within a run decorated with `releasing_output_locks`, an `out` it created is removed again at the run's end if
+    the run left it empty (interrupted, or stopped by an error: nothing written, not even the folder)."""
+    created = not os.path.lexists(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
+        locks = _LOCKS.get()
+        if created and locks is not None:
+            locks.callback(_remove_if_empty, out)
         handle, probe = tempfile.mkstemp(prefix=".fricjax-write-test-", dir=out)  # a fresh name: nothing overwritten
         os.close(handle)
         os.unlink(probe)
@@ -49,6 +56,11 @@ def check_writable(out: pathlib.Path, files: tuple[str, ...] = ()) -> None:
     for name in files:
         if (out / name).is_dir() and not (out / name).is_symlink():
             raise CompareError(f"--out {out}: {name} is a folder; move it away or choose another --out")
+
+
+def _remove_if_empty(out: pathlib.Path) -> None:
+    with contextlib.suppress(OSError):
+        out.rmdir()  # fails where the run (or anyone) put something in it
 
 
 _Run = TypeVar("_Run", bound=Callable[..., Any])
@@ -259,6 +271,7 @@ class Staging:
         moves: list[tuple[pathlib.Path, pathlib.Path]] = []  # the renames done, to undo in reverse
         created: list[pathlib.Path] = []  # the folders made in `out`, to remove again
         current = ""
+        self._write_journal()
         with hold_signals():
             try:
                 for index, current in enumerate(self.names):
@@ -273,6 +286,7 @@ class Staging:
                         moves.append((target, self.previous / str(index)))
                     os.replace(self.new / current, target)
                     moves.append((self.new / current, target))
+                (self.root / JOURNAL_NAME).unlink()  # published: nothing for a later run to roll back
             except BaseException as err:
                 failed = _undo(moves, created)
                 self.keep = bool(failed)
@@ -287,6 +301,23 @@ class Staging:
                     f"--out {self.out}: could not move {current} into place ({_reason(err)}); nothing was changed "
                     "(the previous files are back)"
                 ) from None
+
+    def _write_journal(self) -> None:
+        """Record, before the first move, what publishing will do (`JOURNAL_NAME`: the names in order, each staged
+        file's identity, the folders of `out` it creates), so that a run killed part-way (SIGKILL, a power cut)
+        can be rolled back by the next one (`remove_stale_staging`)."""
+        staged = {}
+        for name in self.names:
+            info = (self.new / name).stat()
+            staged[name] = [info.st_ino, info.st_size, info.st_mtime_ns]
+        folders = {str(f.relative_to(self.out)) for name in self.names for f in self._folders(name) if not f.exists()}
+        journal = {"names": self.names, "staged": staged, "created": sorted(folders, key=len)}
+        try:
+            (self.root / JOURNAL_NAME).write_text(json.dumps(journal))
+        except OSError as err:
+            raise CompareError(
+                f"--out {self.out}: could not start publishing ({_reason(err)}); nothing was written"
+            ) from None
 
     def _folders(self, name: str) -> list[pathlib.Path]:
         """The folders in `out` that `out/name` goes in (`models`), outermost first."""
@@ -325,12 +356,15 @@ def _reason(err: OSError) -> str:
 
 def remove_stale_staging(out: pathlib.Path, *, now: float | None = None) -> None:
     """Remove the staging folders that runs left in `out` when they were killed: those of a process that no longer
-    runs on this host, and any older than `STALE_AFTER`. One that holds files moved aside while publishing (the run
-    was killed in the middle of its renames) is kept, with a warning: those files were the user's."""
+    runs on this host, and any older than `STALE_AFTER`. A run killed in the middle of its renames is rolled back
+    first, from its journal (`_roll_back`: the earlier files back in `out`, its own removed); a folder that still
+    holds files moved aside (no journal, or the undo failed) is kept, with a warning: those files were the user's."""
     now = time.time() if now is None else now
     for folder in sorted(out.glob(STAGING_PREFIX + "*")):
         try:
             if not folder.is_dir() or folder.is_symlink() or not _stale(folder, now):
+                continue
+            if (folder / JOURNAL_NAME).exists() and not _roll_back(folder, out):
                 continue
             previous = folder / "previous"
             if previous.is_dir() and any(previous.iterdir()):
@@ -342,6 +376,47 @@ def remove_stale_staging(out: pathlib.Path, *, now: float | None = None) -> None
             shutil.rmtree(folder)
         except OSError:
             continue  # someone else's, or going away: not ours to insist on
+
+
+def _roll_back(folder: pathlib.Path, out: pathlib.Path) -> bool:
+    """Undo the publishing of a run that was killed in the middle of it (its staging `folder` still holds the
+    journal): the files it had moved aside go back into `out`, the files it had moved in (recognised by their
+    identity, so that nothing written since is touched) and the folders it created are removed. Says what it did;
+    returns whether everything is back (else the folder is kept, with a warning naming it)."""
+    try:
+        journal = json.loads((folder / JOURNAL_NAME).read_text())
+        names, staged, created = list(journal["names"]), dict(journal["staged"]), list(journal["created"])
+    except (OSError, ValueError, KeyError, TypeError):
+        print(f"warning: {folder} holds an unreadable record of a killed run's files; check {out}, then delete it")
+        return False
+    restored = removed = 0
+    try:
+        for index, name in reversed(list(enumerate(names))):
+            target, aside = out / name, folder / "previous" / str(index)
+            if os.path.lexists(aside):
+                os.replace(aside, target)
+                restored += 1
+            elif not os.path.lexists(folder / "new" / name) and os.path.lexists(target):
+                info = target.lstat()
+                if [info.st_ino, info.st_size, info.st_mtime_ns] == staged.get(name):
+                    target.unlink()
+                    removed += 1
+        for relative in reversed(created):
+            with contextlib.suppress(OSError):
+                (out / relative).rmdir()  # only when empty
+        (folder / JOURNAL_NAME).unlink()
+    except OSError as err:
+        print(
+            f"warning: could not undo the files a killed run was publishing into {out} ({err}); the files it had "
+            f"moved aside are in {folder / 'previous'}: move back the ones you need, then delete {folder}"
+        )
+        return False
+    if restored or removed:
+        print(
+            f"note: a run killed while publishing into {out} was undone: {restored} of the earlier files put back, "
+            f"{removed} of its own removed"
+        )
+    return True
 
 
 def _stale(folder: pathlib.Path, now: float) -> bool:
