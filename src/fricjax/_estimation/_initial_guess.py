@@ -183,6 +183,14 @@ def initial_guess(
     if cls is LuGre:
         return LuGre(stribeck, sigma0=s.stiffness, sigma1=0.0, sigma2=s.Fv, offset=s.offset, smoothing=smoothing)
     if cls is GMS:
+        found = maxwell_slip_elements(data, s, elements, viscous=True)
+        if found is not None:  # the elements of a Maxwell-slip model of the record: stiffness and force shares
+            thresholds, k, offset, Fv = found
+            capacity = k * thresholds
+            return GMS(
+                stribeck, k=k, alpha=capacity / capacity.sum(), C=10.0 * s.Fs, sigma2=Fv, offset=offset,
+                smoothing=smoothing,
+            )  # fmt: skip
         shares = np.arange(elements, 0, -1, dtype=float)  # stiffer elements first
         return GMS(
             stribeck,
@@ -201,7 +209,7 @@ def initial_guess(
         return MaxwellSlip.nlr(
             k=s.Fs / elements / thresholds, thresholds=thresholds, offset=s.offset, smoothing=smoothing
         )
-    thresholds, k, offset = found
+    thresholds, k, offset, _ = found
     return MaxwellSlip.nlr(k=k, thresholds=thresholds, offset=offset, smoothing=smoothing)
 
 
@@ -209,10 +217,11 @@ GRID_ELEMENTS = 48  # the dense LR model of `maxwell_slip_elements`
 
 
 def maxwell_slip_elements(
-    data: FrictionData, scales: RecordScales, elements: int
-) -> tuple[np.ndarray, np.ndarray, float] | None:
-    """The `elements` Maxwell-slip elements that best reproduce the record: thresholds [m], stiffnesses [N/m] and the
-    force offset [N], or None for a record without motion.
+    data: FrictionData, scales: RecordScales, elements: int, *, viscous: bool = False
+) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """The `elements` Maxwell-slip elements that best reproduce the record: thresholds [m], stiffnesses [N/m], the
+    force offset [N] and, with `viscous`, a viscous slope [N s/m] (>= 0) fitted with them (else 0); None for a
+    record without motion. GMS starts take their element stiffnesses and force shares from them.
 
     Two steps, both without a descent through the non-smooth threshold clip (parlitz2004 §III-C fits NLR models by a
     genetic algorithm and Nelder-Mead for that reason): (1) an LR model (parlitz2004 §III-A) of `GRID_ELEMENTS`
@@ -236,18 +245,21 @@ def maxwell_slip_elements(
     grid = np.geomspace(low, top, GRID_ELEMENTS)
     deflections = _deflections(dx, grid)  # normalised: each column in [-1, 1]
     force = np.asarray(data.force, np.float64)
-    design = np.concatenate([deflections, np.ones((data.length, 1)), -np.ones((data.length, 1))], axis=1)
+    ones = np.ones((data.length, 1))
+    velocity = np.asarray(samples.v, np.float64)[:, None] if viscous else np.zeros((data.length, 0))
+    design = np.concatenate([deflections, velocity, ones, -ones], axis=1)
     triangle = np.asarray(
         np.linalg.qr(np.concatenate([design, force[:, None]], axis=1), mode="r")
     )  # small, same minimiser
     n = design.shape[1]
     solution, _ = scipy.optimize.nnls(triangle[:n, :n], triangle[:n, n], maxiter=50 * n)
-    capacity, offset = solution[:-2], float(solution[-2] - solution[-1])
+    capacity, offset = solution[:GRID_ELEMENTS], float(solution[-2] - solution[-1])
+    Fv = float(solution[GRID_ELEMENTS]) if viscous else 0.0
     keep = capacity > 1e-9 * max(float(capacity.max()), 1e-300)
     if not keep.any():
         return None
     thresholds, k = _merge_elements(grid[keep], capacity[keep] / grid[keep], elements)
-    return thresholds, k, offset
+    return thresholds, k, offset, Fv
 
 
 def _deflections(dx: np.ndarray, thresholds: np.ndarray) -> np.ndarray:

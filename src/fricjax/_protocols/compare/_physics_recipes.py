@@ -1,8 +1,9 @@
 """The physics models of `compare` (`physics_models`): a static Stribeck curve, LuGre, GMS and the Maxwell-slip
 NLR / DNLRX models, each started from the training record's scales (`DataScales`: force levels, pre-sliding
-stiffness, breakaway displacement) and fitted by Levenberg-Marquardt with the linear parameters solved by least
-squares where the model allows (static curve, LuGre, Maxwell-slip), or, for GMS (whose stick/slip landscape
-defeats a cold Gauss-Newton start), by Adam with smoothing continuation then a Levenberg-Marquardt polish."""
+stiffness, breakaway displacement; the Maxwell-slip elements from `fj.initial_guess`'s regression) and fitted by
+Levenberg-Marquardt with the linear parameters solved by least squares where the model allows (static curve, LuGre,
+Maxwell-slip), or, for GMS (whose stick/slip landscape defeats a cold Gauss-Newton start), by Adam with smoothing
+continuation then a Levenberg-Marquardt polish."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ import optax
 
 from ..._constraints import Positive
 from ..._estimation._fit import fit, levenberg_marquardt
+from ..._estimation._initial_guess import RecordScales, maxwell_slip_elements
 from ..._estimation._losses import SimulationLoss
 from ..._estimation._solution import FitResult
 from ..._estimation._strategies import Continuation, MultiStart, ParameterScaling
@@ -37,8 +39,18 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
     def stribeck(s: DataScales) -> ExponentialStribeck:
         return ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0)
 
-    def thresholds(s: DataScales, m: int) -> np.ndarray:
-        return s.breakaway * np.geomspace(0.05, 1.0, m)
+    def elements(s: DataScales, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """`m` Maxwell-slip thresholds [m] and stiffnesses [N/m]: those of `fj.initial_guess` (a dense LR model
+        of the training record merged down to `m` elements), else spread up to the breakaway displacement."""
+        found = None if s.train is None else maxwell_slip_elements(s.train, RecordScales.from_data(s.train), m)
+        if found is None:
+            thresholds = s.breakaway * np.geomspace(0.05, 1.0, m)
+            return thresholds, s.Fs / m / thresholds
+        return found[0], found[1]
+
+    def dnlrx_start(thresholds: np.ndarray, k: np.ndarray) -> MaxwellSlip:
+        theta = np.outer([1.0, 0.0, 0.0], k * thresholds)  # on the normalised deflections: the NLR element forces
+        return MaxwellSlip.dnlrx(thresholds=thresholds, theta=theta, c=[0.0, 0.0], smoothing=Smooth(1e-3))
 
     shares = np.arange(n_gms, 0, -1, dtype=float)  # stiffer elements first: k_i ~ N, N-1, ..., 1
     return {
@@ -69,19 +81,12 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
         ),
         "nlr": ModelSpec(
             f"Maxwell-slip NLR({n_ms})",
-            lambda s: MaxwellSlip.nlr(
-                k=s.Fs / n_ms / thresholds(s, n_ms), thresholds=thresholds(s, n_ms), smoothing=Smooth(1e-3)
-            ),
+            lambda s: MaxwellSlip.nlr(*reversed(elements(s, n_ms)), smoothing=Smooth(1e-3)),  # k, thresholds
             lm_recipe(("force_map.offset",), settings.starts, settings),
         ),
         "dnlrx": ModelSpec(
             f"Maxwell-slip DNLRX({n_ms},2,1)",
-            lambda s: MaxwellSlip.dnlrx(
-                thresholds=thresholds(s, n_ms),
-                theta=np.outer([1.0, 0.0, 0.0], np.full(n_ms, s.Fs / n_ms)),
-                c=[0.0, 0.0],
-                smoothing=Smooth(1e-3),
-            ),
+            lambda s: dnlrx_start(*elements(s, n_ms)),
             lm_recipe(("force_map.theta", "force_map.c", "force_map.offset"), settings.starts, settings),
         ),
     }
