@@ -2,7 +2,7 @@
 """Success rate of physics fits over seeded random records: how often a fit gets within 1.2x of the true model.
 
 For each family (LuGre, GMS(4), Maxwell-slip NLR(5), the Tustin static law) and seed: true parameters drawn
-log-uniformly (a factor 2 either way) around a nominal model; a training record and a held-out test record of
+log-uniformly (a factor 2 either way) around a nominal model (the static level Fs 25-100 % above Fc); a training record and a held-out test record of
 different amplitude and frequency (both from pre-sliding into sliding), the forces with noise (1 % of the force
 range) and the displacement quantised (2 nm) as a sensor gives them. Each fit starts from `fj.initial_guess` and
 runs Levenberg-Marquardt (smooth model, separable linear parameters) with `--starts` starts; a fit succeeds when
@@ -50,7 +50,8 @@ def truth(family: str, rng: np.random.Generator) -> tuple[Any, tuple[str, ...]]:
     def f(value: float) -> float:  # log-uniform, a factor 2 either way
         return float(value * np.exp(rng.uniform(-np.log(2), np.log(2))))
 
-    stribeck = fj.ExponentialStribeck(Fc=f(1.0), Fs=f(1.0) * 1.5, vs=f(2e-3), delta=2.0)
+    Fc = f(1.0)  # a static level 25-100 % above the Coulomb level (Fs > Fc: a plausible true model)
+    stribeck = fj.ExponentialStribeck(Fc=Fc, Fs=Fc * (1.0 + f(0.5)), vs=f(2e-3), delta=2.0)
     if family == "lugre":
         return fj.LuGre(stribeck, f(1e5), f(300.0), f(40.0), offset=0.1), ("sigma1", "sigma2", "offset")
     if family == "gms":
@@ -60,7 +61,8 @@ def truth(family: str, rng: np.random.Generator) -> tuple[Any, tuple[str, ...]]:
         thresholds = f(2e-5) * np.geomspace(0.05, 1.0, 5)
         return fj.MaxwellSlip.nlr(k=f(1.0) / 5 / thresholds, thresholds=thresholds, offset=0.1), ("force_map.offset",)
     if family == "tustin":
-        return fj.Tustin(Fc=f(1.0), Fs=f(1.5), vs=f(2e-3), Fv=f(40.0), offset=0.1), ("Fv", "offset")
+        law = fj.unwrap(stribeck)
+        return fj.Tustin(Fc=law.Fc, Fs=law.Fs, vs=law.vs, Fv=f(40.0), offset=0.1), ("Fv", "offset")
     raise ValueError(family)
 
 
@@ -73,7 +75,7 @@ def smoothing(family: str, data: fj.FrictionData) -> fj.AbstractSmoothing:
     return fj.Smooth(max(1e-3 * scales.vs, 1e-9))
 
 
-def one(family: str, seed: int, starts: int, steps: int) -> dict[str, Any]:
+def one(family: str, seed: int, starts: int, steps: int, screen: float = 0.25, keep: int = 2) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     model, linear = truth(family, rng)
     records = []
@@ -86,7 +88,9 @@ def one(family: str, seed: int, starts: int, steps: int) -> dict[str, Any]:
     began = time.perf_counter()  # the data-driven start is part of the fit's time
     elements = {"gms": 4, "nlr": 5}.get(family)  # the true model's structure (initial_guess's default is 4)
     start = fj.initial_guess(type(model), train, elements=elements, smoothing=smoothing(family, train))
-    multistart = None if starts == 1 else fj.MultiStart(starts, 1.0, distribution="log-uniform", keep=2)
+    multistart = (
+        None if starts == 1 else fj.MultiStart(starts, 1.0, distribution="log-uniform", keep=keep, screen=screen)
+    )
     result = fj.fit(
         start,
         train,
@@ -120,12 +124,14 @@ def main() -> None:
     parser.add_argument("--starts", type=int, nargs="+", default=[1, 8])
     parser.add_argument("--steps", type=int, default=40)
     parser.add_argument("--tolerance", type=float, default=1.2)
+    parser.add_argument("--screen", type=float, default=0.25, help="share of the steps screening (0: forward)")
+    parser.add_argument("--keep", type=int, default=2, help="starts polished after screening")
     parser.add_argument("--verbose", action="store_true")
     cfg = parser.parse_args()
     env = environment()
     for family in cfg.families:
         for starts in cfg.starts:
-            runs = [one(family, seed, starts, cfg.steps) for seed in range(cfg.seeds)]
+            runs = [one(family, seed, starts, cfg.steps, cfg.screen, cfg.keep) for seed in range(cfg.seeds)]
             if cfg.verbose:
                 for run in runs:
                     print(json.dumps({**run, **env}), flush=True)
@@ -136,6 +142,8 @@ def main() -> None:
                         "bench": "global_search",
                         "family": family,
                         "starts": starts,
+                        "screen": cfg.screen,
+                        "keep": cfg.keep,
                         "seeds": cfg.seeds,
                         "success_rate": float(np.mean([r <= cfg.tolerance for r in ratios])),
                         "median_ratio": statistics.median(ratios),

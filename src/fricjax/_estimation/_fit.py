@@ -253,6 +253,11 @@ def fit(
             else:  # solvers with their own convergence test run their budget unless a tolerance asks for checks
                 check_every = budget if tolerance is None else (eval_every or max(1, budget // 8))
             screening, plan = plan.screen, dataclasses.replace(plan, screen=None)  # the first stage screens
+            if screening is not None and screening[0] == 0:  # forward screening: each start's loss, no step
+                search.restart(*batched_losses(problem, search.ys, static))
+                survivors, screened = _survivors(search.best_scores, screening[1], count, "by their loss at the start")
+                search.keep(survivors)
+                screening = None
             first = budget if screening is None else max(1, min(budget - 1, round(screening[0] * budget)))
             for part in (first, budget - first):
                 if part == 0:
@@ -270,12 +275,7 @@ def fit(
                 )
                 if outcome.stop is not None or screening is None:
                     break
-                survivors = np.argsort(search.best_scores, kind="stable")[: screening[1]]
-                screened = f" (all {count} starts screened, the best {len(survivors)} went on"
-                if 0 not in survivors:  # the initial model (start 0) always goes on too
-                    survivors = np.append(survivors, 0)
-                    screened += " with the initial start"
-                screened += ")"
+                survivors, screened = _survivors(search.best_scores, screening[1], count, "")
                 search.keep(survivors)
                 screening = None
             assert outcome is not None  # budget >= 1: the first part ran
@@ -452,6 +452,16 @@ def _check_records(model: Any, data: Any, validation: Any, loss: Any) -> None:
                     f"fit: the measured force of `{name}` is constant (std = 0), so the normalised loss (error / "
                     "std) is undefined; check the record, or use a loss with normalise=False."
                 )
+
+
+def _survivors(scores: np.ndarray, keep: int, count: int, how: str) -> tuple[np.ndarray, str]:
+    """The `keep` best starts by `scores`, and the initial one (start 0) with them; the message's note."""
+    survivors = np.argsort(scores, kind="stable")[:keep]
+    note = f" (all {count} starts screened{' ' + how if how else ''}, the best {len(survivors)} went on"
+    if 0 not in survivors:  # the initial model (start 0) always goes on too
+        survivors = np.append(survivors, 0)
+        note += " with the initial start"
+    return survivors, note + ")"
 
 
 def _stopping_reason(

@@ -82,7 +82,9 @@ class MultiStart(AbstractStrategy):
 
     Screening: with `keep` (< `count`), every start runs the first `screen` fraction of the (first stage's) steps,
     then only the `keep` best go on, and the initial model with them (one more compilation, for the smaller batch;
-    an optax solver's moments restart), so that many starts cost a short run each.
+    an optax solver's moments restart), so that many starts cost a short run each. `screen=0`: forward screening,
+    each start's loss evaluated once (one vmap-ed free run of every start, the separable parameters solved) and
+    the `keep` best fitted: hundreds of starts for the price of a few steps.
     """
 
     count: int
@@ -101,8 +103,11 @@ class MultiStart(AbstractStrategy):
         if self.keep is not None:
             object.__setattr__(self, "keep", positive_int(self.keep, "keep", "MultiStart"))
         screen = nonnegative_float(self.screen, "screen", "MultiStart")
-        if not 0 < screen < 1:
-            raise ValueError(f"MultiStart: `screen` must be a fraction of the steps in (0, 1), got {self.screen!r}.")
+        if not 0 <= screen < 1:
+            raise ValueError(
+                f"MultiStart: `screen` must be a fraction of the steps in [0, 1) (0: by the loss at the start), "
+                f"got {self.screen!r}."
+            )
         object.__setattr__(self, "screen", screen)
 
     def prepare(self, plan: FitPlan) -> FitPlan:
