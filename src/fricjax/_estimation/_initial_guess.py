@@ -187,17 +187,6 @@ def initial_guess(
         if found is not None:  # the elements of a Maxwell-slip model of the record: stiffness and force shares
             thresholds, k, offset, Fv = found
             capacity = k * thresholds
-            import os
-
-            variant = os.environ.get("GMS_VARIANT", "A")
-            if variant == "B":
-                capacity = np.full(elements, 1.0)
-                k = s.Fs / elements / thresholds
-            if variant == "C":
-                shares = np.arange(elements, 0, -1, dtype=float)
-                k = s.stiffness * shares / shares.sum()
-                capacity = np.full(elements, 1.0)
-                offset, Fv = s.offset, s.Fv
             guess = GMS(
                 stribeck, k=k, alpha=capacity / capacity.sum(), C=10.0 * s.Fs, sigma2=Fv, offset=offset,
                 smoothing=smoothing,
