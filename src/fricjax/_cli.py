@@ -140,7 +140,8 @@ def _parser() -> argparse.ArgumentParser:
         default=2,
         help="starts of the Levenberg-Marquardt fits (static curve, LuGre, Maxwell-slip): more than 2 are drawn "
         "log-uniformly around the data-driven start, screened in one vmap-ed program, the best 2 polished; --seed "
-        "changes the draws (default: %(default)s)",
+        "changes the draws. GMS: 256 draws (or --starts if more) around fj.initial_guess's start, screened by their "
+        "loss at the start, the best 4 fitted (default: %(default)s)",
     )
     compare.add_argument(
         "--maxwell-elements", type=int, default=5, help="Maxwell-slip NLR / DNLRX elements (default: %(default)s)"
@@ -156,11 +157,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     compare.add_argument(
         "--test-drift",
-        choices=("none", "window", "carry"),
-        default="none",
+        choices=("auto", "none", "window", "carry"),
+        default="auto",
         help="a training record's drift on --test records: none (a drift belongs to its record), window (estimated "
-        "on the initialisation window with --init state), carry (the training drift carried over, restarting at 0) "
-        "(default: %(default)s)",
+        "on the initialisation window with --init state), carry (the training drift carried over, restarting at 0), "
+        "auto: carry on the built-in tribometer's records (its simulated force cell drifts by one law in every "
+        "record), none on file records (default: %(default)s)",
     )
     compare.add_argument(
         "--normal-force-column",

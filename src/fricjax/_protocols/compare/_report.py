@@ -128,7 +128,8 @@ def compare_report(
         "settings": {
             **dataclasses.asdict(settings),
             "solvers": "Levenberg-Marquardt (optimistix) with separable least squares for linear parameters; "
-            "GMS: Adam with smoothing continuation from gms_starts starts, then a Levenberg-Marquardt polish",
+            "GMS: Levenberg-Marquardt from fj.initial_guess's start, 256 log-uniform draws around it screened by their "
+            "loss at the start, the best 4 fitted",
             "scoring": "free run in exact mode from each record's first sample; on records the model was not fitted "
             + (
                 "on, the force offset and the model's initial state are fitted on the initialisation window "

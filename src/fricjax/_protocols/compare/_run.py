@@ -167,7 +167,7 @@ def run_compare(
     velocity: str = "auto",
     normal_force_column: Sequence[str] | None = None,
     init: str = "state",
-    test_drift: str = "none",
+    test_drift: str = "auto",
     out: str | os.PathLike[str] = "fricjax-compare",
     seed: int = 0,
     progress: bool = True,

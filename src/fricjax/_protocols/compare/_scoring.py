@@ -44,16 +44,20 @@ def free_run(model: Any, record: FrictionData) -> np.ndarray:
     return np.asarray(simulate(exact(model), record.motion))  # type: ignore[arg-type]
 
 
-def predict_test_record(model: Any, test: TestRecord, init: str = "state", test_drift: str = "none") -> np.ndarray:
+def predict_test_record(model: Any, test: TestRecord, init: str = "state", test_drift: str = "auto") -> np.ndarray:
     """`model`'s exact-mode prediction over the whole of a record it was not fitted on (`--test`). A training
     record's drift (`fj.SensorDrift`) belongs to that record: it is left out (`test_drift="none"`), estimated on
-    the initialisation window (`"window"`), or carried over restarting at 0 (`"carry"`, the former default). With
+    the initialisation window (`"window"`), or carried over restarting at 0 (`"carry"`); `"auto"` carries it to a
+    record of the built-in tribometer (one with a `reference`: its simulated force cell drifts by one law in every
+    record) and leaves it out of a file record. With
     `init="state"` and a window, the record's offset and the model's initial state are fitted on the window
     (`fj.initialise`); otherwise the model runs from rest (and `score_prediction` takes the window's mean error as
     the offset)."""
     from ..._estimation._records import initialise
     from ..._models.combine._sensor import SensorDrift
 
+    if test_drift == "auto":
+        test_drift = "carry" if test.reference is not None else "none"
     friction = model.model if isinstance(model, SensorDrift) and test_drift != "carry" else model
     if init == "offset" or test.init_window == 0 or test_drift == "carry":
         return free_run(friction, test.record)

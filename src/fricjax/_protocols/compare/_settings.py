@@ -67,7 +67,6 @@ class FitSettings:
       then an LM polish of `steps`). An LM fit ends earlier, as converged (`successful`), when its training
       loss falls by less than `tolerance` (relative) over `steps / 8` steps; `max_steps` means not converged.
     - `gms_elements`, `maxwell_elements`: the element counts of GMS and of Maxwell-slip NLR / DNLRX.
-    - `gms_starts`: starts of the GMS fit, split between its two Stribeck-velocity ends (at least one each).
     - `starts`: starts of the Levenberg-Marquardt fits of the static curve, LuGre and Maxwell-slip (`--starts`):
       2 draws around the data-driven start (spread 0.5); more are drawn log-uniformly over a factor e either way,
       screened for a quarter of the steps in one vmap-ed program, and the best 2 (and the data-driven start)
@@ -81,30 +80,31 @@ class FitSettings:
     - `init`: how a model starts on a test record it was not fitted on (`--init`): `"state"` the force offset and
       the model's initial state fitted on the initialisation window (`fj.initialise`), `"offset"` a run from rest
       with the mean error over the window as the offset.
-    - `test_drift`: the drift on such test records: `"none"` (left out), `"window"` (estimated on the window with
-      the offset, `init="state"` only) or `"carry"` (the training record's drift model carried over, restarting at 0).
+    - `test_drift`: the drift on such test records: `"auto"` (default: carried to records of the built-in
+      tribometer, whose simulated force cell drifts by the same law in every record, left out of file records,
+      whose drift belongs to each record), `"none"` (left out), `"window"` (estimated on the window with the
+      offset, `init="state"` only) or `"carry"` (the training record's drift model carried over, restarting at 0).
     """
 
     steps: int = 40
     gms_elements: int = 4
     maxwell_elements: int = 5
-    gms_starts: int = 2
     starts: int = 2
     tolerance: float = 1e-4
     drift: str = "linear"
     neural_steps: int = 600
     init: str = "state"
-    test_drift: str = "none"
+    test_drift: str = "auto"
 
     def __post_init__(self) -> None:
         if self.drift not in ("linear", "leaky", "none"):
             raise CompareError(f"--drift must be linear, leaky or none, got {self.drift!r}")
         if self.init not in ("state", "offset"):
             raise CompareError(f"--init must be state or offset, got {self.init!r}")
-        if self.test_drift not in ("none", "window", "carry"):
-            raise CompareError(f"--test-drift must be none, window or carry, got {self.test_drift!r}")
+        if self.test_drift not in ("auto", "none", "window", "carry"):
+            raise CompareError(f"--test-drift must be auto, none, window or carry, got {self.test_drift!r}")
         try:  # the command line's options, named as the user typed them (its error line names the command)
-            for name in ("steps", "gms_elements", "maxwell_elements", "gms_starts", "starts", "neural_steps"):
+            for name in ("steps", "gms_elements", "maxwell_elements", "starts", "neural_steps"):
                 object.__setattr__(self, name, positive_int(getattr(self, name), f"--{name.replace('_', '-')}", ""))
             object.__setattr__(self, "tolerance", nonnegative_float(self.tolerance, "tolerance", "FitSettings"))
         except ValueError as error:
