@@ -236,7 +236,7 @@ def maxwell_slip_elements(
     import scipy.optimize
 
     samples = data.motion.samples()
-    x, dx = np.asarray(samples.x, np.float64), np.asarray(samples.dx, np.float64)
+    x = np.asarray(samples.x, np.float64)
     steps = np.abs(np.diff(x))
     steps = steps[steps > 0]
     if steps.size < 2 or data.length < 3 * elements:
@@ -244,7 +244,7 @@ def maxwell_slip_elements(
     top = 20.0 * max(scales.slip, scales.breakaway)
     low = min(max(float(np.percentile(steps, 2)), 5e-5 * top), 1e-2 * top)  # the small steps near reversals
     grid = np.geomspace(low, top, GRID_ELEMENTS)
-    deflections = _deflections(dx, grid)  # normalised: each column in [-1, 1]
+    deflections = _deflections(data.motion, grid)  # normalised: each column in [-1, 1]
     force = np.asarray(data.force, np.float64)
     ones = np.ones((data.length, 1))
     velocity = np.asarray(samples.v, np.float64)[:, None] if viscous else np.zeros((data.length, 0))
@@ -320,19 +320,18 @@ def _sliding_line_fit(residual: np.ndarray, v: np.ndarray) -> tuple[float, float
     return float(Fv), float(offset)
 
 
-def _deflections(dx: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
+def _deflections(motion: Any, thresholds: np.ndarray) -> np.ndarray:
     """The exact Maxwell-slip element deflections over thresholds, normalised (`delta_i / Delta_i`), shape (N, M),
-    from rest: `delta_i <- clip(delta_i + dx, -Delta_i, Delta_i)` (parlitz2004 eq. 3), one jitted scan."""
-    import jax
-    import jax.numpy as jnp
+    from rest (parlitz2004 eq. 3): one single-element model per threshold (`k = 1 / Delta`: its force is the
+    normalised deflection), run side by side in one vmap-ed program."""
+    import equinox as eqx
 
-    def step(delta, step_dx):
-        delta = jnp.clip(delta + step_dx, -thresholds_, thresholds_)
-        return delta, delta / thresholds_
+    from .._simulate import simulate
+    from ._sweep import stack_models
 
-    thresholds_ = jnp.asarray(thresholds)
-    _, out = jax.lax.scan(step, jnp.zeros_like(thresholds_), jnp.asarray(dx))
-    return np.asarray(out, np.float64)
+    single = [MaxwellSlip.nlr(k=[1.0 / t], thresholds=[t]) for t in thresholds]
+    run = eqx.filter_jit(eqx.filter_vmap(simulate, in_axes=(0, None)))
+    return np.asarray(run(stack_models(single), motion), np.float64).T
 
 
 def _merge_elements(grid: np.ndarray, stiffness: np.ndarray, elements: int) -> tuple[np.ndarray, np.ndarray]:
