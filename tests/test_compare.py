@@ -105,7 +105,7 @@ def test_fit_on_one_record_and_run_free_on_another(tmp_path, capsys):
     out = tmp_path / "out"
     train, other = "tribometer:mixed:duration=2,offset=0.2", "tribometer:mixed:seed=1,duration=2,offset=-0.5"
     code = main(["compare", "--data", train, "--test", other, "--models", "gms", "nlr", "--out", str(out),
-                 "--no-progress", "--steps", "20"])  # fmt: skip
+                 "--no-progress", "--steps", "40"])  # fmt: skip
     assert code == 0
     report = json.loads((out / "report.json").read_text())
     (record,) = report["test_records"]
@@ -117,7 +117,8 @@ def test_fit_on_one_record_and_run_free_on_another(tmp_path, capsys):
     assert set(gms["parameter_units"]) == set(gms["parameters"])
     # the estimated offset: the difference of the two cells' offsets (-0.7 N) up to drift and the fit's own offset
     assert abs(score_["offset"] + fitted_offset - (-0.5)) < 0.1, (score_["offset"], fitted_offset)
-    # 2-s records and a 20-step budget: within 10x of the floor (the full-size run in the README: 2.3x)
+    # 2-s records and the default 40-step budget: within 10x of the floor (measured 1.12x; with 20 steps GMS's LM
+    # stops at its budget far from it, 42x: the README's `max_steps` advice, "raise --steps", is the cure)
     assert score_["nmse"] <= 10 * record["noise_floor_nmse_percent"], (score_, record)
     assert report["split"]["test_part"] is None and report["split"]["validation"][1] == 4000
     printed = capsys.readouterr().out
