@@ -148,6 +148,15 @@ def test_public_names_have_docstrings():
     assert not missing, missing
 
 
+def test_public_namespace_is_the_public_module():
+    """`dir(fj)` is exactly the public names of `fricjax._public` (loaded on first use): nothing of the package's own
+    machinery leaks in (a `from __future__ import annotations` in `__init__` made `fj.annotations` public)."""
+    import importlib
+
+    public = {name for name in vars(importlib.import_module("fricjax._public")) if not name.startswith("_")}
+    assert {name for name in dir(fj) if not name.startswith("_")} == public
+
+
 def test_import_and_help_answer_before_jax_loads():
     """`import fricjax` and `fricjax --help` import no JAX (the public names load on first use), so the command
     line's help and argument errors answer at once; the first public name loads everything."""

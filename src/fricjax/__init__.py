@@ -3,8 +3,6 @@
 One flat public namespace: `import fricjax as fj`.
 """
 
-from __future__ import annotations
-
 import importlib as _importlib
 
 # first, before any JAX computation: sets XLA_FLAGS so that XLA:CPU compiles each scan as one function
@@ -20,7 +18,7 @@ if TYPE_CHECKING:  # type checkers and IDEs see every public name; at run time t
 del TYPE_CHECKING
 
 
-def __getattr__(name: str) -> _Any:
+def __getattr__(name: str) -> "_Any":  # quoted: no `from __future__ import annotations` (a public name here)
     """The public names load on first use, all at once (PEP 562): `import fricjax` itself imports no JAX (and
     `__version__` reads the installed metadata on first use: 30 ms that `fricjax`'s start-up does not wait for)."""
     if name == "__version__":
