@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
+import equinox as eqx
 import numpy as np
 
 from .._constraints import unwrap
@@ -24,7 +25,11 @@ from .._models.physics._lugre import LuGre
 from .._models.physics._maxwell_slip import MaxwellSlip, SpringForces
 from .._models.physics._static import BoPavelescu, Coulomb, CoulombViscous, Tustin
 from .._models.physics._stribeck import ExponentialStribeck
+from .._simulate import simulate
 from .._smoothing import AbstractSmoothing, Exact
+from ._sweep import stack_models
+
+_SIMULATE_EACH = eqx.filter_jit(eqx.filter_vmap(simulate, in_axes=(0, None)))  # a batch of models, one record
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,11 +130,17 @@ def _reversal_secants(x: np.ndarray, force: np.ndarray, target: float) -> list[t
 
 def _sliding_line(force: np.ndarray, v: np.ndarray) -> tuple[float, float, float]:
     """Least squares of `force ~ offset + Fc sign(v) + Fv v` with `Fv >= 0`: `(Fc, Fv, offset)`."""
-    columns = np.stack([np.ones_like(v), np.sign(v), v], axis=1)
-    coef = np.linalg.lstsq(columns, force, rcond=None)[0]
-    if coef[2] < 0:  # a negative viscous slope is not physical: refit without it
-        coef = np.append(np.linalg.lstsq(columns[:, :2], force, rcond=None)[0], 0.0)
-    return float(coef[1]), float(coef[2]), float(coef[0])
+    offset, Fc, Fv = _with_viscous_slope(np.stack([np.ones_like(v), np.sign(v)], axis=1), v, force)
+    return float(Fc), float(Fv), float(offset)
+
+
+def _with_viscous_slope(columns: np.ndarray, v: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Least-squares coefficients of `y ~ columns @ c + Fv v` with `Fv >= 0` (last): a negative viscous slope is not
+    physical, and the fit is then redone without it."""
+    coef = np.linalg.lstsq(np.concatenate([columns, v[:, None]], axis=1), y, rcond=None)[0]
+    if coef[-1] < 0:
+        coef = np.append(np.linalg.lstsq(columns, y, rcond=None)[0], 0.0)
+    return coef
 
 
 GUESSABLE = (Coulomb, CoulombViscous, Tustin, BoPavelescu, LuGre, GMS, MaxwellSlip, Dahl)
@@ -275,11 +286,6 @@ def _screen_gms_sliding_law(guess: GMS, data: FrictionData) -> GMS:
     record underestimates `Fs` when the elements reach their bound only once the velocity has passed `vs`, and a
     gradient fit from too low an `Fs` stays in a flat Stribeck curve (benchmarks/global_search.py: 8-17x the true
     model's error on 4 of 10 seeds)."""
-    import equinox as eqx
-
-    from .._simulate import simulate
-    from ._sweep import stack_models
-
     p = unwrap(guess)
     Fc, vs, C = float(p.stribeck.Fc), float(p.stribeck.vs), float(p.C) / float(p.stribeck.Fs)
     candidates = [guess]
@@ -291,17 +297,17 @@ def _screen_gms_sliding_law(guess: GMS, data: FrictionData) -> GMS:
                     GMS(stribeck, k=p.k, alpha=p.alpha, C=rate * C * ratio * Fc, sigma2=p.sigma2, offset=p.offset,
                         smoothing=guess.smoothing)
                 )  # fmt: skip
-    run = eqx.filter_jit(eqx.filter_vmap(simulate, in_axes=(0, None)))  # one program for the batch
-    forces = np.asarray(run(stack_models(candidates), data.motion))
+    forces = _simulate_each(candidates, data.motion)
     v = np.asarray(data.motion.samples().v, np.float64)
     elastic = forces - np.asarray(p.sigma2) * v - np.asarray(p.offset)  # each candidate without its linear terms
     residual = np.asarray(data.force, np.float64)[None, :] - elastic
     best, best_cost, best_linear = 0, np.inf, (float(p.sigma2), float(p.offset))
+    ones = np.ones((len(v), 1))
     for i, r in enumerate(residual):
-        Fv, offset = _sliding_line_fit(r, v)
+        offset, Fv = _with_viscous_slope(ones, v, r)
         cost = float(np.mean((r - Fv * v - offset) ** 2))
         if np.isfinite(cost) and cost < best_cost:
-            best, best_cost, best_linear = i, cost, (Fv, offset)
+            best, best_cost, best_linear = i, cost, (float(Fv), float(offset))
     chosen = unwrap(candidates[best])
     law = chosen.stribeck
     stribeck = ExponentialStribeck(Fc=float(law.Fc), Fs=float(law.Fs), vs=float(law.vs), delta=float(law.delta))
@@ -311,27 +317,17 @@ def _screen_gms_sliding_law(guess: GMS, data: FrictionData) -> GMS:
     )  # fmt: skip
 
 
-def _sliding_line_fit(residual: np.ndarray, v: np.ndarray) -> tuple[float, float]:
-    """Least squares of `residual ~ Fv v + offset` with `Fv >= 0`."""
-    columns = np.stack([v, np.ones_like(v)], axis=1)
-    Fv, offset = np.linalg.lstsq(columns, residual, rcond=None)[0]
-    if Fv < 0:
-        return 0.0, float(np.mean(residual))
-    return float(Fv), float(offset)
-
-
 def _deflections(motion: Any, thresholds: np.ndarray) -> np.ndarray:
     """The exact Maxwell-slip element deflections over thresholds, normalised (`delta_i / Delta_i`), shape (N, M),
     from rest (parlitz2004 eq. 3): one single-element model per threshold (`k = 1 / Delta`: its force is the
     normalised deflection), run side by side in one vmap-ed program."""
-    import equinox as eqx
+    return _simulate_each([MaxwellSlip.nlr(k=[1.0 / t], thresholds=[t]) for t in thresholds], motion).T
 
-    from .._simulate import simulate
-    from ._sweep import stack_models
 
-    single = [MaxwellSlip.nlr(k=[1.0 / t], thresholds=[t]) for t in thresholds]
-    run = eqx.filter_jit(eqx.filter_vmap(simulate, in_axes=(0, None)))
-    return np.asarray(run(stack_models(single), motion), np.float64).T
+def _simulate_each(models: list[Any], motion: Any) -> np.ndarray:
+    """The free-run forces of models of one structure on `motion`, shape (models, N): one vmap-ed program
+    (compiled once per structure and record shape)."""
+    return np.asarray(_SIMULATE_EACH(stack_models(models), motion), np.float64)
 
 
 def _merge_elements(grid: np.ndarray, stiffness: np.ndarray, elements: int) -> tuple[np.ndarray, np.ndarray]:

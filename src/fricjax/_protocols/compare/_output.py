@@ -389,33 +389,29 @@ def _roll_back(folder: pathlib.Path, out: pathlib.Path) -> bool:
     except (OSError, ValueError, KeyError, TypeError):
         print(f"warning: {folder} holds an unreadable record of a killed run's files; check {out}, then delete it")
         return False
-    restored = removed = 0
-    try:
-        for index, name in reversed(list(enumerate(names))):
-            target, aside = out / name, folder / "previous" / str(index)
-            if os.path.lexists(aside):
-                os.replace(aside, target)
-                restored += 1
-            elif not os.path.lexists(folder / "new" / name) and os.path.lexists(target):
-                info = target.lstat()
-                if [info.st_ino, info.st_size, info.st_mtime_ns] == staged.get(name):
-                    target.unlink()
-                    removed += 1
-        for relative in reversed(created):
-            with contextlib.suppress(OSError):
-                (out / relative).rmdir()  # only when empty
-        (folder / JOURNAL_NAME).unlink()
-    except OSError as err:
+    # the renames the killed run did, in its order (a file of `out` moved aside, then the staged one moved in), for
+    # `_undo` as if the run itself had failed there; a moved-in file is recognised by its identity, so that nothing
+    # written into `out` since is taken for it
+    moves: list[tuple[pathlib.Path, pathlib.Path]] = []
+    for index, name in enumerate(names):
+        target, aside, staged_path = out / name, folder / "previous" / str(index), folder / "new" / name
+        if os.path.lexists(aside):
+            moves.append((target, aside))
+        if not os.path.lexists(staged_path) and os.path.lexists(target):
+            info = target.lstat()
+            if [info.st_ino, info.st_size, info.st_mtime_ns] == staged.get(name):
+                moves.append((staged_path, target))
+    failed = _undo(moves, [out / relative for relative in created])
+    if failed:
         print(
-            f"warning: could not undo the files a killed run was publishing into {out} ({err}); the files it had "
-            f"moved aside are in {folder / 'previous'}: move back the ones you need, then delete {folder}"
+            f"warning: could not undo the files a killed run was publishing into {out} (not restored: "
+            f"{failed[0]}); the files it had moved aside are in {folder / 'previous'}: move back the ones you need, "
+            f"then delete {folder}"
         )
         return False
-    if restored or removed:
-        print(
-            f"note: a run killed while publishing into {out} was undone: {restored} of the earlier files put back, "
-            f"{removed} of its own removed"
-        )
+    (folder / JOURNAL_NAME).unlink(missing_ok=True)
+    if moves:
+        print(f"note: a run killed while publishing into {out} was undone: {len(moves)} renames reversed")
     return True
 
 

@@ -40,11 +40,20 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
         thresholds = s.breakaway * np.geomspace(0.05, 1.0, m)
         return thresholds, s.Fs / m / thresholds
 
+    regressed: dict[
+        tuple[int, int], tuple[Any, tuple[np.ndarray, np.ndarray]]
+    ] = {}  # by record: NLR and DNLRX share it
+
     def elements(s: DataScales, m: int) -> tuple[np.ndarray, np.ndarray]:
         """`m` Maxwell-slip thresholds [m] and stiffnesses [N/m]: those of `fj.initial_guess` (a dense LR model
-        of the training record merged down to `m` elements), else `spread_elements`."""
-        found = None if s.train is None else maxwell_slip_elements(s.train, RecordScales.from_data(s.train), m)
-        return spread_elements(s, m) if found is None else (found[0], found[1])
+        of the training record merged down to `m` elements), else `spread_elements`; one regression per record."""
+        if s.train is None:
+            return spread_elements(s, m)
+        key = (id(s.train), m)  # the record is kept with its result: its id is not reused meanwhile
+        if key not in regressed:
+            found = maxwell_slip_elements(s.train, RecordScales.from_data(s.train), m)
+            regressed[key] = (s.train, spread_elements(s, m) if found is None else (found[0], found[1]))
+        return regressed[key][1]
 
     def dnlrx_start(thresholds: np.ndarray, k: np.ndarray) -> MaxwellSlip:
         theta = np.outer([1.0, 0.0, 0.0], k * thresholds)  # on the normalised deflections: the NLR element forces
