@@ -110,6 +110,33 @@ def test_a_test_record_starts_from_the_state_fitted_on_its_window():
     assert abs(state.offset - 0.4) < 1e-4 and state.nmse < 1e-2 * rest.nmse  # NMSE in %
 
 
+def test_a_carried_drift_is_scaled_by_the_force_range_the_model_predicts():
+    """`--test-drift carry` with the training record: the drift goes over in proportion to the force ranges the
+    friction model predicts on the two records' displacements (the tribometer's cell drifts by a fixed fraction of
+    each record's range); a record of half the range gets half the drift, and the test record's measured force
+    does not enter (scrambling it changes nothing)."""
+    from fricjax.compare import TestRecord, predict_test_record
+
+    friction = fj.exact(_truth())  # compare scores in exact mode
+    drifting = fj.SensorDrift(friction, rate=-0.05)
+    t = np.arange(2000) * DT
+    big = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * t), dt=DT)
+    small = fj.Motion.from_position(2e-6 * np.sin(2 * np.pi * t), dt=DT)  # pre-sliding: a smaller force range
+    training = fj.FrictionData(big, np.asarray(fj.simulate(drifting, big)))
+    force = np.asarray(fj.simulate(friction, small))
+    ratio = np.ptp(force) / np.ptp(np.asarray(fj.simulate(friction, big)))
+    assert 0.05 < ratio < 0.9
+    test = TestRecord("small", fj.FrictionData(small, force), 0, 100)
+    carried = predict_test_record(drifting, test, test_drift="carry", training=training)
+    np.testing.assert_allclose(carried - force, ratio * (-0.05) * t, atol=1e-9)
+    unscaled = predict_test_record(drifting, test, test_drift="carry")
+    np.testing.assert_allclose(unscaled - force, -0.05 * t, atol=1e-9)
+    scrambled = TestRecord("small", fj.FrictionData(small, force[::-1] * 3.0), 0, 100)
+    np.testing.assert_array_equal(
+        predict_test_record(drifting, scrambled, test_drift="carry", training=training), carried
+    )
+
+
 @pytest.mark.slow
 def test_records_with_a_normal_load_scale_the_physics_models(tmp_path, capsys):
     """A normal-load column named on the command line: the physics models are wrapped in `fj.NormalLoad`, so a

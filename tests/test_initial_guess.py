@@ -111,3 +111,31 @@ def test_maxwell_slip_start_recovers_the_elements_and_runs_as_the_truth(motion):
     true_nmse = float(fj.nmse(test.force, fj.simulate(truth, other)))
     start_nmse = float(fj.nmse(test.force, fj.simulate(fj.initial_guess(fj.MaxwellSlip, data, elements=3), other)))
     assert start_nmse <= 1.05 * true_nmse, (start_nmse, true_nmse)
+
+
+def _gms_with_breakaways(breakaways_um: list[float], alphas: list[float]) -> fj.GMS:
+    """An exact GMS whose elements break away at the given displacements (k_i = alpha_i Fs / x_i)."""
+    alpha = np.asarray(alphas)
+    k = alpha * 1.4 / (np.asarray(breakaways_um) * 1e-6)
+    return fj.exact(fj.GMS(fj.ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3), k, alpha, 20.0, 10.0))
+
+
+def test_element_count_reads_the_true_number_of_elements_off_a_record():
+    """`fj.element_count` on mixed tribometer records of GMS models with 4 and 6 elements (breakaway displacements
+    spread from 0.25 or 1 um to 10 um): 4 and 6, and `initial_guess(..., elements="auto")` builds that many; a list
+    of records asks for the most any of them needs."""
+    four = fj.make_tribometer("mixed", seed=0)
+    six = fj.make_tribometer(
+        "mixed",
+        seed=0,
+        model=_gms_with_breakaways([0.25, 0.6, 1.2, 2.5, 5.0, 10.0], [0.05, 0.1, 0.15, 0.2, 0.2, 0.3]),
+        position_quantisation=2e-9,
+    )
+    assert fj.element_count(four.train) == 4
+    assert fj.element_count(six.train) == 6
+    assert fj.element_count([four.train, six.train]) == 6
+    assert np.shape(fj.unwrap(fj.initial_guess(fj.GMS, six.train, elements="auto")).k) == (6,)
+    with pytest.raises(ValueError, match="positive integer or 'auto'"):
+        fj.initial_guess(fj.GMS, six.train, elements="many")
+    with pytest.raises(TypeError, match="non-empty list"):
+        fj.element_count([])

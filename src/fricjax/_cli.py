@@ -131,9 +131,15 @@ def _parser() -> argparse.ArgumentParser:
         "--steps",
         type=int,
         default=40,
-        help="Levenberg-Marquardt step budget per fit (GMS Adam stage: 8x) (default: %(default)s)",
+        help="Levenberg-Marquardt step budget per fit (default: %(default)s)",
     )
-    compare.add_argument("--gms-elements", type=int, default=4, help="GMS elements (default: %(default)s)")
+    compare.add_argument(
+        "--gms-elements",
+        type=_count_or_auto,
+        default="auto",
+        help="GMS elements, or auto: read off the training record (the fewest, 2-8, whose Maxwell-slip regression "
+        "fits it within 2 %% of the best count's residual) (default: %(default)s)",
+    )
     compare.add_argument(
         "--starts",
         type=int,
@@ -195,6 +201,16 @@ def _parser() -> argparse.ArgumentParser:
         "stated in the log) (default: %(default)s)",
     )
     return parser
+
+
+def _count_or_auto(text: str) -> int | str:
+    """A command-line count that may be `auto`: an int (checked by `FitSettings`, one line) or "auto"."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer or auto, got {text!r}") from None
 
 
 def _run(args: argparse.Namespace) -> int:

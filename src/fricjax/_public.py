@@ -44,6 +44,7 @@ from ._estimation._ensemble_fit import select_forward as select_forward
 from ._estimation._fit import fit as fit
 from ._estimation._fit import levenberg_marquardt as levenberg_marquardt
 from ._estimation._initial_guess import RecordScales as RecordScales
+from ._estimation._initial_guess import element_count as element_count
 from ._estimation._initial_guess import initial_guess as initial_guess
 from ._estimation._kernel_narx import KernelNARXCandidate as KernelNARXCandidate
 from ._estimation._kernel_narx import KernelNARXResult as KernelNARXResult

@@ -12,6 +12,7 @@ the breakaway displacement up to it, as reversals of every size between them loa
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from typing import Any
 
 import equinox as eqx
@@ -147,7 +148,11 @@ GUESSABLE = (Coulomb, CoulombViscous, Tustin, BoPavelescu, LuGre, GMS, MaxwellSl
 
 
 def initial_guess(
-    model: Any, data: FrictionData, *, elements: int | None = None, smoothing: AbstractSmoothing | None = None
+    model: Any,
+    data: FrictionData,
+    *,
+    elements: int | str | None = None,
+    smoothing: AbstractSmoothing | None = None,
 ) -> Any:
     """A starting model of `model`'s family, its parameters read off `data` (`RecordScales`).
 
@@ -157,7 +162,8 @@ def initial_guess(
       `fj.CoulombViscous`, `fj.Tustin`, `fj.BoPavelescu`) or an instance, whose structure (element count,
       smoothing) is kept.
     - `data`: the training record (`fj.FrictionData`).
-    - `elements`: element count of GMS / Maxwell-slip (default: the instance's, else 4).
+    - `elements`: element count of GMS / Maxwell-slip (default: the instance's, else 4); `"auto"`: read off the
+      record (`fj.element_count`).
     - `smoothing`: the start's smoothing (default: the instance's, else `fj.Exact()`).
 
     What is not readable from a record starts at a neutral value: LuGre's `sigma1` at 0 (it enters the force
@@ -181,6 +187,10 @@ def initial_guess(
         smoothing = Exact() if isinstance(model, type) else getattr(model, "smoothing", Exact())
     if elements is None:
         elements = 4 if isinstance(model, type) else _element_count(model)
+    elif elements == "auto":
+        elements = element_count(data)
+    elif not (isinstance(elements, int) and not isinstance(elements, bool) and elements >= 1):
+        raise ValueError(f"initial_guess: `elements` must be a positive integer or 'auto', got {elements!r}.")
     s = RecordScales.from_data(data)
     if cls is Coulomb:
         return Coulomb(Fc=s.Fc, offset=s.offset, smoothing=smoothing)
@@ -238,12 +248,26 @@ def maxwell_slip_elements(
     Two steps, both without a descent through the non-smooth threshold clip (parlitz2004 §III-C fits NLR models by a
     genetic algorithm and Nelder-Mead for that reason): (1) an LR model (parlitz2004 §III-A) of `GRID_ELEMENTS`
     elements, thresholds spread geometrically from the small steps near reversals to 20x the slip distance, its
-    element forces `k_i Delta_i >= 0` and offset by non-negative least squares on the exact element deflections;
-    (2) adjacent elements of that model merged, the pair whose merge changes the initial loading curve
-    `sum_i k_i min(delta, Delta_i)` least first (a merged element keeps the pair's stiffness and force capacity),
-    until `elements` are left (the curve fixes the model's response to any displacement history: Masing's rule).
-    On the benchmark records (benchmarks/global_search.py) the start alone is within 1.005x of the true model's
-    held-out error."""
+    element forces `k_i Delta_i >= 0` and offset by non-negative least squares on the exact element deflections
+    (`_dense_elements`); (2) adjacent elements of that model merged, the pair whose merge changes the initial
+    loading curve `sum_i k_i min(delta, Delta_i)` least first (a merged element keeps the pair's stiffness and force
+    capacity), until `elements` are left (the curve fixes the model's response to any displacement history:
+    Masing's rule). On the benchmark records (benchmarks/global_search.py) the start alone is within 1.005x of the
+    true model's held-out error."""
+    dense = _dense_elements(data, scales, viscous=viscous, elements=elements)
+    if dense is None:
+        return None
+    grid, stiffness, offset, Fv = dense
+    thresholds, k = _merge_elements(grid, stiffness, elements)
+    return thresholds, k, offset, Fv
+
+
+def _dense_elements(
+    data: FrictionData, scales: RecordScales, *, viscous: bool, elements: int = 2
+) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """The dense LR model of `maxwell_slip_elements` (step 1): the thresholds [m] and stiffnesses [N/m] of its
+    elements with a non-zero force, its offset [N] and viscous slope [N s/m]; None for a record without motion
+    (or shorter than `3 * elements` samples)."""
     import scipy.optimize
 
     samples = data.motion.samples()
@@ -270,8 +294,56 @@ def maxwell_slip_elements(
     keep = capacity > 1e-9 * max(float(capacity.max()), 1e-300)
     if not keep.any():
         return None
-    thresholds, k = _merge_elements(grid[keep], capacity[keep] / grid[keep], elements)
-    return thresholds, k, offset, Fv
+    return grid[keep], capacity[keep] / grid[keep], offset, Fv
+
+
+MOST_ELEMENTS = 8  # the largest element count `element_count` considers
+ELEMENT_TOLERANCE = 0.02  # the relative excess of the mean squared residual that `element_count` accepts
+
+
+def element_count(
+    data: FrictionData | Sequence[FrictionData],
+    *,
+    most: int = MOST_ELEMENTS,
+    tolerance: float = ELEMENT_TOLERANCE,
+    fewest: int = 2,
+) -> int:
+    """How many elements a multi-element model (GMS, Maxwell-slip) of the record needs, read off it before any
+    fit: the fewest (`fewest` ... `most`) whose Maxwell-slip model (the dense regression of `maxwell_slip_elements`
+    merged down to that count, its viscous slope and offset refitted by least squares) leaves a mean squared
+    residual within `1 + tolerance` of the best count's; the merged models' deflections come from one vmap-ed
+    simulation. Several records (a list): the most that any one of them needs (a record with little pre-sliding
+    cannot tell small elements apart, and one regression of records of different regimes fits neither well).
+    Returns 4 (the former default) for a record without motion.
+
+    On the synthetic tribometer this reads 4 off the default mixed record of a 4-element GMS and 6 off a mixed
+    record of a 6-element GMS (benchmarks/held_out_compare.py: there GMS(4) scores 3-16x the true model's error on
+    held-out records, GMS(6) about 1.0x)."""
+    if not 1 <= fewest <= most:
+        raise ValueError(f"element_count: need 1 <= `fewest` ({fewest}) <= `most` ({most}).")
+    if not isinstance(data, FrictionData):
+        records = list(data)
+        if not records or not all(isinstance(r, FrictionData) for r in records):
+            raise TypeError("element_count: `data` must be an fj.FrictionData or a non-empty list of them.")
+        return max(element_count(r, most=most, tolerance=tolerance, fewest=fewest) for r in records)
+    dense = _dense_elements(data, RecordScales.from_data(data), viscous=True, elements=most)
+    if dense is None:
+        return 4
+    grid, stiffness, _, _ = dense
+    counts = list(range(fewest, most + 1))
+    merged = [_merge_elements(grid, stiffness, m) for m in counts]
+    deflections = _deflections(data.motion, np.concatenate([t for t, _ in merged]))  # normalised, (N, all)
+    force = np.asarray(data.force, np.float64)
+    v = np.asarray(data.motion.samples().v, np.float64)
+    ones = np.ones((data.length, 1))
+    residuals, begin = [], 0
+    for t, k in merged:
+        r = force - deflections[:, begin : begin + len(t)] @ (k * t)
+        begin += len(t)
+        offset, Fv = _with_viscous_slope(ones, v, r)
+        residuals.append(float(np.mean((r - Fv * v - offset) ** 2)))
+    best = min(residuals)
+    return next(m for m, r in zip(counts, residuals, strict=True) if r <= (1.0 + tolerance) * best)
 
 
 STATIC_RATIOS = (1.1, 1.5, 2.2, 3.2, 4.5)  # Fs / Fc screened by `_screen_gms_sliding_law`

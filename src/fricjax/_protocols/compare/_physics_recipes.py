@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..._estimation._fit import fit, levenberg_marquardt
-from ..._estimation._initial_guess import RecordScales, initial_guess, maxwell_slip_elements
+from ..._estimation._initial_guess import RecordScales, element_count, initial_guess, maxwell_slip_elements
 from ..._estimation._solution import FitResult
 from ..._estimation._strategies import MultiStart, ParameterScaling
 from ..._models.physics._gms import GMS
@@ -59,7 +59,18 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
         theta = np.outer([1.0, 0.0, 0.0], k * thresholds)  # on the normalised deflections: the NLR element forces
         return MaxwellSlip.dnlrx(thresholds=thresholds, theta=theta, c=[0.0, 0.0], smoothing=Smooth(1e-3))
 
-    shares = np.arange(n_gms, 0, -1, dtype=float)  # stiffer elements first: k_i ~ N, N-1, ..., 1
+    def gms_structure(s: DataScales) -> GMS:
+        """GMS with `n_gms` elements (`"auto"`: `element_count` of the training record); `_gms_fit` starts from
+        `fj.initial_guess` in this structure."""
+        if n_gms != "auto":
+            n = int(n_gms)
+        else:
+            n = element_count(list(s.records)) if s.records else 4 if s.train is None else element_count(s.train)
+        shares = np.arange(n, 0, -1, dtype=float)  # stiffer elements first: k_i ~ N, N-1, ..., 1
+        return GMS(
+            stribeck(s), k=s.stiffness * shares / shares.sum(), alpha=np.full(n, 1.0 / n), C=10.0 * s.Fs, sigma2=0.0
+        )
+
     return {
         "stribeck": ModelSpec(
             "Stribeck (static)",
@@ -75,17 +86,7 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
             ),
             lm_recipe(("sigma1", "sigma2", "offset"), settings.starts, settings),
         ),
-        "gms": ModelSpec(
-            f"GMS (N={n_gms})",
-            lambda s: GMS(
-                stribeck(s),
-                k=s.stiffness * shares / shares.sum(),
-                alpha=np.full(n_gms, 1.0 / n_gms),
-                C=10.0 * s.Fs,
-                sigma2=0.0,
-            ),  # the structure; `_gms_fit` starts from `fj.initial_guess` in it
-            _gms_fit(settings),
-        ),
+        "gms": ModelSpec("GMS (N={elements})", gms_structure, _gms_fit(settings)),
         "nlr": ModelSpec(
             f"Maxwell-slip NLR({n_ms})",
             lambda s: MaxwellSlip.nlr(*reversed(elements(s, n_ms)), smoothing=Smooth(1e-3)),  # k, thresholds

@@ -14,6 +14,7 @@ import equinox as eqx
 import numpy as np
 import optax
 
+from ..._constraints import unwrap
 from ..._estimation._fit import fit, levenberg_marquardt
 from ..._estimation._solution import FitResult
 from ..._estimation._strategies import MultiStart, ParameterScaling
@@ -29,11 +30,20 @@ from ._settings import DataScales, FitSettings
 class ModelSpec:
     """How to start and fit one model family in `compare`: `build(scales)` and
     `fit(start, split, seed, progress)`. `build` is None for models identified from the split as a whole (their
-    `fit` gets `start=None`: structure and parameters chosen on the training and validation parts together)."""
+    `fit` gets `start=None`: structure and parameters chosen on the training and validation parts together).
+    `label` may hold `{elements}`, filled in with the element count of the model it labels (`label_for`)."""
 
     label: str
     build: Callable[[DataScales], Any] | None
     fit: Callable[[Any, Split, int, bool], FitResult]
+
+    def label_for(self, model: Any) -> str:
+        """The label of `model` (a start or a fitted model of this family): `{elements}` filled in."""
+        if "{elements}" not in self.label:
+            return self.label
+        friction = unwrap(friction_of(model)) if model is not None else None
+        k = getattr(friction, "k", None)
+        return self.label.replace("{elements}", "?" if k is None else str(np.shape(k)[-1]))
 
 
 WRAPPERS = (SensorDrift, NormalLoad)  # the sensor and the normal load around a friction model, outermost first

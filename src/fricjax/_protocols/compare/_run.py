@@ -4,6 +4,7 @@ models, figures and `report.json` (`run_compare`)."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 import pathlib
@@ -83,6 +84,8 @@ def fit_and_score(
         tests = [split.test_record()]
     tests = list(tests)
     scales = DataScales.from_data(split.train)
+    if isinstance(split, TrainingRecords):  # the records one by one, for what is read off each from its own start
+        scales = dataclasses.replace(scales, records=tuple(split.train_records))
     rows = []
     for name in names:
         check_interrupt()  # SIGINT / SIGTERM under `fricjax compare` stop the run here (a no-op elsewhere)
@@ -90,15 +93,12 @@ def fit_and_score(
         start_time = time.perf_counter()
         start = None if spec.build is None else spec.build(scales)
         target, reason = choose_device(start, split.train, device, batched=False)
-        log(
-            f"fitting {spec.label} ..."
-            if target is None
-            else f"fitting {spec.label} on {target.platform} ({reason}) ..."
-        )
+        label = spec.label_for(start)
+        log(f"fitting {label} ..." if target is None else f"fitting {label} on {target.platform} ({reason}) ...")
         with forced_device(target):
             row = _fit_and_score_one(name, spec, start, split, tests, seed, progress, start_time, settings)
         rows.append(row)
-        log(f"  {spec.label}: test NMSE {row.nmse:.3f} %, MAX {row.max_error:.3f}, {row.fit_time:.1f} s: {row.message}")
+        log(f"  {row.label}: test NMSE {row.nmse:.3f} %, MAX {row.max_error:.3f}, {row.fit_time:.1f} s: {row.message}")
     return rows
 
 
@@ -119,16 +119,17 @@ def _fit_and_score_one(
     result = spec.fit(start, split, seed, progress)
     elapsed = time.perf_counter() - t0
     model = result.model
+    label = spec.label_for(model)
     full_prediction = None if split.several else free_run(model, split.full)
     predictions = {
         test.name: full_prediction
         if full_prediction is not None and test.record is split.full
-        else predict_test_record(model, test, settings.init, settings.test_drift)
+        else predict_test_record(model, test, settings.init, settings.test_drift, None if split.several else split.full)
         for test in tests
     }
     return score_row(
         name,
-        spec.label,
+        label,
         model,
         full_prediction,
         predictions,
@@ -156,7 +157,7 @@ def run_compare(
     init_window: int | None = None,
     models: Sequence[str] = PHYSICS_MODELS,
     steps: int = 40,
-    gms_elements: int = 4,
+    gms_elements: int | str = "auto",
     maxwell_elements: int = 5,
     starts: int = 2,
     drift: str = "auto",

@@ -20,7 +20,8 @@ class DataScales:
     |F| while sliding; `vs` [m/s]: a velocity below which sliding is rare; `stiffness` [N/m]: the typical
     |dF/dx| right after reversals (pre-sliding); `breakaway` [m] = Fs / stiffness; `dx` [m]: the median step;
     `duration` [s]: the record's length; `v_fast` [m/s]: the 90 % level of |v| (the fast end of the record);
-    `train`: the record itself (black-box models normalise by it).
+    `train`: the record itself (black-box models normalise by it); `records`: the training records one by one
+    where there are several (the train part joined end to end is `train`).
     """
 
     force: float
@@ -33,6 +34,7 @@ class DataScales:
     duration: float = 1.0
     v_fast: float = 1e-3
     train: FrictionData | None = dataclasses.field(default=None, repr=False, compare=False)
+    records: tuple[FrictionData, ...] = dataclasses.field(default=(), repr=False, compare=False)
 
     @classmethod
     def from_data(cls, data: FrictionData) -> DataScales:
@@ -63,10 +65,12 @@ class FitSettings:
     """Budgets and model sizes of `compare` (the command line's `--steps`, `--gms-elements`,
     `--maxwell-elements`).
 
-    - `steps`: the Levenberg-Marquardt step budget of every fit (GMS: its Adam stage gets 8 x as many steps,
-      then an LM polish of `steps`). An LM fit ends earlier, as converged (`successful`), when its training
-      loss falls by less than `tolerance` (relative) over `steps / 8` steps; `max_steps` means not converged.
-    - `gms_elements`, `maxwell_elements`: the element counts of GMS and of Maxwell-slip NLR / DNLRX.
+    - `steps`: the Levenberg-Marquardt step budget of every fit. An LM fit ends earlier, as converged
+      (`successful`), when its training loss falls by less than `tolerance` (relative) over `steps / 8` steps;
+      `max_steps` means not converged.
+    - `gms_elements`, `maxwell_elements`: the element counts of GMS and of Maxwell-slip NLR / DNLRX; GMS's
+      `"auto"` (default) reads it off the training record (`element_count`: the fewest elements, 2-8, whose
+      Maxwell-slip regression fits the record within 2 % of the best count's residual).
     - `starts`: starts of the Levenberg-Marquardt fits of the static curve, LuGre and Maxwell-slip (`--starts`):
       2 draws around the data-driven start (spread 0.5); more are drawn log-uniformly over a factor e either way,
       screened for a quarter of the steps in one vmap-ed program, and the best 2 (and the data-driven start)
@@ -87,7 +91,7 @@ class FitSettings:
     """
 
     steps: int = 40
-    gms_elements: int = 4
+    gms_elements: int | str = "auto"
     maxwell_elements: int = 5
     starts: int = 2
     tolerance: float = 1e-4
@@ -105,7 +109,11 @@ class FitSettings:
             raise CompareError(f"--test-drift must be auto, none, window or carry, got {self.test_drift!r}")
         try:  # the command line's options, named as the user typed them (its error line names the command)
             for name in ("steps", "gms_elements", "maxwell_elements", "starts", "neural_steps"):
-                object.__setattr__(self, name, positive_int(getattr(self, name), f"--{name.replace('_', '-')}", ""))
+                if name == "gms_elements" and self.gms_elements == "auto":
+                    continue
+                hint = "(or auto)" if name == "gms_elements" else ""
+                value = positive_int(getattr(self, name), f"--{name.replace('_', '-')}", "", hint=hint)
+                object.__setattr__(self, name, value)
             object.__setattr__(self, "tolerance", nonnegative_float(self.tolerance, "tolerance", "FitSettings"))
         except ValueError as error:
             raise CompareError(str(error)) from None
