@@ -131,7 +131,7 @@ def _parser() -> argparse.ArgumentParser:
         "--steps",
         type=int,
         default=40,
-        help="Levenberg-Marquardt step budget per fit (default: %(default)s)",
+        help="Levenberg-Marquardt step budget per fit (GMS: twice that) (default: %(default)s)",
     )
     compare.add_argument(
         "--gms-elements",

@@ -65,9 +65,9 @@ class FitSettings:
     """Budgets and model sizes of `compare` (the command line's `--steps`, `--gms-elements`,
     `--maxwell-elements`).
 
-    - `steps`: the Levenberg-Marquardt step budget of every fit. An LM fit ends earlier, as converged
-      (`successful`), when its training loss falls by less than `tolerance` (relative) over `steps / 8` steps;
-      `max_steps` means not converged.
+    - `steps`: the Levenberg-Marquardt step budget of every fit (GMS: twice that). An LM fit ends earlier, as
+      converged (`successful`), when its training loss falls by less than `tolerance` (relative) over `steps / 8`
+      steps (GMS: `steps / 4`); `max_steps` means not converged.
     - `gms_elements`, `maxwell_elements`: the element counts of GMS and of Maxwell-slip NLR / DNLRX; GMS's
       `"auto"` (default) reads it off the training record (`element_count`: the fewest elements, 2-8, whose
       Maxwell-slip regression fits the record within 2 % of the best count's residual).
