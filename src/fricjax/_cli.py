@@ -137,8 +137,9 @@ def _parser() -> argparse.ArgumentParser:
         "--gms-elements",
         type=_count_or_auto,
         default="auto",
-        help="GMS elements, or auto: read off the training record (the fewest, 2-8, whose Maxwell-slip regression "
-        "fits it within 2 %% of the best count's residual) (default: %(default)s)",
+        help="GMS elements, or auto: 4, or more where the training record asks for more (fj.element_count: the "
+        "fewest, 2-8, whose Maxwell-slip regression fits it within 2 %% of the best count's residual) and the "
+        "validation part prefers them significantly (default: %(default)s)",
     )
     compare.add_argument(
         "--starts",

@@ -62,12 +62,12 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
         return MaxwellSlip.dnlrx(thresholds=thresholds, theta=theta, c=[0.0, 0.0], smoothing=Smooth(1e-3))
 
     def gms_structure(s: DataScales) -> GMS:
-        """GMS with `n_gms` elements (`"auto"`: `fj.element_count` of the training record(s))."""
+        """GMS with `n_gms` elements (`"auto"`: `DEFAULT_GMS_ELEMENTS`, or more where `fj.element_count` reads more
+        off the training record(s); `_gms_fit` keeps them only where the validation part prefers them)."""
         if n_gms != "auto":
             return _gms_structure(s, int(n_gms))
-        if s.records:
-            return _gms_structure(s, element_count(list(s.records)))
-        return _gms_structure(s, DEFAULT_GMS_ELEMENTS if s.train is None else element_count(s.train))
+        read = element_count(list(s.records)) if s.records else 0 if s.train is None else element_count(s.train)
+        return _gms_structure(s, max(DEFAULT_GMS_ELEMENTS, read))
 
     return {
         "stribeck": ModelSpec(

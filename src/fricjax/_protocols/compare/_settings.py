@@ -69,8 +69,9 @@ class FitSettings:
       converged (`successful`), when its training loss falls by less than `tolerance` (relative) over `steps / 8`
       steps (GMS: `steps / 4`); `max_steps` means not converged.
     - `gms_elements`, `maxwell_elements`: the element counts of GMS and of Maxwell-slip NLR / DNLRX; GMS's
-      `"auto"` (default) reads it off the training record (`element_count`: the fewest elements, 2-8, whose
-      Maxwell-slip regression fits the record within 2 % of the best count's residual).
+      `"auto"` (default): 4, or more where `fj.element_count` reads more off the training record (the fewest
+      elements, 2-8, whose Maxwell-slip regression fits it within 2 % of the best count's residual) and the
+      validation part prefers them significantly.
     - `starts`: starts of the Levenberg-Marquardt fits of the static curve, LuGre and Maxwell-slip (`--starts`):
       2 draws around the data-driven start (spread 0.5); more are drawn log-uniformly over a factor e either way,
       screened for a quarter of the steps in one vmap-ed program, and the best 2 (and the data-driven start)
