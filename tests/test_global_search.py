@@ -104,7 +104,7 @@ def test_compare_reaches_the_true_gms_on_held_out_deep_presliding(tmp_path):
     position quantisation) and one of 0.2-6 um: the fitted GMS reads six elements off the record, keeps them on
     validation, and comes within 1.5x of the true GMS's NMSE on the same measured displacement (measured
     1.00x / 1.02x; with four elements 8.2x / 16x), the best model within 1.2x."""
-    from fricjax._cli import main
+    from fricjax import main
     from fricjax.compare import TestRecord, load_record_spec, predict_test_record, score_prediction
 
     truth = _six_element_gms()
