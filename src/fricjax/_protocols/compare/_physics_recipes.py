@@ -216,6 +216,6 @@ def _significantly_better(smaller: FitResult, larger: FitResult, split: Split | 
     sliding records, GMS(4) 1.08-1.11x, validation errors 0.1168 / 0.1179 %)."""
     if isinstance(split, Split):
         gain, t = paired_validation_gain(smaller.model, larger.model, split)
-        return bool(t >= SIGNIFICANT_T and gain > 0), f"validation error {100 * gain:+.1f} %, t = {t:.1f}"
+        return bool(t >= SIGNIFICANT_T and gain > 0), f"validation error {-100 * gain:+.1f} %, t = {t:.1f}"
     gain = 1.0 - larger.val_loss / smaller.val_loss if smaller.val_loss > 0 else 0.0
     return bool(gain >= SIGNIFICANT_GAIN), f"validation loss {-100 * gain:+.1f} %"
