@@ -135,7 +135,7 @@ def test_element_count_reads_the_true_number_of_elements_off_a_record():
     assert fj.element_count(six.train) == 6
     assert fj.element_count([four.train, six.train]) == 6
     assert np.shape(fj.unwrap(fj.initial_guess(fj.GMS, six.train, elements="auto")).k) == (6,)
-    with pytest.raises(ValueError, match="positive integer or 'auto'"):
+    with pytest.raises(ValueError, match=r"positive integer \(or 'auto'\)"):
         fj.initial_guess(fj.GMS, six.train, elements="many")
     with pytest.raises(TypeError, match="non-empty list"):
         fj.element_count([])

@@ -28,6 +28,7 @@ from .._models.physics._static import BoPavelescu, Coulomb, CoulombViscous, Tust
 from .._models.physics._stribeck import ExponentialStribeck
 from .._simulate import simulate
 from .._smoothing import AbstractSmoothing, Exact
+from .._validation import positive_int
 from ._sweep import stack_models
 
 _SIMULATE_EACH = eqx.filter_jit(eqx.filter_vmap(simulate, in_axes=(0, None)))  # a batch of models, one record
@@ -189,8 +190,8 @@ def initial_guess(
         elements = 4 if isinstance(model, type) else _element_count(model)
     elif elements == "auto":
         elements = element_count(data)
-    elif not (isinstance(elements, int) and not isinstance(elements, bool) and elements >= 1):
-        raise ValueError(f"initial_guess: `elements` must be a positive integer or 'auto', got {elements!r}.")
+    else:
+        elements = positive_int(elements, "elements", "initial_guess", hint="(or 'auto')")
     s = RecordScales.from_data(data)
     if cls is Coulomb:
         return Coulomb(Fc=s.Fc, offset=s.offset, smoothing=smoothing)
