@@ -263,6 +263,18 @@ def test_a_quiet_test_tail_is_warned_about():
     assert statistics_warnings(split, [split.test_record()], load_record_spec("tribometer:mixed").units) == []
 
 
+def test_test_speeds_beyond_the_training_records_are_warned_about():
+    """A gross-sliding test record (peak speed ~10x the mixed training part's): the warning names the speeds, the
+    ratio and the cure (train on a record that reaches them); a mixed record of another seed gets none."""
+    split = Split(fj.make_tribometer("mixed", seed=0).full, 4800, 6400)
+    units = load_record_spec("tribometer:mixed").units
+    fast = fj.make_tribometer("sliding", seed=1).full
+    (warning,) = statistics_warnings(split, [TestRecord("fast", fast, 0, 800)], units)
+    assert "fast: speeds up to" in warning and "m/s" in warning and "extrapolated" in warning, warning
+    other = fj.make_tribometer("mixed", seed=1).full
+    assert statistics_warnings(split, [TestRecord("other", other, 0, 800)], units) == []
+
+
 @pytest.mark.slow
 def test_units_of_a_file_reach_the_report_and_the_fit_works_in_si(tmp_path):
     """A record in um / kN with a rounded time column (fixed by --dt) and an extra column: fitted in SI, the
