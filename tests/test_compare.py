@@ -117,8 +117,8 @@ def test_fit_on_one_record_and_run_free_on_another(tmp_path, capsys):
     assert set(gms["parameter_units"]) == set(gms["parameters"])
     # the estimated offset: the difference of the two cells' offsets (-0.7 N) up to drift and the fit's own offset
     assert abs(score_["offset"] + fitted_offset - (-0.5)) < 0.1, (score_["offset"], fitted_offset)
-    # 2-s records and the default 40-step budget: within 10x of the floor (measured 1.12x; with 20 steps GMS's LM
-    # stops at its budget far from it, 42x: the README's `max_steps` advice, "raise --steps", is the cure)
+    # 2-s records and the default 40-step budget: within 10x of the floor (measured 1.12x when GMS's LM had 40
+    # steps, it has 80 now; with 20 it stopped at its budget far from it, 42x: the `max_steps` advice is the cure)
     assert score_["nmse"] <= 10 * record["noise_floor_nmse_percent"], (score_, record)
     assert report["split"]["test_part"] is None and report["split"]["validation"][1] == 4000
     printed = capsys.readouterr().out

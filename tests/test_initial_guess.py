@@ -139,3 +139,18 @@ def test_element_count_reads_the_true_number_of_elements_off_a_record():
         fj.initial_guess(fj.GMS, six.train, elements="many")
     with pytest.raises(TypeError, match="non-empty list"):
         fj.element_count([])
+    with pytest.raises(TypeError, match="non-empty list"):
+        fj.element_count(5)
+    with pytest.raises(ValueError, match="tolerance"):
+        fj.element_count(four.train, tolerance=-0.5)
+    with pytest.raises(ValueError, match="at most"):
+        fj.element_count(four.train, fewest=5, most=3)
+
+
+def test_a_record_without_motion_or_force_gets_clear_answers():
+    """Nothing to read off: `element_count` returns 4 clipped to its range, `initial_guess` names the problem."""
+    still = fj.FrictionData(fj.Motion.from_position(np.zeros(200), dt=1e-3), np.zeros(200))
+    assert fj.element_count(still) == 4
+    assert fj.element_count(still, fewest=5) == 5 and fj.element_count(still, most=3) == 3
+    with pytest.raises(ValueError, match="force does not vary"):
+        fj.initial_guess(fj.GMS, still, elements="auto")

@@ -167,7 +167,8 @@ def _parser() -> argparse.ArgumentParser:
         choices=("auto", "none", "window", "carry"),
         default="auto",
         help="a training record's drift on --test records: none (a drift belongs to its record), window (estimated "
-        "on the initialisation window with --init state), carry (the training drift carried over, restarting at 0), "
+        "on the initialisation window with --init state), carry (the training drift carried over, restarting at 0, "
+        "scaled by the ratio of the force ranges the model predicts on the two records; one training record), "
         "auto: carry on the built-in tribometer's records (its simulated force cell drifts by one law in every "
         "record), none on file records (default: %(default)s)",
     )

@@ -7,7 +7,8 @@ device, `TestRecord`: a test part or another record, with an initialisation wind
 and, on another record, the model's initial state: `predict_test_record`), budgets (`FitSettings`), fitting and
 exact-mode scoring
 (`fit_and_score`, `free_run`, `score`, `score_prediction`, `reference_scores`: the noise floor;
-`paired_validation_gain`: whether a neural model's output-error stage improved on its least-squares start), ensembles of
+`paired_validation_gain`: whether a neural model's output-error stage improved on its least-squares start, and
+whether more GMS elements predict the validation part better), ensembles of
 the fitted models (`add_ensembles`) and the comparison table (`format_table`). Figures:
 `plot_prediction_errors`, `plot_test_loops` (the best distinct models: `distinct_models`).
 

@@ -28,7 +28,7 @@ from .._models.physics._static import BoPavelescu, Coulomb, CoulombViscous, Tust
 from .._models.physics._stribeck import ExponentialStribeck
 from .._simulate import simulate
 from .._smoothing import AbstractSmoothing, Exact
-from .._validation import positive_int
+from .._validation import nonnegative_float, positive_int
 from ._sweep import stack_models
 
 _SIMULATE_EACH = eqx.filter_jit(eqx.filter_vmap(simulate, in_axes=(0, None)))  # a batch of models, one record
@@ -82,6 +82,8 @@ class RecordScales:
             moving = np.abs(dxw) > np.percentile(np.abs(dxw), 20) + 1e-15
             slopes = np.abs(dfw[moving] / dxw[moving])
             stiffness = float(np.percentile(slopes, 90)) if slopes.size else scale / 1e-5
+        if not stiffness > 0:  # a record without force or motion: a unit stiffness keeps the scales finite
+            stiffness = 1.0
         steps = np.abs(np.diff(x))
         dx = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1e-9
         duration = data.length * float(np.asarray(data.motion.dt))
@@ -193,6 +195,11 @@ def initial_guess(
     else:
         elements = positive_int(elements, "elements", "initial_guess", hint="(or 'auto')")
     s = RecordScales.from_data(data)
+    if not s.Fc > 0:
+        raise ValueError(
+            "initial_guess: the record's force does not vary (no friction level to read a start from); check the "
+            "force column, or build the start by hand."
+        )
     if cls is Coulomb:
         return Coulomb(Fc=s.Fc, offset=s.offset, smoothing=smoothing)
     if cls is CoulombViscous:
@@ -315,25 +322,31 @@ def element_count(
     non-negative least squares) leaves a mean squared residual within `1 + tolerance` of the best count's. The
     merged models' deflections come from one vmap-ed simulation. Several records (a list): the most that any one
     of them needs (a record with little pre-sliding cannot tell small elements apart, and one regression of records
-    of different regimes fits neither well). Returns 4 (the former default) for a record without motion.
+    of different regimes fits neither well). Returns 4 (the former default, within `fewest`-`most`) for a record
+    without motion.
 
     The residuals of neighbouring counts can differ by several per cent from the merging alone, so a count above
     the true one is read off some records: on the synthetic tribometer (3 seeds, 60 % and 80 % training parts) 4
     off 4 of 6 mixed records of the default 4-element GMS (5 off the others) and 6 off the mixed records of a
-    6-element GMS that benchmarks/held_out_compare.py uses (there GMS(4) and GMS(5) score 3-16x the true model's
-    error on held-out records, GMS(6) 1.0-1.7x). `fricjax compare` therefore keeps more than 4 GMS elements only
+    6-element GMS that benchmarks/held_out_compare.py uses (there GMS(4) scores 2.8-16x the true model's error on
+    held-out records, GMS(5) 1.5-10x, GMS(6) 1.0-1.7x). `fricjax compare` therefore keeps more than 4 GMS elements only
     where the validation part prefers them significantly.
     """
-    if not 1 <= fewest <= most:
-        raise ValueError(f"element_count: need 1 <= `fewest` ({fewest}) <= `most` ({most}).")
+    fewest, most = positive_int(fewest, "fewest", "element_count"), positive_int(most, "most", "element_count")
+    tolerance = nonnegative_float(tolerance, "tolerance", "element_count")
+    if fewest > most:
+        raise ValueError(f"element_count: `fewest` ({fewest}) must be at most `most` ({most}).")
     if not isinstance(data, FrictionData):
-        records = list(data)
+        try:
+            records = list(data)
+        except TypeError:
+            records = []
         if not records or not all(isinstance(r, FrictionData) for r in records):
             raise TypeError("element_count: `data` must be an fj.FrictionData or a non-empty list of them.")
         return max(element_count(r, most=most, tolerance=tolerance, fewest=fewest) for r in records)
     dense = _dense_elements(data, RecordScales.from_data(data), viscous=True, elements=most)
-    if dense is None:
-        return 4
+    if dense is None:  # nothing to read: the former default, within the asked range
+        return min(max(4, fewest), most)
     import scipy.optimize
 
     grid, stiffness, _, _ = dense
@@ -350,7 +363,7 @@ def element_count(
         coefficients, _ = scipy.optimize.nnls(design, force, maxiter=50 * design.shape[1])
         residuals.append(float(np.mean((design @ coefficients - force) ** 2)))
     best = min(residuals)
-    return next(m for m, r in zip(counts, residuals, strict=True) if r <= (1.0 + tolerance) * best)
+    return next((m for m, r in zip(counts, residuals, strict=True) if r <= (1.0 + tolerance) * best), most)
 
 
 STATIC_RATIOS = (1.1, 1.5, 2.2, 3.2, 4.5)  # Fs / Fc screened by `_screen_gms_sliding_law`

@@ -5,10 +5,11 @@ paper's Table 1). The public namespace is `fricjax.compare`; `fricjax compare` r
 `default_models(settings)` is the recipe registry: for each model name, a start built from the training record
 (`DataScales`: force levels, pre-sliding stiffness, breakaway displacement; the networks normalise by the record
 itself) and a fit recipe. Physics models (`PHYSICS_MODELS`, fitted by default): Levenberg-Marquardt with the
-linear parameters solved by least squares where the model allows (static curve, LuGre, Maxwell-slip), Adam with
-smoothing continuation then a Levenberg-Marquardt polish for GMS (whose stick/slip landscape defeats a cold
-Gauss-Newton start). Neural models (`NEURAL_MODELS`): the output layer by least squares, then output error
-(`neural_models`). Linear-in-parameters models (`LINEAR_MODELS`): term selection, then output error.
+linear parameters solved by least squares where the model allows (static curve, LuGre, Maxwell-slip); GMS from
+`fj.initial_guess`'s data-driven start with 256 starts screened by their loss, the best 4 fitted (its element count
+read off the record, `fj.element_count`, and kept above 4 only where the validation part prefers it). Neural
+models (`NEURAL_MODELS`): the output layer by least squares, then output error (`neural_models`).
+Linear-in-parameters models (`LINEAR_MODELS`): term selection, then output error.
 
 One job per module, each depending only on those before it:
 

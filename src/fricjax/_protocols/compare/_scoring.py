@@ -86,7 +86,8 @@ def carried_drift_scale(friction: Any, training: FrictionData, test_force: np.nd
     that the fitted friction model predicts on the two records' displacements, so a drift that is a fixed
     fraction of the force range (a piezo cell's charge leakage grows with the charge, i.e. the load; the built-in
     tribometer's cell drifts by 3 % of each record's range) is carried in proportion. Only the model and the
-    records' motions enter, never the test record's measured force."""
+    records' motions enter, never the test record's measured force. The time course is carried as it is: records
+    of equal length are assumed (the tribometer's drift reaches its level at each record's end)."""
     train_range = float(np.ptp(free_run(friction, training)))
     test_range = float(np.ptp(test_force))
     return test_range / train_range if train_range > 0 and np.isfinite(test_range / train_range) else 1.0

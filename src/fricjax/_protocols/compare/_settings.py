@@ -88,7 +88,10 @@ class FitSettings:
     - `test_drift`: the drift on such test records: `"auto"` (default: carried to records of the built-in
       tribometer, whose simulated force cell drifts by the same law in every record, left out of file records,
       whose drift belongs to each record), `"none"` (left out), `"window"` (estimated on the window with the
-      offset, `init="state"` only) or `"carry"` (the training record's drift model carried over, restarting at 0).
+      offset, `init="state"` only) or `"carry"` (the training record's drift model carried over, restarting at 0,
+      scaled by the ratio of the force ranges the model predicts on the two records: a drift that is a fixed
+      fraction of the range, as the tribometer's; records of equal length assumed, the tribometer's drift reaching
+      its level at each record's end).
     """
 
     steps: int = 40
