@@ -111,10 +111,10 @@ def test_a_test_record_starts_from_the_state_fitted_on_its_window():
 
 
 def test_a_carried_drift_is_scaled_by_the_force_range_the_model_predicts():
-    """`--test-drift carry` with the training record: the drift goes over in proportion to the force ranges the
-    friction model predicts on the two records' displacements (the tribometer's cell drifts by a fixed fraction of
-    each record's range); a record of half the range gets half the drift, and the test record's measured force
-    does not enter (scrambling it changes nothing)."""
+    """`--test-drift carry` with the training record's force range: the drift goes over in proportion to the force
+    ranges the friction model predicts on the two records' displacements (the tribometer's cell drifts by a fixed
+    fraction of each record's range); a record of a smaller range gets that much less drift, and the test record's
+    measured force does not enter (scrambling it changes nothing)."""
     from fricjax.compare import TestRecord, predict_test_record
 
     friction = fj.exact(_truth())  # compare scores in exact mode
@@ -122,19 +122,36 @@ def test_a_carried_drift_is_scaled_by_the_force_range_the_model_predicts():
     t = np.arange(2000) * DT
     big = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * t), dt=DT)
     small = fj.Motion.from_position(2e-6 * np.sin(2 * np.pi * t), dt=DT)  # pre-sliding: a smaller force range
-    training = fj.FrictionData(big, np.asarray(fj.simulate(drifting, big)))
+    training_range = float(np.ptp(np.asarray(fj.simulate(friction, big))))
     force = np.asarray(fj.simulate(friction, small))
-    ratio = np.ptp(force) / np.ptp(np.asarray(fj.simulate(friction, big)))
+    ratio = np.ptp(force) / training_range
     assert 0.05 < ratio < 0.9
     test = TestRecord("small", fj.FrictionData(small, force), 0, 100)
-    carried = predict_test_record(drifting, test, test_drift="carry", training=training)
+    carried = predict_test_record(drifting, test, test_drift="carry", training_range=training_range)
     np.testing.assert_allclose(carried - force, ratio * (-0.05) * t, atol=1e-9)
     unscaled = predict_test_record(drifting, test, test_drift="carry")
     np.testing.assert_allclose(unscaled - force, -0.05 * t, atol=1e-9)
     scrambled = TestRecord("small", fj.FrictionData(small, force[::-1] * 3.0), 0, 100)
     np.testing.assert_array_equal(
-        predict_test_record(drifting, scrambled, test_drift="carry", training=training), carried
+        predict_test_record(drifting, scrambled, test_drift="carry", training_range=training_range), carried
     )
+
+
+@pytest.mark.slow  # one static-curve fit (~10 s)
+def test_compare_carries_a_tribometer_drift_scaled_by_its_training_record():
+    """`fit_and_score` hands the training record's predicted force range to the carried drift: a built-in
+    tribometer test record (auto: carry) gets the fitted drift scaled by the two records' force ranges."""
+    from fricjax.compare import TestRecord, fit_and_score, free_run, load_record_spec, load_split, predict_test_record
+
+    split, _, _ = load_split("tribometer:mixed")
+    loaded = load_record_spec("tribometer:presliding:seed=1")
+    test = TestRecord.whole(loaded)
+    (row,) = fit_and_score(["stribeck"], split, tests=[test], progress=False, log=lambda _: None)
+    assert isinstance(row.model, fj.SensorDrift)
+    training_range = float(np.ptp(free_run(row.model.model, split.full)))
+    expected = predict_test_record(row.model, test, training_range=training_range)
+    np.testing.assert_allclose(row.test_predictions[test.name], expected, rtol=1e-12)
+    assert not np.allclose(expected, predict_test_record(row.model, test), rtol=1e-6)  # the scaling matters
 
 
 @pytest.mark.slow

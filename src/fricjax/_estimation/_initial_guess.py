@@ -191,7 +191,7 @@ def initial_guess(
     if elements is None:
         elements = 4 if isinstance(model, type) else _element_count(model)
     elif elements == "auto":
-        elements = element_count(data)
+        elements = element_count(data) if issubclass(cls, (GMS, MaxwellSlip)) else 4  # others have no elements
     else:
         elements = positive_int(elements, "elements", "initial_guess", hint="(or 'auto')")
     s = RecordScales.from_data(data)
@@ -270,14 +270,34 @@ def maxwell_slip_elements(
     return thresholds, k, offset, Fv
 
 
+def _elements_by_nnls(
+    deflections: np.ndarray, velocity: np.ndarray | None, force: Any
+) -> tuple[np.ndarray, float, float, float]:
+    """Non-negative least squares of `force ~ deflections @ c + Fv v + offset` (the normalised element deflections,
+    shape (N, M); no viscous column when `velocity` is None; the offset of either sign): the element forces `c`
+    [N], `Fv` [N s/m], the offset [N] and the mean squared residual [N^2]. The design is first reduced to its
+    triangular factor (small; the same minimiser, and the residual of the part it cannot reach added back)."""
+    import scipy.optimize
+
+    force = np.asarray(force, np.float64)
+    ones = np.ones((len(force), 1))
+    v = np.zeros((len(force), 0)) if velocity is None else np.asarray(velocity, np.float64)[:, None]
+    design = np.concatenate([deflections, v, ones, -ones], axis=1)
+    triangle = np.asarray(np.linalg.qr(np.concatenate([design, force[:, None]], axis=1), mode="r"))
+    n = design.shape[1]
+    solution, reduced = scipy.optimize.nnls(triangle[:n, :n], triangle[:n, n], maxiter=50 * n)
+    m = deflections.shape[1]
+    Fv = float(solution[m]) if velocity is not None else 0.0
+    residual = (float(reduced) ** 2 + float(triangle[n, n]) ** 2) / len(force)
+    return solution[:m], Fv, float(solution[-2] - solution[-1]), residual
+
+
 def _dense_elements(
     data: FrictionData, scales: RecordScales, *, viscous: bool, elements: int = 2
 ) -> tuple[np.ndarray, np.ndarray, float, float] | None:
     """The dense LR model of `maxwell_slip_elements` (step 1): the thresholds [m] and stiffnesses [N/m] of its
     elements with a non-zero force, its offset [N] and viscous slope [N s/m]; None for a record without motion
     (or shorter than `3 * elements` samples)."""
-    import scipy.optimize
-
     samples = data.motion.samples()
     x = np.asarray(samples.x, np.float64)
     steps = np.abs(np.diff(x))
@@ -287,18 +307,8 @@ def _dense_elements(
     top = 20.0 * max(scales.slip, scales.breakaway)
     low = min(max(float(np.percentile(steps, 2)), 5e-5 * top), 1e-2 * top)  # the small steps near reversals
     grid = np.geomspace(low, top, GRID_ELEMENTS)
-    deflections = _deflections(data.motion, grid)  # normalised: each column in [-1, 1]
-    force = np.asarray(data.force, np.float64)
-    ones = np.ones((data.length, 1))
-    velocity = np.asarray(samples.v, np.float64)[:, None] if viscous else np.zeros((data.length, 0))
-    design = np.concatenate([deflections, velocity, ones, -ones], axis=1)
-    triangle = np.asarray(
-        np.linalg.qr(np.concatenate([design, force[:, None]], axis=1), mode="r")
-    )  # small, same minimiser
-    n = design.shape[1]
-    solution, _ = scipy.optimize.nnls(triangle[:n, :n], triangle[:n, n], maxiter=50 * n)
-    capacity, offset = solution[:GRID_ELEMENTS], float(solution[-2] - solution[-1])
-    Fv = float(solution[GRID_ELEMENTS]) if viscous else 0.0
+    velocity = np.asarray(samples.v, np.float64) if viscous else None
+    capacity, Fv, offset, _ = _elements_by_nnls(_deflections(data.motion, grid), velocity, data.force)
     keep = capacity > 1e-9 * max(float(capacity.max()), 1e-300)
     if not keep.any():
         return None
@@ -347,21 +357,15 @@ def element_count(
     dense = _dense_elements(data, RecordScales.from_data(data), viscous=True, elements=most)
     if dense is None:  # nothing to read: the former default, within the asked range
         return min(max(4, fewest), most)
-    import scipy.optimize
-
     grid, stiffness, _, _ = dense
     counts = list(range(fewest, most + 1))
     merged = [_merge_elements(grid, stiffness, m)[0] for m in counts]
     deflections = _deflections(data.motion, np.concatenate(merged))  # normalised, (N, all counts' elements)
-    force = np.asarray(data.force, np.float64)
-    v = np.asarray(data.motion.samples().v, np.float64)[:, None]
-    ones = np.ones((data.length, 1))
-    residuals, begin = [], 0
-    for thresholds in merged:
-        design = np.concatenate([deflections[:, begin : begin + len(thresholds)], v, ones, -ones], axis=1)
-        begin += len(thresholds)
-        coefficients, _ = scipy.optimize.nnls(design, force, maxiter=50 * design.shape[1])
-        residuals.append(float(np.mean((design @ coefficients - force) ** 2)))
+    v = np.asarray(data.motion.samples().v, np.float64)
+    edges = np.cumsum([0, *(len(t) for t in merged)])
+    residuals = [
+        _elements_by_nnls(deflections[:, a:b], v, data.force)[3] for a, b in zip(edges[:-1], edges[1:], strict=True)
+    ]
     best = min(residuals)
     return next((m for m, r in zip(counts, residuals, strict=True) if r <= (1.0 + tolerance) * best), most)
 

@@ -34,9 +34,6 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
     """The physics models of `compare` (`PHYSICS_MODELS`), keyed by their command-line names."""
     n_gms, n_ms = settings.gms_elements, settings.maxwell_elements
 
-    def stribeck(s: DataScales) -> ExponentialStribeck:
-        return ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0)
-
     def spread_elements(s: DataScales, m: int) -> tuple[np.ndarray, np.ndarray]:
         """`m` Maxwell-slip thresholds [m] spread up to the breakaway displacement, sharing the static level."""
         thresholds = s.breakaway * np.geomspace(0.05, 1.0, m)
@@ -66,8 +63,8 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
         off the training record(s); `_gms_fit` keeps them only where the validation part prefers them)."""
         if n_gms != "auto":
             return _gms_structure(s, int(n_gms))
-        read = element_count(list(s.records)) if s.records else 0 if s.train is None else element_count(s.train)
-        return _gms_structure(s, max(DEFAULT_GMS_ELEMENTS, read))
+        records = list(s.records) or ([] if s.train is None else [s.train])
+        return _gms_structure(s, max(DEFAULT_GMS_ELEMENTS, element_count(records) if records else 0))
 
     return {
         "stribeck": ModelSpec(
@@ -80,7 +77,7 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
         "lugre": ModelSpec(
             "LuGre",
             lambda s: LuGre(
-                stribeck(s), sigma0=s.stiffness, sigma1=0.0, sigma2=0.0, smoothing=Smooth(max(1e-3 * s.vs, 1e-9))
+                _stribeck(s), sigma0=s.stiffness, sigma1=0.0, sigma2=0.0, smoothing=Smooth(max(1e-3 * s.vs, 1e-9))
             ),
             lm_recipe(("sigma1", "sigma2", "offset"), settings.starts, settings),
         ),
@@ -194,11 +191,16 @@ DEFAULT_GMS_ELEMENTS = 4  # GMS's element count unless the validation part signi
 SIGNIFICANT_GAIN = 0.05  # the least relative drop of the validation error for more GMS elements (several records)
 
 
+def _stribeck(s: DataScales) -> ExponentialStribeck:
+    """The Stribeck curve of the starts: the record's levels and Stribeck velocity, a Gaussian shape."""
+    return ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0)
+
+
 def _gms_structure(s: DataScales, elements: int) -> GMS:
     """A GMS of `elements` elements on the record's scales (`_gms_fit` starts from `fj.initial_guess` in it)."""
     shares = np.arange(elements, 0, -1, dtype=float)  # stiffer elements first: k_i ~ N, N-1, ..., 1
     return GMS(
-        ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0),
+        _stribeck(s),
         k=s.stiffness * shares / shares.sum(),
         alpha=np.full(elements, 1.0 / elements),
         C=10.0 * s.Fs,

@@ -18,6 +18,7 @@ from ..._estimation._interrupts import check_interrupt
 from ..._estimation._placement import check_device, choose_device, forced_device, resolve_device
 from ..._estimation._serialise import save_model
 from ..._metrics import numpy_std
+from ..._models.combine._sensor import SensorDrift
 from ..._validation import nonnegative_int
 from ..._version import fricjax_version
 from ._emps_table import emps_table
@@ -43,7 +44,15 @@ from ._records import (
 )
 from ._registry import MODEL_NAMES, PHYSICS_MODELS, default_models
 from ._report import compare_report, format_record_nuisances, format_table
-from ._scoring import ModelScore, count_parameters, free_run, predict_test_record, reference_scores, score_row
+from ._scoring import (
+    ModelScore,
+    carries_drift,
+    count_parameters,
+    free_run,
+    predict_test_record,
+    reference_scores,
+    score_row,
+)
 from ._settings import CompareError, DataScales, FitSettings
 
 
@@ -121,10 +130,14 @@ def _fit_and_score_one(
     model = result.model
     label = spec.label_for(model)
     full_prediction = None if split.several else free_run(model, split.full)
+    carried = not split.several and isinstance(model, SensorDrift)
+    carried = carried and any(carries_drift(t, settings.test_drift) for t in tests if t.record is not split.full)
+    # the training record's force range without the drift, once per model: a carried drift is scaled by it
+    training_range = float(np.ptp(free_run(model.model, split.full))) if carried else None
     predictions = {
         test.name: full_prediction
         if full_prediction is not None and test.record is split.full
-        else predict_test_record(model, test, settings.init, settings.test_drift, None if split.several else split.full)
+        else predict_test_record(model, test, settings.init, settings.test_drift, training_range)
         for test in tests
     }
     return score_row(

@@ -44,53 +44,51 @@ def free_run(model: Any, record: FrictionData) -> np.ndarray:
     return np.asarray(simulate(exact(model), record.motion))  # type: ignore[arg-type]
 
 
+def carries_drift(test: TestRecord, test_drift: str) -> bool:
+    """Whether a training record's drift goes over to `test` (`predict_test_record`): `"carry"`, or `"auto"` on a
+    record of the built-in tribometer (one with a `reference`: its simulated force cell drifts by one law in every
+    record, a fixed fraction of the record's force range); a file record's drift belongs to it."""
+    return test_drift == "carry" or (test_drift == "auto" and test.reference is not None)
+
+
 def predict_test_record(
     model: Any,
     test: TestRecord,
     init: str = "state",
     test_drift: str = "auto",
-    training: FrictionData | None = None,
+    training_range: float | None = None,
 ) -> np.ndarray:
     """`model`'s exact-mode prediction over the whole of a record it was not fitted on (`--test`). A training
     record's drift (`fj.SensorDrift`) belongs to that record: it is left out (`test_drift="none"`), estimated on
-    the initialisation window (`"window"`), or carried over restarting at 0 (`"carry"`); `"auto"` carries it to a
-    record of the built-in tribometer (one with a `reference`: its simulated force cell drifts by one law in every
-    record, a fixed fraction of the record's force range) and leaves it out of a file record. A carried drift is
-    scaled by `carried_drift_scale` when the `training` record is given. With `init="state"` and a window, the
-    record's offset and the model's initial state are fitted on the window (`fj.initialise`); otherwise the model
-    runs from rest (and `score_prediction` takes the window's mean error as the offset)."""
+    the initialisation window (`"window"`), or carried over restarting at 0 (`"carry"`; `"auto"`: `carries_drift`).
+    A carried drift is scaled by the ratio of the force ranges (peak to peak) that the friction model predicts on the
+    test record and on the training record (`training_range` [N], the latter; None: unscaled), so a drift that is a
+    fixed fraction of the force range (a piezo cell's charge leakage grows with the charge, i.e. the load; the
+    built-in tribometer's cell drifts by 3 % of each record's range) goes over in proportion; only the model and the
+    motions enter, never the test record's measured force. Its time course goes over as it is: records of equal
+    length are assumed (the tribometer's drift reaches its level at each record's end). With `init="state"` and a
+    window, the record's offset and the model's initial state are fitted on the window (`fj.initialise`); otherwise
+    the model runs from rest (and `score_prediction` takes the window's mean error as the offset)."""
     from ..._estimation._records import initialise
     from ..._models.combine._sensor import SensorDrift
 
-    if test_drift == "auto":
-        test_drift = "carry" if test.reference is not None else "none"
     drifting = isinstance(model, SensorDrift)
     friction = model.model if drifting else model
-    if test_drift == "carry":
-        if not drifting:
-            return free_run(model, test.record)
+    if carries_drift(test, test_drift):
         force = free_run(friction, test.record)
-        drift = free_run(model, test.record) - force
-        scale = 1.0 if training is None else carried_drift_scale(friction, training, force)
-        return force + scale * drift
+        if not drifting:
+            return force
+        dt = np.broadcast_to(np.asarray(test.record.motion.samples().dt, np.float64), force.shape)
+        drift = np.asarray(model.drift(np.concatenate([[0.0], np.cumsum(dt)[:-1]])), np.float64)  # t of each sample
+        test_range = float(np.ptp(force))
+        ratio = test_range / training_range if training_range else 1.0
+        return force + (ratio if np.isfinite(ratio) else 1.0) * drift
     if init == "offset" or test.init_window == 0:
         return free_run(friction, test.record)
     window = test.record.slice(test.start, test.scored_start)
     found = initialise(exact(friction), window, drift=test_drift == "window")
     # without the offset: `score_prediction` takes the window's mean error, which is the offset fitted with the state
     return found.predict(exact(friction), test.record.motion) - found.offset
-
-
-def carried_drift_scale(friction: Any, training: FrictionData, test_force: np.ndarray) -> float:
-    """How much of a training record's drift a test record gets: the ratio of the force ranges (peak to peak)
-    that the fitted friction model predicts on the two records' displacements, so a drift that is a fixed
-    fraction of the force range (a piezo cell's charge leakage grows with the charge, i.e. the load; the built-in
-    tribometer's cell drifts by 3 % of each record's range) is carried in proportion. Only the model and the
-    records' motions enter, never the test record's measured force. The time course is carried as it is: records
-    of equal length are assumed (the tribometer's drift reaches its level at each record's end)."""
-    train_range = float(np.ptp(free_run(friction, training)))
-    test_range = float(np.ptp(test_force))
-    return test_range / train_range if train_range > 0 and np.isfinite(test_range / train_range) else 1.0
 
 
 def score(model: Any, test: TestRecord | Split) -> tuple[float, float, np.ndarray]:
