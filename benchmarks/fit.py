@@ -8,13 +8,15 @@ black box (the fastest evaluator it could have). Printed, one JSON line per mode
 wall time (compile time separately), the time fricjax needs to reach Nelder-Mead's final loss, the speed-up,
 and the parameter errors.
 
-Run: `python benchmarks/fit.py [--steps 40000] [--nm-evals 4000] [--models lugre gms4]`.
+Run: `python benchmarks/fit.py [--steps 40000] [--nm-evals 4000] [--models lugre gms4]`; first-call latency against
+scipy's TRF recipe: `python benchmarks/fit.py --latency [--repeats 3]` (each call in a fresh process).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import time
 from typing import Any
@@ -159,47 +161,91 @@ def bench(name: str, steps: int, nm_evals: int) -> dict[str, Any]:
     }
 
 
-def latency(steps: int) -> dict[str, Any]:
-    """First-call and warm wall time of `fj.fit` with Levenberg-Marquardt on LuGre against the savvy user's recipe:
-    scipy's `least_squares` (TRF) with `jax.jacfwd` of the same jit-compiled simulator, residuals normalised alike.
-    Run in a fresh process (`--latency`) so that the first call compiles everything."""
+LATENCY_METHODS = ("fricjax_lm", "scipy_trf_jacfwd", "fricjax_optimistix_lm")
+
+
+def latency_once(method: str, steps: int) -> dict[str, Any]:
+    """One method's first call (compilation included) and warm call, in this process (run it in a fresh one).
+
+    The same problem for every method: LuGre on `steps` samples of the exact model, fitted (smoothed, eps 1e-6)
+    from 50 % off; the same trained parameters (`fj.trainable_filter`: the smoothing width stays fixed) and the same
+    loss (mean squared error / force variance). `fricjax_lm`: `fj.fit` with `fj.levenberg_marquardt()` and
+    `fj.ParameterScaling()`; `fricjax_optimistix_lm`: the same with optimistix's Levenberg-Marquardt (the solver
+    `fj.levenberg_marquardt()` returned before); `scipy_trf_jacfwd`: the savvy user's recipe, scipy's
+    `least_squares` (TRF) with `jax.jit` of the residuals and of their `jax.jacfwd`."""
+    import optimistix as optx
+
     motion = excitation(steps)
     truth, start, eps = models("lugre")
-    data = fj.FrictionData(motion, fj.simulate(truth, motion))
+    data = fj.FrictionData(motion, fj.simulate(truth, motion))  # compiles the simulator once (both methods)
     start = fj.with_smoothing(start, fj.Smooth(eps))
-    times: dict[str, list[float]] = {"fricjax_lm": [], "scipy_trf_jacfwd": []}
-    losses: dict[str, float] = {}
-    for _ in range(2):
-        t0 = time.perf_counter()
-        result = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=60, scaling=fj.ParameterScaling())
-        times["fricjax_lm"].append(time.perf_counter() - t0)
-        losses["fricjax_lm"] = float(result.train_loss)
-    params, static = eqx.partition(start, eqx.is_inexact_array)
-    flat, unravel = jax.flatten_util.ravel_pytree(params)
-    force = jnp.asarray(data.force)
-    scale = float(jnp.std(force))
+    times, losses, evaluations = [], [], []
+    if method.startswith("fricjax"):
+        solver = fj.levenberg_marquardt() if method == "fricjax_lm" else optx.LevenbergMarquardt(1e-10, 1e-12)
+        for _ in range(2):
+            t0 = time.perf_counter()
+            result = fj.fit(start, data, solver=solver, steps=60, scaling=fj.ParameterScaling())
+            times.append(time.perf_counter() - t0)
+            losses.append(float(result.train_loss))
+            evaluations.append(int(result.evaluations))
+    else:
+        params, static = eqx.partition(start, fj.trainable_filter(start))
+        flat, unravel = jax.flatten_util.ravel_pytree(params)
+        force = jnp.asarray(data.force)
+        scale = float(jnp.std(force))
 
-    def residuals(p: Any) -> Any:
-        return (fj.simulate(eqx.combine(unravel(p), static), motion) - force) / scale
+        def residuals(p: Any) -> Any:
+            return (fj.simulate(eqx.combine(unravel(p), static), motion) - force) / scale
 
-    res, jac = jax.jit(residuals), jax.jit(jax.jacfwd(residuals))  # compiled at the first call
-    for _ in range(2):
-        t0 = time.perf_counter()
-        solution = scipy.optimize.least_squares(
-            lambda p: np.asarray(res(p)), np.asarray(flat), jac=lambda p: np.asarray(jac(p)), method="trf"
-        )
-        times["scipy_trf_jacfwd"].append(time.perf_counter() - t0)
-        losses["scipy_trf_jacfwd"] = float(np.mean(solution.fun**2))
+        res, jac = jax.jit(residuals), jax.jit(jax.jacfwd(residuals))  # compiled at the first call
+        for _ in range(2):
+            t0 = time.perf_counter()
+            solution = scipy.optimize.least_squares(
+                lambda p: np.asarray(res(p)), np.asarray(flat), jac=lambda p: np.asarray(jac(p)), method="trf"
+            )
+            times.append(time.perf_counter() - t0)
+            losses.append(float(np.mean(solution.fun**2)))
+            evaluations.append(int(solution.nfev + solution.njev))
+    return {
+        "method": method,
+        "first_s": times[0],
+        "warm_s": times[1],
+        "loss": losses[-1],
+        "evaluations": evaluations[-1],
+    }
+
+
+def latency(steps: int, repeats: int) -> dict[str, Any]:
+    """First-call and warm wall time of each method, each call in a fresh process (`repeats` processes per method,
+    the methods interleaved), medians reported."""
+    import subprocess
+    import sys
+
+    runs: dict[str, list[dict[str, Any]]] = {method: [] for method in LATENCY_METHODS}
+    for _ in range(repeats):
+        for method in LATENCY_METHODS:
+            out = subprocess.run(
+                [sys.executable, __file__, "--latency-method", method, "--steps", str(steps)],
+                check=True, capture_output=True, text=True,
+            ).stdout  # fmt: skip
+            runs[method].append(json.loads(out.strip().splitlines()[-1]))
+    median = lambda method, key: round(float(np.median([run[key] for run in runs[method]])), 3)  # noqa: E731
     return {
         "bench": "fit_latency",
         "samples": steps,
-        "first_call_s": {k: round(v[0], 3) for k, v in times.items()},
-        "warm_s": {k: round(v[1], 3) for k, v in times.items()},
-        "loss": losses,
-        "loss_note": "both: mean squared error / force variance",
+        "processes_per_method": repeats,
+        "first_call_s": {method: median(method, "first_s") for method in LATENCY_METHODS},
+        "warm_s": {method: median(method, "warm_s") for method in LATENCY_METHODS},
+        "first_call_runs_s": {method: [round(run["first_s"], 3) for run in runs[method]] for method in LATENCY_METHODS},
+        "loss": {method: runs[method][-1]["loss"] for method in LATENCY_METHODS},
+        "evaluations": {method: runs[method][-1]["evaluations"] for method in LATENCY_METHODS},
+        "loss_note": "mean squared error / force variance, the same trained parameters (smoothing width fixed)",
+        "evaluations_note": "fricjax: solver steps (each one residual + Jacobian evaluation); scipy: nfev + njev",
         "jax": jax.__version__,
+        "scipy": scipy.__version__,
         "python": platform.python_version(),
         "device": str(jax.devices()[0]),
+        "cpu_count": os.cpu_count(),
     }
 
 
@@ -209,9 +255,14 @@ def main() -> None:
     parser.add_argument("--nm-evals", type=int, default=4000)
     parser.add_argument("--models", nargs="+", default=["lugre", "gms4"])
     parser.add_argument("--latency", action="store_true", help="first-call and warm LM fit vs scipy TRF + jacfwd")
+    parser.add_argument("--repeats", type=int, default=3, help="fresh processes per method for --latency")
+    parser.add_argument("--latency-method", choices=LATENCY_METHODS, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.latency_method:
+        print(json.dumps(latency_once(args.latency_method, args.steps)), flush=True)
+        return
     if args.latency:
-        print(json.dumps(latency(args.steps)), flush=True)
+        print(json.dumps(latency(args.steps, args.repeats)), flush=True)
         return
     for name in args.models:
         print(json.dumps(bench(name, args.steps, args.nm_evals)), flush=True)

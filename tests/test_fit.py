@@ -775,9 +775,9 @@ def test_scaled_adam_fits_a_zero_initialised_bristle_deflection():
     assert float(fj.unwrap(unscaled.model).z0) == 0.0 and "scaling=fj.ParameterScaling()" in unscaled.message
 
 
-@pytest.mark.parametrize("solver", [optax.adam(3e-2), fj.levenberg_marquardt(rtol=0.0, atol=0.0)], ids=["adam", "lm"])
+@pytest.mark.parametrize("solver", [optax.adam(3e-2), optx.LevenbergMarquardt(rtol=0.0, atol=0.0)], ids=["adam", "lm"])
 def test_tolerance_ends_a_fit_as_converged_before_its_budget(solver):
-    """A stopping rule for every solver: LM with tolerances it never meets, and Adam, stop as converged once
+    """A stopping rule for every solver: optimistix LM with tolerances it never meets, and Adam, stop as converged once
     the loss stops falling, well before the budget; without the rule they run it out."""
     noisy = fj.FrictionData(MOTION, np.asarray(DATA.force) + 0.05 * np.random.default_rng(0).normal(size=DATA.length))
     result = fj.fit(

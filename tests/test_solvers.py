@@ -259,3 +259,44 @@ def test_every_estimation_entry_point_returns_a_solution():
     ):
         assert issubclass(result_type, fj.Solution), result_type
     assert fj.FitResult is fj.Solution
+
+
+class TracedLevenbergMarquardt(fj.LevenbergMarquardt):
+    """fricjax's Levenberg-Marquardt with its steps compiled into the loop's program (its traced `step`)."""
+
+    steps_on_host = False
+
+
+def test_levenberg_marquardt_on_the_host_equals_its_traced_step():
+    """The host-driven steps (NumPy algebra between calls of one compiled evaluation) take the iterates of the
+    same algorithm written in jax.numpy and compiled into the loop: the same steps and solution to round-off."""
+    t = jnp.linspace(0.0, 1.0, 80)
+    target = 2.0 * jnp.exp(-3.0 * t) + 0.5 + 0.01 * jnp.sin(40 * t)  # not exactly representable: a residual remains
+
+    def residuals(p, args):
+        return p[0] * jnp.exp(-p[1] * t) + p[2] - args
+
+    y0 = jnp.array([1.0, 1.0, 0.0])
+    host = fj.least_squares(residuals, y0, args=target, solver=fj.LevenbergMarquardt(), steps=60)
+    traced = fj.least_squares(residuals, y0, args=target, solver=TracedLevenbergMarquardt(), steps=60)
+    assert host.code == traced.code == "successful" and host.evaluations == traced.evaluations, (host, traced)
+    np.testing.assert_allclose(host.model, traced.model, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(host.train_loss, traced.train_loss, rtol=1e-10)
+    # and the same minimum as optimistix's Levenberg-Marquardt
+    theirs = fj.least_squares(residuals, y0, args=target, solver=optx.LevenbergMarquardt(1e-12, 1e-14), steps=60)
+    np.testing.assert_allclose(host.model, theirs.model, rtol=1e-7)
+
+
+def test_levenberg_marquardt_rejects_steps_into_non_finite_residuals():
+    """A Gauss-Newton step from far away lands where the residual is NaN (log of a negative number): the trial is
+    rejected, the damping grows, and the solve still converges to the root."""
+    solution = fj.least_squares(lambda p, _: jnp.log(p) - jnp.log(4.0), jnp.array([100.0]), steps=100, throw=True)
+    assert solution.code == "successful", solution.message
+    np.testing.assert_allclose(solution.model, [4.0], rtol=1e-10)
+
+
+def test_levenberg_marquardt_checks_its_arguments():
+    with pytest.raises(ValueError, match="`rtol`"):
+        fj.LevenbergMarquardt(rtol=-1.0)
+    with pytest.raises(ValueError, match="`damping`"):
+        fj.LevenbergMarquardt(damping=float("nan"))

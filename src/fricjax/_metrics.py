@@ -11,6 +11,8 @@ the estimators that score their candidates on the host (kernel NARX, local model
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
@@ -26,16 +28,17 @@ def _pair(y: ArrayLike, yhat: ArrayLike) -> tuple[Array, Array]:
 def scaled_std(y: ArrayLike, axis: int = -1) -> Array:
     """`std(y)` along `axis`, computed as `m * std(y / m)` with `m = max|y|`: no overflow of the squares for
     |y| ~ 1e200, no underflow for |y| ~ 1e-200 (0 for an all-zero `y`, as `jnp.std`). The normalisation of
-    the losses and metrics."""
-    y = jnp.asarray(y)
-    m = _magnitude(y, axis)
-    return jnp.squeeze(m, axis) * jnp.std(y / m, axis=axis)
+    the losses and metrics. A NumPy array is measured in NumPy (no compilation), anything else in JAX."""
+    xp: Any = np if isinstance(y, np.ndarray) else jnp
+    values: Any = xp.asarray(y)
+    m = _magnitude(values, axis, xp)
+    return xp.squeeze(m, axis) * xp.std(values / m, axis=axis)
 
 
-def _magnitude(y: Array, axis: int) -> Array:
+def _magnitude(y: Array, axis: int, xp: Any = jnp) -> Array:
     """`max|y|` along `axis` (kept), or 1 where that is 0: the divisor that makes `y` of order one."""
-    m = jnp.max(jnp.abs(y), axis=axis, keepdims=True) if y.size else jnp.ones_like(jnp.sum(y, axis, keepdims=True))
-    return jnp.where(m > 0, m, jnp.ones_like(m))
+    m = xp.max(xp.abs(y), axis=axis, keepdims=True) if y.size else xp.ones_like(xp.sum(y, axis, keepdims=True))
+    return xp.where(m > 0, m, xp.ones_like(m))
 
 
 def _norm(x: Array) -> Array:

@@ -42,7 +42,6 @@ from ._estimation._ensemble_fit import ForwardSelection as ForwardSelection
 from ._estimation._ensemble_fit import fit_weighted_ensemble as fit_weighted_ensemble
 from ._estimation._ensemble_fit import select_forward as select_forward
 from ._estimation._fit import fit as fit
-from ._estimation._fit import levenberg_marquardt as levenberg_marquardt
 from ._estimation._initial_guess import RecordScales as RecordScales
 from ._estimation._initial_guess import element_count as element_count
 from ._estimation._initial_guess import initial_guess as initial_guess
@@ -50,6 +49,8 @@ from ._estimation._kernel_narx import KernelNARXCandidate as KernelNARXCandidate
 from ._estimation._kernel_narx import KernelNARXResult as KernelNARXResult
 from ._estimation._kernel_narx import identify_kernel_narx as identify_kernel_narx
 from ._estimation._least_squares import least_squares as least_squares
+from ._estimation._levenberg_marquardt import LevenbergMarquardt as LevenbergMarquardt
+from ._estimation._levenberg_marquardt import levenberg_marquardt as levenberg_marquardt
 from ._estimation._local_models import LocalModelResult as LocalModelResult
 from ._estimation._local_models import identify_local_model as identify_local_model
 from ._estimation._losses import AbstractLoss as AbstractLoss

@@ -25,7 +25,7 @@ from .._metrics import scaled_std
 from .._models._base import AbstractModel
 from .._smoothing import Smooth, exact, is_concrete, with_smoothing
 from .._validation import nonnegative_float, nonnegative_int, optional, positive_int, seed_value
-from ._loop import Search, batched_losses, run_stage
+from ._loop import Search, run_stage, start_losses
 from ._losses import AbstractLoss, SimulationLoss
 from ._placement import choose_device, to_device
 from ._problem import (
@@ -42,7 +42,7 @@ from ._problem import (
 from ._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch, record_nuisances
 from ._sharding import shard_batch
 from ._solution import FitFailed, Solution
-from ._solvers import as_solver, levenberg_marquardt
+from ._solvers import as_solver
 from ._strategies import (
     AbstractStrategy,
     Continuation,
@@ -54,7 +54,7 @@ from ._strategies import (
     Tolerance,
 )
 
-__all__ = ["DEFAULT_SOLVER", "fit", "levenberg_marquardt"]
+__all__ = ["DEFAULT_SOLVER", "fit"]
 
 # one object, so that repeated fits with the default solver hit the same compilation
 DEFAULT_SOLVER = optax.adam(1e-2)
@@ -247,14 +247,14 @@ def fit(
             if eps is not None:
                 static = eqx.partition(with_smoothing(model, Smooth(jnp.asarray(eps, dtype=float))), spec)[1]
                 # losses at different widths are not comparable: each stage starts its own best-so-far
-                search.restart(*batched_losses(problem, search.ys, static))
+                search.restart(*start_losses(solver, problem, search.ys, static))
             if solver.kind == "optax":
                 check_every = eval_every or max(1, steps // 50)
             else:  # solvers with their own convergence test run their budget unless a tolerance asks for checks
                 check_every = budget if tolerance is None else (eval_every or max(1, budget // 8))
             screening, plan = plan.screen, dataclasses.replace(plan, screen=None)  # the first stage screens
             if screening is not None and screening[0] == 0:  # forward screening: each start's loss, no step
-                search.restart(*batched_losses(problem, search.ys, static))
+                search.restart(*start_losses(solver, problem, search.ys, static))
                 survivors, screened = _survivors(search.best_scores, screening[1], count, "by their loss at the start")
                 search.keep(survivors)
                 screening = None
@@ -292,15 +292,16 @@ def fit(
         original = int(search.active[best])  # its index among all the starts (screening keeps some)
     else:  # every start diverged before the first check: fall back to the initial parameters
         best, original, best_ys = 0, 0, ys0
-    chosen = jax.tree_util.tree_map(lambda a: a[best], best_ys)
+    chosen = _host_take(best_ys, best)
     best_losses = [row[original] for row in search.history["train_loss"]]
     if code == "max_steps":  # no stopping rule ended the fit: the tolerance rule, the solver's verdict, the budget
         code, message = _stopping_reason(solver, outcome, converged, best, steps, best_losses, diverged[best])
     message += screened
     if code != "diverged" and diverged.any() and not diverged.all():
         message += f" ({int(diverged.sum())} of {count} starts diverged and were discarded)"
+    losses = None
     if not linear_only:  # never worse than the start: the initial model, scored as the starts are chosen
-        chosen, kept = _no_worse_than_start(problem, chosen, ys0, static, validation is not None)
+        chosen, kept, losses = _no_worse_than_start(solver, problem, chosen, ys0, static, validation is not None)
         if kept:
             message += "; " + kept
             if plan.scales is None and solver.kind == "optax":
@@ -310,8 +311,11 @@ def fit(
                 )
 
     fitted = problem.materialise(chosen[0], static)
-    train_loss = float(evaluate(loss, fitted, chosen[1], data))
-    val_loss = float(evaluate(val_loss_fn, fitted, None, validation)) if validation is not None else float("nan")
+    if losses is not None:  # the returned model's losses, as the problem scores it (no further program)
+        train_loss, val_loss = losses
+    else:
+        train_loss = float(evaluate(loss, fitted, chosen[1], data))
+        val_loss = float(evaluate(val_loss_fn, fitted, None, validation)) if validation is not None else float("nan")
     exact_val = float(evaluate(val_loss_fn, exact(fitted), None, validation)) if validation is not None else np.nan
     if validation is not None and not np.isfinite(val_loss) and code != "diverged":
         code = "diverged"
@@ -473,31 +477,44 @@ def _stopping_reason(
     if solver.kind != "optax" and outcome is not None and outcome.results:
         code = outcome.results[best]
         if code == "successful":
-            return code, "the optimistix solver converged"
+            return code, f"the {solver.name} converged"
         if code == "max_steps":
-            return code, f"the optimistix solver reached max_steps = {steps} before converging"
+            return code, f"the {solver.name} reached max_steps = {steps} before converging"
         state = jax.tree_util.tree_map(lambda a: a[best], outcome.states)
-        return code, f"the optimistix solver failed ({solver.failure(state)}); the best model seen was kept"
+        return code, f"the {solver.name} failed ({solver.failure(state)}); the best model seen was kept"
     if best_diverged:
         return "diverged", "the chosen start diverged; its last good parameters were kept"
     return "max_steps", _budget_message(steps, losses)
 
 
-def _no_worse_than_start(problem: Problem, chosen: Any, ys0: Any, static: Any, by_validation: bool) -> tuple[Any, str]:
+def _no_worse_than_start(
+    solver: Any, problem: Problem, chosen: Any, ys0: Any, static: Any, by_validation: bool
+) -> tuple[Any, str, tuple[float, float]]:
     """`chosen`, or the model the fit was given where that scores better (as the starts are chosen, in the final
-    smoothing), with a sentence saying so (empty when `chosen` stands)."""
-    start = jax.tree_util.tree_map(lambda a: a[:1], ys0)
-    pair = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), chosen, start)
-    pair_train, pair_val = map(np.asarray, batched_losses(problem, pair, static))
-    scores = pair_val if by_validation else pair_train
-    if np.isfinite(scores[1]) and not scores[0] <= scores[1]:
+    smoothing), with a sentence saying so (empty when `chosen` stands), and the training and validation losses of
+    the one returned. Each is scored by the loop's program for one start (no other compilation for a single start)."""
+    start = _host_take(ys0, slice(0, 1))
+    scores = [
+        tuple(float(value[0]) for value in start_losses(solver, problem, candidate, static))
+        for candidate in (_host_take(chosen, None), start)
+    ]
+    (train, val), (start_train, start_val) = scores
+    if np.isfinite(start_val if by_validation else start_train) and not (
+        (val <= start_val) if by_validation else (train <= start_train)
+    ):
         score = "validation" if by_validation else "training"
         sentence = (
-            f"no step of this fit improved the {score} loss of the model it was given ({scores[1]:.4g}; best step "
-            f"{scores[0]:.4g}), so the input model is returned unchanged"
+            f"no step of this fit improved the {score} loss of the model it was given "
+            f"({start_val if by_validation else start_train:.4g}; best step {val if by_validation else train:.4g}), "
+            "so the input model is returned unchanged"
         )
-        return jax.tree_util.tree_map(lambda a: a[0], start), sentence
-    return chosen, ""
+        return _host_take(start, 0), sentence, (start_train, start_val)
+    return chosen, "", (train, val)
+
+
+def _host_take(tree: Any, index: Any) -> Any:
+    """`leaf[index]` of every array leaf, indexed in NumPy (an eager JAX index compiles a program of its own)."""
+    return jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)[index]) if eqx.is_array(a) else a, tree)
 
 
 def _split(total: int, parts: int) -> list[int]:

@@ -17,9 +17,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._validation import positive_int
+from ._levenberg_marquardt import levenberg_marquardt
 from ._loop import Search, run_stage
 from ._solution import FitFailed, Solution
-from ._solvers import as_solver, levenberg_marquardt
+from ._solvers import as_solver
 
 
 class ResidualProblem(eqx.Module):
@@ -34,6 +35,9 @@ class ResidualProblem(eqx.Module):
     def objective(self, y: Any, args: Any) -> jax.Array:
         r = self.fn(y, args)
         return 0.5 * jnp.sum(r * r)
+
+    def loss_of_residuals(self, residuals: jax.Array) -> jax.Array:
+        return 0.5 * jnp.sum(residuals * residuals)
 
     def val_objective(self, y: Any, args: Any) -> jax.Array:
         return jnp.asarray(jnp.nan)

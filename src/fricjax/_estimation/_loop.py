@@ -15,6 +15,7 @@ Two levels, as in optimistix's `iterative_solve` with diffrax's progress meter:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from typing import Any
 
@@ -23,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._smoothing import is_concrete
 from ._interrupts import check_interrupt
 from ._sharding import shard_batch
 from ._solution import RESULTS
@@ -87,19 +89,105 @@ def run_steps(
     return ys, states, steps, done, result, bad
 
 
+@eqx.filter_jit
+def evaluate_starts(solver: Any, problem: Any, ys: Any, args: Any, batched_args: bool = False) -> Any:
+    """`solver.evaluate(problem, y, args)` for every start (one compiled program, reused by every step of a fit
+    whose solver steps on the host)."""
+    if _batch_size(ys) == 1:  # one start: the unbatched program, as `run_steps`
+        args_one = jax.tree_util.tree_map(lambda leaf: leaf[0], args) if batched_args else args
+        out = solver.evaluate(problem, jax.tree_util.tree_map(lambda leaf: leaf[0], ys), args_one)
+        return jax.tree_util.tree_map(lambda leaf: leaf[None], out)
+    return jax.vmap(lambda y, a: solver.evaluate(problem, y, a), in_axes=(0, 0 if batched_args else None))(ys, args)
+
+
+def run_steps_on_host(
+    solver: Any, problem: Any, ys: Any, states: Any, args: Any, n: int, batched_args: bool = False
+) -> tuple[Any, Any, Any, Any, Any, Any]:
+    """`run_steps` for a solver whose steps are driven from the host (`steps_on_host`, fricjax's Levenberg-
+    Marquardt): up to `n` steps, each one call of `evaluate_starts` for every start's trial point and the
+    solver's `propose` / `judge` in NumPy; the same returns as `run_steps` (states: the solver's batched NumPy
+    state). Starts that converged or met a non-finite start stay where they are."""
+    leaves, treedef = jax.tree_util.tree_flatten(ys)
+    count = _batch_size(ys)
+    shapes = [np.shape(leaf)[1:] for leaf in leaves]
+    splits = np.cumsum([int(np.prod(shape)) for shape in shapes])[:-1]
+    dtype = np.result_type(*[leaf.dtype for leaf in leaves]) if leaves else np.float64
+
+    def unflatten(flat: np.ndarray) -> Any:
+        parts = np.split(flat, splits, axis=1)
+        return jax.tree_util.tree_unflatten(
+            treedef,
+            [
+                jnp.asarray(part.reshape((count, *shape)), leaf.dtype)
+                for part, shape, leaf in zip(parts, shapes, leaves, strict=True)
+            ],
+        )
+
+    def flatten(tree: Any) -> np.ndarray:
+        return np.concatenate(
+            [np.asarray(leaf, dtype).reshape(count, -1) for leaf in jax.tree_util.tree_leaves(tree)], 1
+        )
+
+    flat = flatten(ys)
+    state = solver.start_state(np, flat) if states is None else states
+    steps, bad = np.zeros(count, int), np.zeros(count, bool)
+    for _ in range(n):
+        active = ~(np.asarray(state.done) | bad)
+        if not active.any():
+            break
+        with np.errstate(all="ignore"):  # non-finite trials are expected: the solver rejects them
+            delta, scale = solver.propose(np, state, flat)
+            trial, products, loss = evaluate_starts(solver, problem, unflatten(flat + delta), args, batched_args)
+            trial = flatten(trial)
+            new_state, accept, sound = solver.judge(
+                np, state, scale, flat, trial, np.asarray(products), np.asarray(loss)
+            )
+        state = jax.tree_util.tree_map(functools.partial(_where_rows, active), new_state, state)
+        flat = np.where((active & accept)[:, None], trial, flat)
+        bad |= active & ~sound
+        steps += active
+    done = np.asarray(state.done) & ~bad
+    result = jax.tree_util.tree_map(lambda value: np.full(count, value), RESULTS.successful)  # never fails
+    return unflatten(flat), state, steps, done, result, bad
+
+
+def _where_rows(rows: np.ndarray, new: Any, old: Any) -> np.ndarray:
+    """`new` in the rows (leading axis) where `rows` is True, `old` elsewhere (NumPy)."""
+    return np.where(rows.reshape(rows.shape + (1,) * (np.ndim(new) - 1)), new, old)
+
+
 def _batch_size(ys: Any) -> int:
     leaves = jax.tree_util.tree_leaves(ys)
     return int(leaves[0].shape[0]) if leaves else 1
 
 
 @eqx.filter_jit
-def batched_losses(problem: Any, ys: Any, args: Any, batched_args: bool = False) -> tuple[jax.Array, jax.Array]:
+def batched_losses(problem: Any, ys: Any, args: Any, batched_args: bool) -> tuple[jax.Array, jax.Array]:
     """Training and validation loss of every start (validation NaN when the problem has none)."""
 
     def both(y: Any, a: Any) -> tuple[jax.Array, jax.Array]:
         return problem.objective(y, a), problem.val_objective(y, a)
 
+    if _batch_size(ys) == 1:  # one start: the unbatched program, as `run_steps`
+        one = jax.tree_util.tree_map(lambda leaf: leaf[0], ys)
+        losses = both(one, jax.tree_util.tree_map(lambda leaf: leaf[0], args) if batched_args else args)
+        return jax.tree_util.tree_map(lambda leaf: leaf[None], losses)
     return jax.vmap(both, in_axes=(0, 0 if batched_args else None))(ys, args)
+
+
+def start_losses(solver: Any, problem: Any, ys: Any, args: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Training and validation loss of every start (NumPy), as `batched_losses`; for a single start of a solver
+    that steps on the host, on a problem without validation data, from the solver's own compiled evaluation (a
+    fit then compiles one program for its steps and its scores)."""
+    if (
+        getattr(solver, "steps_on_host", False)
+        and _batch_size(ys) == 1
+        and getattr(problem, "validation", None) is None
+    ):
+        loss = np.asarray(evaluate_starts(solver, problem, ys, args, False)[2])
+        return loss, np.full(loss.shape, np.nan)
+    train, val = batched_losses(problem, ys, args, False)
+    return np.asarray(train), np.asarray(val)
 
 
 def _trees_equal(a: Any, b: Any) -> bool:
@@ -116,7 +204,10 @@ def _where_tree(condition: Any, new: Any, old: Any) -> Any:
     def select(a: Any, b: Any) -> Any:
         if not eqx.is_array(a):
             return a
-        return jnp.where(condition.reshape(condition.shape + (1,) * (jnp.ndim(a) - condition.ndim)), a, b)
+        mask = condition.reshape(condition.shape + (1,) * (jnp.ndim(a) - condition.ndim))
+        if is_concrete((mask, a, b)):  # in NumPy (an eager JAX select compiles a program of its own)
+            return jnp.asarray(np.where(np.asarray(mask), np.asarray(a), np.asarray(b)), jnp.result_type(a, b))
+        return jnp.where(mask, a, b)
 
     return jax.tree_util.tree_map(select, new, old)
 
@@ -229,7 +320,8 @@ def run_stage(
     """`budget` solver steps from `search.ys`, in chunks of `check_every` with the host-side checks between them.
     `states` are initial solver states (default: `solver.init` of every start, inside the loop's program)."""
     outcome = StageOutcome()
-    if states is None and not solver.restarts_at_checks:
+    host = getattr(solver, "steps_on_host", False)
+    if states is None and not solver.restarts_at_checks and not host:
         states = init_states(solver, problem, search.ys, args, batched_args)
     done, restart = 0, True
     while done < budget:
@@ -237,14 +329,22 @@ def run_stage(
         n = min(check_every, budget - done)
         if solver.restarts_at_checks and restart:
             states = None  # initialised inside `run_steps`, from the (projected) iterate
-        ys, states, steps, finished, result, bad = run_steps(
-            solver, problem, search.ys, states, args, jnp.asarray(n), batched_args
-        )
-        projected = problem.project(ys)  # bounds (elementwise); a no-op for solvers that project at every step
-        # a solver that keeps copies of the iterate goes on from its state unless the bounds moved the iterate
-        restart = not _trees_equal(projected, ys)
-        ys = projected
-        train, val = map(np.asarray, batched_losses(problem, ys, args, batched_args))
+        if host:  # its trial points are projected when evaluated
+            ys, states, steps, finished, result, bad = run_steps_on_host(
+                solver, problem, search.ys, states, args, n, batched_args
+            )
+        else:
+            ys, states, steps, finished, result, bad = run_steps(
+                solver, problem, search.ys, states, args, jnp.asarray(n), batched_args
+            )
+            projected = problem.project(ys)  # bounds (elementwise); a no-op for solvers that project at every step
+            # a solver that keeps copies of the iterate goes on from its state unless the bounds moved the iterate
+            restart = not _trees_equal(projected, ys)
+            ys = projected
+        if host and getattr(problem, "validation", None) is None:  # the solver's own evaluations scored them
+            train, val = np.asarray(states.loss), np.full(len(states.loss), np.nan)
+        else:
+            train, val = map(np.asarray, batched_losses(problem, ys, args, batched_args))
         done += n
         search.observe(ys, int(np.max(np.asarray(steps))), np.asarray(bad) | ~np.isfinite(train), train, val, eps)
         ended = np.asarray(finished)

@@ -18,6 +18,7 @@ from .._constraints import AbstractUnwrappable, Fixed, trainable_filter, unwrap
 from .._data._record import FrictionData
 from .._metrics import scaled_std
 from .._simulate import run, simulate
+from .._smoothing import is_concrete
 from ._covariance import parameter_std
 from ._losses import AbstractLoss, SimulationLoss
 from ._lstsq import lstsq
@@ -253,7 +254,7 @@ class Problem(eqx.Module):
 
     def materialise(self, params: Any, static: Any) -> Any:
         if self.scales is not None:
-            params = jax.tree_util.tree_map(lambda u, c: u * c, params, self.scales)
+            params = jax.tree_util.tree_map(_times, params, self.scales)
         m = eqx.combine(params, static)
         if self.linear_spec is None:
             return m
@@ -268,10 +269,21 @@ class Problem(eqx.Module):
         params, extra = state
         return self.loss.residuals(self.materialise(params, static), extra, self.data)
 
+    def loss_of_residuals(self, residuals: jax.Array) -> jax.Array:
+        """`objective` from the residual vector: every fricjax loss is the mean square of its residuals."""
+        return jnp.mean(residuals**2)
+
     def val_objective(self, state: Any, static: Any) -> jax.Array:
         if self.validation is None:
             return jnp.asarray(jnp.nan)
         return self.val_loss(self.materialise(state[0], static), None, self.validation)
+
+
+def _times(u: Any, c: Any) -> Any:
+    """`u * c`; in NumPy for concrete values (an eager JAX product compiles a program of its own)."""
+    if is_concrete((u, c)):
+        return jnp.asarray(np.asarray(u) * np.asarray(c), jnp.result_type(u, c))
+    return u * c
 
 
 @eqx.filter_jit

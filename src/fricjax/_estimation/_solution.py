@@ -22,7 +22,7 @@ class RESULTS(eqx.Enumeration):
     `diverged` and `solver_failed` return the best model seen before the failure (never worse than the start)."""
 
     successful = (
-        "a convergence test held (the optimistix solver's own, or the loss fell by less than `tolerance` over one "
+        "a convergence test held (the solver's own, or the loss fell by less than `tolerance` over one "
         "check), or the parameters are linear and were solved by least squares"
     )
     max_steps = (
@@ -31,7 +31,7 @@ class RESULTS(eqx.Enumeration):
     )
     early_stopped = "the validation loss stopped improving (patience exhausted); the best model was kept"
     diverged = "a loss or parameter became non-finite; the last good model was kept"
-    solver_failed = "the optimistix solver reported a failure; the best model seen was kept"
+    solver_failed = "the solver (an optimistix one) reported a failure; the best model seen was kept"
 
 
 RESULT_NAMES = ("successful", "max_steps", "early_stopped", "diverged", "solver_failed")

@@ -48,6 +48,11 @@ class AbstractSolver(eqx.Module):
         """A short name for progress bars and messages ("optax", "least_squares", "minimise")."""
         return type(self).__name__
 
+    @property
+    def name(self) -> str:
+        """The solver in a message ("the optimistix solver converged")."""
+        return f"{type(self).__name__} solver"
+
     @abc.abstractmethod
     def init(self, problem: Any, y: Any, args: Any) -> Any: ...
 
@@ -121,6 +126,10 @@ class OptimistixSolver(AbstractSolver):
     def kind(self) -> str:
         return "least_squares" if isinstance(self.solver, optx.AbstractLeastSquaresSolver) else "minimise"
 
+    @property
+    def name(self) -> str:
+        return "optimistix solver"
+
     def _fn(self, problem: Any) -> Any:
         if isinstance(self.solver, optx.AbstractLeastSquaresSolver):
             return lambda y, args: (problem.residuals(y, args), None)
@@ -164,8 +173,3 @@ def as_solver(solver: Any, where: str = "fit") -> AbstractSolver:
         f"least-squares solver / minimiser (e.g. fj.levenberg_marquardt()) or a fricjax solver (fj.OptaxSolver, "
         f"fj.OptimistixSolver), got {type(solver).__name__}."
     )
-
-
-def levenberg_marquardt(rtol: float = 1e-10, atol: float = 1e-12) -> optx.LevenbergMarquardt:
-    """A Levenberg-Marquardt solver with tolerances suited to friction fits (an optimistix solver)."""
-    return optx.LevenbergMarquardt(rtol=rtol, atol=atol)

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._constraints import AbstractUnwrappable, Positive
-from .._smoothing import Smooth, with_smoothing
+from .._smoothing import Smooth, is_concrete, with_smoothing
 from .._validation import nonnegative_float, positive_float, positive_int
 
 
@@ -66,8 +66,23 @@ class AbstractStrategy:
         return plan
 
 
+def _add_start_axis(leaf: Any) -> Any:
+    """`leaf[None]` (in NumPy for concrete values: an eager JAX reshape compiles a program of its own)."""
+    if not eqx.is_array(leaf):
+        return leaf
+    return jnp.asarray(np.asarray(leaf)[None]) if is_concrete(leaf) else leaf[None]
+
+
 def _divide(starts: Any, scales: Any) -> Any:
-    return starts if scales is None else jax.tree_util.tree_map(lambda p, c: p / c, starts, scales)
+    if scales is None:
+        return starts
+
+    def divide(p: Any, c: Any) -> Any:
+        if is_concrete(p) and is_concrete(c):  # in NumPy: no compilation
+            return jnp.asarray(np.asarray(p) / np.asarray(c), jnp.result_type(p, c))
+        return p / c
+
+    return jax.tree_util.tree_map(divide, starts, scales)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,7 +139,7 @@ class MultiStart(AbstractStrategy):
         leaves, treedef = jax.tree_util.tree_flatten(params, is_leaf=lambda n: isinstance(n, Positive))
         count, spread = self.count, self.spread
         if count == 1:  # `params` itself: no random draw (nor its compilation)
-            return jax.tree_util.tree_map(lambda leaf: leaf[None] if eqx.is_array(leaf) else leaf, params)
+            return jax.tree_util.tree_map(_add_start_axis, params)
         key = jax.random.PRNGKey(seed)
         out = []
         for leaf in leaves:
@@ -202,8 +217,9 @@ class ParameterScaling(AbstractStrategy):
             if isinstance(node, AbstractUnwrappable):
                 return jax.tree_util.tree_map(lambda a: jnp.ones_like(a) if eqx.is_inexact_array(a) else a, node)
             if eqx.is_inexact_array(node):
-                magnitude = jnp.abs(node)
-                return jnp.where(magnitude > 0, magnitude, jnp.ones_like(node))
+                xp = np if is_concrete(node) else jnp  # concrete values in NumPy: no compilation
+                magnitude = xp.abs(xp.asarray(node))
+                return jnp.asarray(xp.where(magnitude > 0, magnitude, xp.ones_like(magnitude)), node.dtype)
             return node
 
         scales = jax.tree_util.tree_map(leaf_scale, params, is_leaf=lambda n: isinstance(n, AbstractUnwrappable))
@@ -299,7 +315,8 @@ def physical_ranges(model: Any) -> dict[str, float]:
 
 def _where_zero(leaf: Any, value: float) -> Any:
     def replace(scale: Any) -> Any:
-        return jnp.where(leaf == 0, value, scale)
+        xp = np if is_concrete(leaf) and is_concrete(scale) else jnp
+        return jnp.asarray(xp.where(xp.asarray(leaf) == 0, value, xp.asarray(scale)), scale.dtype)
 
     return replace
 

@@ -27,7 +27,8 @@ from jaxtyping import Array, Float
 
 from .._data._emps import EMPSRecord
 from .._data._preprocessing import butter_filtfilt
-from .._estimation._fit import fit, levenberg_marquardt
+from .._estimation._fit import fit
+from .._estimation._levenberg_marquardt import levenberg_marquardt
 from .._estimation._lstsq import lstsq
 from .._estimation._solution import FitResult
 from .._estimation._strategies import ParameterScaling

@@ -43,7 +43,8 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._data._emps import EMPSRecord
-from .._estimation._fit import fit, levenberg_marquardt
+from .._estimation._fit import fit
+from .._estimation._levenberg_marquardt import levenberg_marquardt
 from .._estimation._losses import AbstractLoss
 from .._estimation._solution import FitResult
 from .._estimation._strategies import Continuation, ParameterScaling

@@ -14,8 +14,9 @@ from typing import Any
 import numpy as np
 
 from ..._constraints import unwrap
-from ..._estimation._fit import fit, levenberg_marquardt
+from ..._estimation._fit import fit
 from ..._estimation._initial_guess import RecordScales, element_count, initial_guess, maxwell_slip_elements
+from ..._estimation._levenberg_marquardt import levenberg_marquardt
 from ..._estimation._solution import FitResult
 from ..._estimation._strategies import MultiStart, ParameterScaling
 from ..._models.physics._gms import GMS

@@ -15,7 +15,8 @@ import numpy as np
 import optax
 
 from ..._constraints import unwrap
-from ..._estimation._fit import fit, levenberg_marquardt
+from ..._estimation._fit import fit
+from ..._estimation._levenberg_marquardt import levenberg_marquardt
 from ..._estimation._solution import FitResult
 from ..._estimation._strategies import MultiStart, ParameterScaling
 from ..._metrics import nmse
