@@ -161,7 +161,7 @@ def bench(name: str, steps: int, nm_evals: int) -> dict[str, Any]:
     }
 
 
-LATENCY_METHODS = ("fricjax_lm", "scipy_trf_jacfwd", "fricjax_optimistix_lm")
+LATENCY_METHODS = ("fricjax_lm", "fricjax_lm_tol_1e-8", "scipy_trf_jacfwd", "fricjax_optimistix_lm")
 
 
 def latency_once(method: str, steps: int) -> dict[str, Any]:
@@ -169,10 +169,13 @@ def latency_once(method: str, steps: int) -> dict[str, Any]:
 
     The same problem for every method: LuGre on `steps` samples of the exact model, fitted (smoothed, eps 1e-6)
     from 50 % off; the same trained parameters (`fj.trainable_filter`: the smoothing width stays fixed) and the same
-    loss (mean squared error / force variance). `fricjax_lm`: `fj.fit` with `fj.levenberg_marquardt()` and
-    `fj.ParameterScaling()`; `fricjax_optimistix_lm`: the same with optimistix's Levenberg-Marquardt (the solver
-    `fj.levenberg_marquardt()` returned before); `scipy_trf_jacfwd`: the savvy user's recipe, scipy's
-    `least_squares` (TRF) with `jax.jit` of the residuals and of their `jax.jacfwd`."""
+    loss (mean squared error / force variance). `fricjax_lm`: `fj.fit` with `fj.levenberg_marquardt()` (its
+    tolerances, rtol 1e-10, atol 1e-12) and `fj.ParameterScaling()`; `fricjax_lm_tol_1e-8`: the same at scipy's
+    default tolerance level (`fj.levenberg_marquardt(rtol=1e-8, atol=1e-8)`: parameters in log or scaled units, so
+    both are relative changes, as scipy's `xtol`); `fricjax_optimistix_lm`: `fj.fit` with optimistix's
+    Levenberg-Marquardt (the solver `fj.levenberg_marquardt()` returned before); `scipy_trf_jacfwd`: the savvy
+    user's recipe, scipy's `least_squares` (TRF, its default tolerances 1e-8) with `jax.jit` of the residuals and
+    of their `jax.jacfwd`."""
     import optimistix as optx
 
     motion = excitation(steps)
@@ -181,7 +184,11 @@ def latency_once(method: str, steps: int) -> dict[str, Any]:
     start = fj.with_smoothing(start, fj.Smooth(eps))
     times, losses, evaluations = [], [], []
     if method.startswith("fricjax"):
-        solver = fj.levenberg_marquardt() if method == "fricjax_lm" else optx.LevenbergMarquardt(1e-10, 1e-12)
+        solver = {
+            "fricjax_lm": fj.levenberg_marquardt(),
+            "fricjax_lm_tol_1e-8": fj.levenberg_marquardt(rtol=1e-8, atol=1e-8),
+            "fricjax_optimistix_lm": optx.LevenbergMarquardt(1e-10, 1e-12),
+        }[method]
         for _ in range(2):
             t0 = time.perf_counter()
             result = fj.fit(start, data, solver=solver, steps=60, scaling=fj.ParameterScaling())

@@ -857,3 +857,33 @@ def test_optax_chunks_of_any_length_share_one_compilation():
     assert len(compiles) == before, compiles[before:]
     assert first.history["step"][-1] == 6 and second.history["step"][-1] == 7, (first.history, second.history)
     assert second.train_loss < first.train_loss  # the seventh step went on from the sixth's state
+
+
+def test_a_levenberg_marquardt_fit_compiles_one_program():
+    """Issue 33 (first-call latency): a single-start Levenberg-Marquardt fit without validation data compiles one
+    program of the loop, the residuals and Jacobian at a trial point, and scores itself with it (no separate loss
+    program, no compiled solver loop)."""
+    import logging
+
+    names = []
+
+    class Names(logging.Handler):
+        def emit(self, record):
+            message = record.getMessage()
+            if message.startswith("Finished XLA compilation of jit("):
+                names.append(message.split("jit(")[1].split(")")[0])
+
+    handler, logger = Names(), logging.getLogger("jax")
+    logger.addHandler(handler)
+    try:
+        with jax.log_compiles():
+            motion = fj.Motion.from_position(2e-3 * np.sin(np.linspace(0, 9, 333)), dt=DT)  # a shape of its own
+            data = fj.FrictionData(motion, fj.simulate(TRUTH, motion))
+            names.clear()
+            result = fj.fit(START, data, solver=fj.levenberg_marquardt(), steps=30, scaling=fj.ParameterScaling())
+    finally:
+        logger.removeHandler(handler)
+    assert result.code == "successful" and result.train_loss < 1e-12, result.message
+    loop_programs = [n for n in names if n in ("evaluate_starts", "batched_losses", "run_steps", "init_states")]
+    assert loop_programs == ["evaluate_starts"], names
+    assert "evaluate" not in names, names  # the returned model's loss came from the same program

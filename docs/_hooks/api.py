@@ -64,6 +64,7 @@ SECTIONS = (
             "_estimation._fit",
             "_estimation._solution",
             "_estimation._solvers",
+            "_estimation._levenberg_marquardt",
             "_estimation._least_squares",
             "_estimation._problem",
             "_estimation._losses",
@@ -73,7 +74,7 @@ SECTIONS = (
             "_estimation._serialise",
         ),
         "`fj.fit` and `fj.least_squares` over the one optimisation loop: `Solution` and `RESULTS`, solvers "
-        "(`AbstractSolver` and the optax / optimistix adapters), losses and strategies, sweeps of many "
+        "(`AbstractSolver`, fricjax's Levenberg-Marquardt and the optax / optimistix adapters), losses and strategies, sweeps of many "
         "configurations in one program, model files.",
     ),
     Section(

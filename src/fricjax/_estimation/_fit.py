@@ -514,7 +514,7 @@ def _no_worse_than_start(
 
 def _host_take(tree: Any, index: Any) -> Any:
     """`leaf[index]` of every array leaf, indexed in NumPy (an eager JAX index compiles a program of its own)."""
-    return jax.tree_util.tree_map(lambda a: jnp.asarray(np.asarray(a)[index]) if eqx.is_array(a) else a, tree)
+    return jax.tree_util.tree_map(lambda a: jax.device_put(np.asarray(a)[index]) if eqx.is_array(a) else a, tree)
 
 
 def _split(total: int, parts: int) -> list[int]:

@@ -21,6 +21,7 @@ from typing import Any
 
 import equinox as eqx
 import jax
+import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 
@@ -90,14 +91,55 @@ def run_steps(
 
 
 @eqx.filter_jit
-def evaluate_starts(solver: Any, problem: Any, ys: Any, args: Any, batched_args: bool = False) -> Any:
-    """`solver.evaluate(problem, y, args)` for every start (one compiled program, reused by every step of a fit
-    whose solver steps on the host)."""
-    if _batch_size(ys) == 1:  # one start: the unbatched program, as `run_steps`
-        args_one = jax.tree_util.tree_map(lambda leaf: leaf[0], args) if batched_args else args
-        out = solver.evaluate(problem, jax.tree_util.tree_map(lambda leaf: leaf[0], ys), args_one)
+def evaluate_starts(
+    solver: Any, problem: Any, flat: jax.Array, structure: Any, args: Any, batched_args: bool = False
+) -> tuple[jax.Array, Any, Any]:
+    """`solver.evaluate(problem, y, args)` for every start, the starts given as the rows of `flat` (one vector per
+    start, in the order of `structure`'s leaves: `jax.ShapeDtypeStruct`s of one start). One compiled program,
+    reused by every step of a fit whose solver steps on the host; the evaluated points come back as rows too."""
+
+    def one(row: jax.Array, a: Any) -> Any:
+        y, products, loss = solver.evaluate(problem, _unravel(row, structure), a)
+        return jax.flatten_util.ravel_pytree(y)[0].astype(row.dtype), products, loss
+
+    if flat.shape[0] == 1:  # one start: the unbatched program, as `run_steps`
+        out = one(flat[0], jax.tree_util.tree_map(lambda leaf: leaf[0], args) if batched_args else args)
         return jax.tree_util.tree_map(lambda leaf: leaf[None], out)
-    return jax.vmap(lambda y, a: solver.evaluate(problem, y, a), in_axes=(0, 0 if batched_args else None))(ys, args)
+    return jax.vmap(one, in_axes=(0, 0 if batched_args else None))(flat, args)
+
+
+def _unravel(row: jax.Array, structure: Any) -> Any:
+    """The pytree shaped like `structure` (`jax.ShapeDtypeStruct` leaves) whose leaves fill `row` in order."""
+    leaves, treedef = jax.tree_util.tree_flatten(structure)
+    parts, offset = [], 0
+    for leaf in leaves:
+        size = int(np.prod(leaf.shape))
+        parts.append(row[offset : offset + size].reshape(leaf.shape).astype(leaf.dtype))
+        offset += size
+    return jax.tree_util.tree_unflatten(treedef, parts)
+
+
+def _rows(ys: Any) -> tuple[np.ndarray, Any]:
+    """A batch of starts as NumPy rows (one vector per start) and the structure of one start."""
+    leaves = jax.tree_util.tree_leaves(ys)
+    count = _batch_size(ys)
+    dtype = np.result_type(*[leaf.dtype for leaf in leaves]) if leaves else np.float64
+    structure = jax.tree_util.tree_map(lambda leaf: jax.ShapeDtypeStruct(leaf.shape[1:], leaf.dtype), ys)
+    flat = np.concatenate([np.asarray(leaf, dtype).reshape(count, -1) for leaf in leaves], 1)
+    return flat, structure
+
+
+def _from_rows(flat: np.ndarray, structure: Any) -> Any:
+    """The batch of starts whose rows are `flat` (the inverse of `_rows`, in NumPy: no compilation)."""
+    leaves, treedef = jax.tree_util.tree_flatten(structure)
+    parts, offset = [], 0
+    for leaf in leaves:
+        size = int(np.prod(leaf.shape))
+        parts.append(
+            jax.device_put(flat[:, offset : offset + size].reshape((len(flat), *leaf.shape)).astype(leaf.dtype))
+        )
+        offset += size
+    return jax.tree_util.tree_unflatten(treedef, parts)
 
 
 def run_steps_on_host(
@@ -107,28 +149,8 @@ def run_steps_on_host(
     Marquardt): up to `n` steps, each one call of `evaluate_starts` for every start's trial point and the
     solver's `propose` / `judge` in NumPy; the same returns as `run_steps` (states: the solver's batched NumPy
     state). Starts that converged or met a non-finite start stay where they are."""
-    leaves, treedef = jax.tree_util.tree_flatten(ys)
-    count = _batch_size(ys)
-    shapes = [np.shape(leaf)[1:] for leaf in leaves]
-    splits = np.cumsum([int(np.prod(shape)) for shape in shapes])[:-1]
-    dtype = np.result_type(*[leaf.dtype for leaf in leaves]) if leaves else np.float64
-
-    def unflatten(flat: np.ndarray) -> Any:
-        parts = np.split(flat, splits, axis=1)
-        return jax.tree_util.tree_unflatten(
-            treedef,
-            [
-                jnp.asarray(part.reshape((count, *shape)), leaf.dtype)
-                for part, shape, leaf in zip(parts, shapes, leaves, strict=True)
-            ],
-        )
-
-    def flatten(tree: Any) -> np.ndarray:
-        return np.concatenate(
-            [np.asarray(leaf, dtype).reshape(count, -1) for leaf in jax.tree_util.tree_leaves(tree)], 1
-        )
-
-    flat = flatten(ys)
+    flat, structure = _rows(ys)
+    count = flat.shape[0]
     state = solver.start_state(np, flat) if states is None else states
     steps, bad = np.zeros(count, int), np.zeros(count, bool)
     for _ in range(n):
@@ -136,19 +158,19 @@ def run_steps_on_host(
         if not active.any():
             break
         with np.errstate(all="ignore"):  # non-finite trials are expected: the solver rejects them
-            delta, scale = solver.propose(np, state, flat)
-            trial, products, loss = evaluate_starts(solver, problem, unflatten(flat + delta), args, batched_args)
-            trial = flatten(trial)
-            new_state, accept, sound = solver.judge(
-                np, state, scale, flat, trial, np.asarray(products), np.asarray(loss)
+            delta = solver.propose(np, state, flat)
+            rows = shard_batch(jax.device_put(flat + delta))  # spread over the local devices (identity on one)
+            trial, products, loss = map(
+                np.asarray, evaluate_starts(solver, problem, rows, structure, args, batched_args)
             )
+            new_state, accept, sound = solver.judge(np, state, flat, trial, products, loss)
         state = jax.tree_util.tree_map(functools.partial(_where_rows, active), new_state, state)
         flat = np.where((active & accept)[:, None], trial, flat)
         bad |= active & ~sound
         steps += active
     done = np.asarray(state.done) & ~bad
     result = jax.tree_util.tree_map(lambda value: np.full(count, value), RESULTS.successful)  # never fails
-    return unflatten(flat), state, steps, done, result, bad
+    return shard_batch(_from_rows(flat, structure)), state, steps, done, result, bad
 
 
 def _where_rows(rows: np.ndarray, new: Any, old: Any) -> np.ndarray:
@@ -184,7 +206,8 @@ def start_losses(solver: Any, problem: Any, ys: Any, args: Any) -> tuple[np.ndar
         and _batch_size(ys) == 1
         and getattr(problem, "validation", None) is None
     ):
-        loss = np.asarray(evaluate_starts(solver, problem, ys, args, False)[2])
+        flat, structure = _rows(ys)
+        loss = np.asarray(evaluate_starts(solver, problem, jax.device_put(flat), structure, args, False)[2])
         return loss, np.full(loss.shape, np.nan)
     train, val = batched_losses(problem, ys, args, False)
     return np.asarray(train), np.asarray(val)
@@ -198,6 +221,13 @@ def _trees_equal(a: Any, b: Any) -> bool:
     )
 
 
+def _is_successful(result: Any) -> np.ndarray:
+    """Per start, whether a (batched) `fj.RESULTS` item is `successful` (compared in NumPy)."""
+    values = [np.asarray(leaf) for leaf in jax.tree_util.tree_leaves(result)]
+    expected = [np.asarray(leaf) for leaf in jax.tree_util.tree_leaves(RESULTS.successful)]
+    return np.all([v == e for v, e in zip(values, expected, strict=True)], axis=0).reshape(-1)
+
+
 def _where_tree(condition: Any, new: Any, old: Any) -> Any:
     """`where(condition, new, old)` leaf by leaf; a condition of shape (B,) selects along the leading batch axis."""
 
@@ -206,7 +236,9 @@ def _where_tree(condition: Any, new: Any, old: Any) -> Any:
             return a
         mask = condition.reshape(condition.shape + (1,) * (jnp.ndim(a) - condition.ndim))
         if is_concrete((mask, a, b)):  # in NumPy (an eager JAX select compiles a program of its own)
-            return jnp.asarray(np.where(np.asarray(mask), np.asarray(a), np.asarray(b)), jnp.result_type(a, b))
+            return jax.device_put(
+                np.where(np.asarray(mask), np.asarray(a), np.asarray(b)).astype(jnp.result_type(a, b))
+            )
         return jnp.where(mask, a, b)
 
     return jax.tree_util.tree_map(select, new, old)
@@ -263,7 +295,7 @@ class Search:
         self.diverged |= bad
         scores = self._scores(train, val)
         improved = scores < self.best_scores
-        self.best_ys = _where_tree(jnp.asarray(improved), ys, self.best_ys)
+        self.best_ys = _where_tree(improved, ys, self.best_ys)
         self.best_scores = np.where(improved, scores, self.best_scores)
         self.stall = 0 if improved.any() else self.stall + 1
         history = self.history
@@ -351,7 +383,7 @@ def run_stage(
         outcome.states = eqx.filter(states, eqx.is_array)
         outcome.results = [
             "successful" if f and ok else ("max_steps" if ok else "solver_failed")
-            for f, ok in zip(ended, np.asarray(result == RESULTS.successful).reshape(-1), strict=True)
+            for f, ok in zip(ended, _is_successful(result), strict=True)
         ]
         if search.diverged.all():
             outcome.stop = "diverged"

@@ -282,7 +282,7 @@ class Problem(eqx.Module):
 def _times(u: Any, c: Any) -> Any:
     """`u * c`; in NumPy for concrete values (an eager JAX product compiles a program of its own)."""
     if is_concrete((u, c)):
-        return jnp.asarray(np.asarray(u) * np.asarray(c), jnp.result_type(u, c))
+        return jax.device_put((np.asarray(u) * np.asarray(c)).astype(jnp.result_type(u, c)))
     return u * c
 
 

@@ -70,7 +70,7 @@ def _add_start_axis(leaf: Any) -> Any:
     """`leaf[None]` (in NumPy for concrete values: an eager JAX reshape compiles a program of its own)."""
     if not eqx.is_array(leaf):
         return leaf
-    return jnp.asarray(np.asarray(leaf)[None]) if is_concrete(leaf) else leaf[None]
+    return jax.device_put(np.asarray(leaf)[None]) if is_concrete(leaf) else leaf[None]
 
 
 def _divide(starts: Any, scales: Any) -> Any:
@@ -79,7 +79,7 @@ def _divide(starts: Any, scales: Any) -> Any:
 
     def divide(p: Any, c: Any) -> Any:
         if is_concrete(p) and is_concrete(c):  # in NumPy: no compilation
-            return jnp.asarray(np.asarray(p) / np.asarray(c), jnp.result_type(p, c))
+            return jax.device_put((np.asarray(p) / np.asarray(c)).astype(jnp.result_type(p, c)))
         return p / c
 
     return jax.tree_util.tree_map(divide, starts, scales)
