@@ -306,3 +306,20 @@ def test_levenberg_marquardt_checks_its_arguments():
         fj.LevenbergMarquardt(rtol=-1.0)
     with pytest.raises(ValueError, match="`atol`"):
         fj.LevenbergMarquardt(atol=float("nan"))
+
+
+def test_levenberg_marquardt_survives_a_trial_whose_jacobian_is_not_finite():
+    """A trial whose residuals and Jacobian are not finite is rejected without failing the host's linear algebra
+    (NumPy's SVD raises on a NaN matrix, and may not return on an infinite one), and the start stays sound."""
+    solver = fj.LevenbergMarquardt()
+    flat = np.array([[1.0, 2.0, 3.0]])
+    first = np.eye(4)[None] * 2.0  # [J r]^T [J r] at the start: J^T J = 2 I, J^T r = 0, cost 1
+    state, accept, sound = solver.judge(np, solver.start_state(np, flat), flat, flat, first, np.array([1.0]))
+    assert accept.all() and sound.all()
+    for bad in (np.nan, np.inf):
+        trial = flat + solver.propose(np, state, flat) + 0.1
+        products = np.full((1, 4, 4), bad)
+        new_state, accept, sound = solver.judge(np, state, flat, trial, products, np.array([bad]))
+        assert not accept.any() and sound.all() and not new_state.done.any()
+        assert new_state.step_size[0] < state.step_size[0]  # a smaller trust region for the next trial
+        assert np.isfinite(solver.propose(np, new_state, flat)).all()

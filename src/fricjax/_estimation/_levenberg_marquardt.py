@@ -64,6 +64,9 @@ def _solve(xp: Any, A: Any, g: Any, damping: Any) -> Any:
     norms = xp.sqrt(xp.maximum(xp.diagonal(A, axis1=-2, axis2=-1), 0.0))
     d = xp.where(norms > 0, norms, 1.0)
     damped = A / d[..., :, None] / d[..., None, :] + damping[..., None, None] * xp.eye(size) / d[..., None, :] ** 2
+    # a rejected non-finite trial's matrix (NumPy's SVD raises on it): the identity instead, its result unused
+    finite = xp.all(xp.isfinite(damped), axis=(-2, -1)) & xp.all(xp.isfinite(g), axis=-1)
+    damped, g = xp.where(finite[..., None, None], damped, xp.eye(size)), xp.where(finite[..., None], g, 0.0)
     U, s, Vt = np.linalg.svd(damped) if xp is np else jax.vmap(thin_svd)(damped)
     kept = s > s[..., :1] * size * np.finfo(A.dtype).eps
     coefficients = xp.where(kept, xp.einsum("bij,bi->bj", U, g / d) / xp.where(kept, s, 1.0), 0.0)
