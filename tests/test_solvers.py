@@ -323,3 +323,18 @@ def test_levenberg_marquardt_survives_a_trial_whose_jacobian_is_not_finite():
         assert not accept.any() and sound.all() and not new_state.done.any()
         assert new_state.step_size[0] < state.step_size[0]  # a smaller trust region for the next trial
         assert np.isfinite(solver.propose(np, new_state, flat)).all()
+
+
+def test_levenberg_marquardt_step_keeps_well_determined_directions_beside_a_barely_seen_parameter():
+    """The damped step `(J^T J + lambda I)^-1 J^T r` where one parameter barely moves the residuals (its column
+    1e-9 of the others): scaled without the damping, the damping would dominate the SVD's largest value and the
+    cut-off drop the well-determined directions (the review's case)."""
+    rng = np.random.default_rng(0)
+    J = rng.normal(size=(50, 3)) * np.array([1.0, 1.0, 1e-9])
+    r = rng.normal(size=50)
+    Jr = np.column_stack([J, r])
+    solver, flat = fj.LevenbergMarquardt(), np.zeros((1, 3))
+    state, _, _ = solver.judge(np, solver.start_state(np, flat), flat, flat, (Jr.T @ Jr)[None], np.array([1.0]))
+    step = solver.propose(np, state, flat)[0]  # lambda = 1 / step_size = 1
+    exact = -np.linalg.solve(J.T @ J + np.eye(3), J.T @ r)
+    np.testing.assert_allclose(step, exact, rtol=1e-10, atol=1e-25)

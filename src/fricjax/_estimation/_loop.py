@@ -159,13 +159,14 @@ def run_steps_on_host(
             break
         with np.errstate(all="ignore"):  # non-finite trials are expected: the solver rejects them
             delta = solver.propose(np, state, flat)
-            rows = shard_batch(jax.device_put(flat + delta))  # spread over the local devices (identity on one)
+            # the starts' own dtype (a float32 model with float64 data: float64 steps), spread over the devices
+            rows = shard_batch(jax.device_put((flat + delta).astype(flat.dtype)))
             trial, products, loss = map(
                 np.asarray, evaluate_starts(solver, problem, rows, structure, args, batched_args)
             )
             new_state, accept, sound = solver.judge(np, state, flat, trial, products, loss)
         state = jax.tree_util.tree_map(functools.partial(_where_rows, active), new_state, state)
-        flat = np.where((active & accept)[:, None], trial, flat)
+        flat = np.where((active & accept)[:, None], trial, flat).astype(flat.dtype)
         bad |= active & ~sound
         steps += active
     done = np.asarray(state.done) & ~bad
