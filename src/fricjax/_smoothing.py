@@ -9,6 +9,7 @@ explicit width `eps` (for training) that converges to the exact one as `eps -> 0
 from __future__ import annotations
 
 import abc
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -100,6 +101,15 @@ class Smooth(AbstractSmoothing):
 def is_concrete(x: object) -> bool:
     """True when `x` holds values (not a tracer): value checks run only then, at the entry points."""
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
+
+
+def on_host(op: Any, *values: Any) -> Any:
+    """`op(xp, *values)`: in NumPy when every value is concrete, the result placed on the device in the values'
+    dtype (an eager JAX operation compiles a program of its own, once per shape), else in `jax.numpy` (traced)."""
+    if is_concrete(values):
+        result = np.asarray(op(np, *(np.asarray(v) for v in values)))
+        return jax.device_put(result.astype(jnp.result_type(*values)))
+    return op(jnp, *values)
 
 
 def exact(model: eqx.Module) -> eqx.Module:

@@ -25,7 +25,7 @@ import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 
-from .._smoothing import is_concrete
+from .._smoothing import on_host
 from ._interrupts import check_interrupt
 from ._sharding import shard_batch
 from ._solution import RESULTS
@@ -108,13 +108,14 @@ def evaluate_starts(
     return jax.vmap(one, in_axes=(0, 0 if batched_args else None))(flat, args)
 
 
-def _unravel(row: jax.Array, structure: Any) -> Any:
-    """The pytree shaped like `structure` (`jax.ShapeDtypeStruct` leaves) whose leaves fill `row` in order."""
+def _unravel(flat: Any, structure: Any) -> Any:
+    """The pytree shaped like `structure` (`jax.ShapeDtypeStruct` leaves of one start) whose leaves fill the last
+    axis of `flat` in order: a row (traced) or a batch of rows (NumPy), the batch axes kept in front."""
     leaves, treedef = jax.tree_util.tree_flatten(structure)
     parts, offset = [], 0
     for leaf in leaves:
         size = int(np.prod(leaf.shape))
-        parts.append(row[offset : offset + size].reshape(leaf.shape).astype(leaf.dtype))
+        parts.append(flat[..., offset : offset + size].reshape(flat.shape[:-1] + leaf.shape).astype(leaf.dtype))
         offset += size
     return jax.tree_util.tree_unflatten(treedef, parts)
 
@@ -127,19 +128,6 @@ def _rows(ys: Any) -> tuple[np.ndarray, Any]:
     structure = jax.tree_util.tree_map(lambda leaf: jax.ShapeDtypeStruct(leaf.shape[1:], leaf.dtype), ys)
     flat = np.concatenate([np.asarray(leaf, dtype).reshape(count, -1) for leaf in leaves], 1)
     return flat, structure
-
-
-def _from_rows(flat: np.ndarray, structure: Any) -> Any:
-    """The batch of starts whose rows are `flat` (the inverse of `_rows`, in NumPy: no compilation)."""
-    leaves, treedef = jax.tree_util.tree_flatten(structure)
-    parts, offset = [], 0
-    for leaf in leaves:
-        size = int(np.prod(leaf.shape))
-        parts.append(
-            jax.device_put(flat[:, offset : offset + size].reshape((len(flat), *leaf.shape)).astype(leaf.dtype))
-        )
-        offset += size
-    return jax.tree_util.tree_unflatten(treedef, parts)
 
 
 def run_steps_on_host(
@@ -171,7 +159,7 @@ def run_steps_on_host(
         steps += active
     done = np.asarray(state.done) & ~bad
     result = jax.tree_util.tree_map(lambda value: np.full(count, value), RESULTS.successful)  # never fails
-    return shard_batch(_from_rows(flat, structure)), state, steps, done, result, bad
+    return shard_batch(jax.device_put(_unravel(flat, structure))), state, steps, done, result, bad  # NumPy split
 
 
 def _where_rows(rows: np.ndarray, new: Any, old: Any) -> np.ndarray:
@@ -236,11 +224,7 @@ def _where_tree(condition: Any, new: Any, old: Any) -> Any:
         if not eqx.is_array(a):
             return a
         mask = condition.reshape(condition.shape + (1,) * (jnp.ndim(a) - condition.ndim))
-        if is_concrete((mask, a, b)):  # in NumPy (an eager JAX select compiles a program of its own)
-            return jax.device_put(
-                np.where(np.asarray(mask), np.asarray(a), np.asarray(b)).astype(jnp.result_type(a, b))
-            )
-        return jnp.where(mask, a, b)
+        return on_host(lambda xp, m, x, y: xp.where(m, x, y), mask, a, b)
 
     return jax.tree_util.tree_map(select, new, old)
 

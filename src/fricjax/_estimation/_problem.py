@@ -18,7 +18,7 @@ from .._constraints import AbstractUnwrappable, Fixed, trainable_filter, unwrap
 from .._data._record import FrictionData
 from .._metrics import scaled_std
 from .._simulate import run, simulate
-from .._smoothing import is_concrete
+from .._smoothing import on_host
 from ._covariance import parameter_std
 from ._losses import AbstractLoss, SimulationLoss
 from ._lstsq import lstsq
@@ -280,10 +280,8 @@ class Problem(eqx.Module):
 
 
 def _times(u: Any, c: Any) -> Any:
-    """`u * c`; in NumPy for concrete values (an eager JAX product compiles a program of its own)."""
-    if is_concrete((u, c)):
-        return jax.device_put((np.asarray(u) * np.asarray(c)).astype(jnp.result_type(u, c)))
-    return u * c
+    """`u * c` (in NumPy for concrete values: `on_host`)."""
+    return on_host(lambda xp, a, b: a * b, u, c)
 
 
 @eqx.filter_jit

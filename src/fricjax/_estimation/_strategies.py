@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._constraints import AbstractUnwrappable, Positive
-from .._smoothing import Smooth, is_concrete, with_smoothing
+from .._smoothing import Smooth, is_concrete, on_host, with_smoothing
 from .._validation import nonnegative_float, positive_float, positive_int
 
 
@@ -77,12 +77,7 @@ def _divide(starts: Any, scales: Any) -> Any:
     if scales is None:
         return starts
 
-    def divide(p: Any, c: Any) -> Any:
-        if is_concrete(p) and is_concrete(c):  # in NumPy: no compilation
-            return jax.device_put((np.asarray(p) / np.asarray(c)).astype(jnp.result_type(p, c)))
-        return p / c
-
-    return jax.tree_util.tree_map(divide, starts, scales)
+    return jax.tree_util.tree_map(lambda p, c: on_host(lambda xp, a, b: a / b, p, c), starts, scales)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -315,8 +310,7 @@ def physical_ranges(model: Any) -> dict[str, float]:
 
 def _where_zero(leaf: Any, value: float) -> Any:
     def replace(scale: Any) -> Any:
-        xp = np if is_concrete(leaf) and is_concrete(scale) else jnp
-        return jnp.asarray(xp.where(xp.asarray(leaf) == 0, value, xp.asarray(scale)), scale.dtype)
+        return on_host(lambda xp, a, b: xp.where(a == 0, value, b), leaf, scale)
 
     return replace
 
