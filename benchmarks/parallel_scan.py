@@ -75,9 +75,10 @@ def long_record(name: str, length: int, cfg: argparse.Namespace) -> dict[str, An
     for scan in scans:
         f, g = forward(scan), gradient(scan)
         fns[scan] = lambda f=f: f(params, motion)
-        fns[f"{scan}_grad"] = lambda g=g: g(params, motion)
         compile_s[scan], outputs[scan] = timed(fns[scan])
-        compile_s[f"{scan}_grad"], _ = timed(fns[f"{scan}_grad"])
+        if not cfg.forward_only:
+            fns[f"{scan}_grad"] = lambda g=g: g(params, motion)
+            compile_s[f"{scan}_grad"], _ = timed(fns[f"{scan}_grad"])
     run_numba = numba_runner(name, model, motion)
     run_numba()  # compile
     fns["numba"] = run_numba
@@ -92,8 +93,11 @@ def long_record(name: str, length: int, cfg: argparse.Namespace) -> dict[str, An
         "first_call_s": {key: round(value, 3) for key, value in compile_s.items()},
         "parallel_vs_numba_rel": float(np.max(np.abs(force - np.asarray(run_numba()))) / scale),
         "numba_over_parallel": round(timing["numba"]["median"] / timing["parallel"]["median"], 3),
-        "parallel_grad_over_forward": round(timing["parallel_grad"]["median"] / timing["parallel"]["median"], 3),
     }
+    if not cfg.forward_only:
+        record["parallel_grad_over_forward"] = round(
+            timing["parallel_grad"]["median"] / timing["parallel"]["median"], 3
+        )
     if "sequential" in outputs:
         record["parallel_vs_sequential_rel"] = float(np.max(np.abs(force - np.asarray(outputs["sequential"]))) / scale)
         record["sequential_over_parallel"] = round(timing["sequential"]["median"] / timing["parallel"]["median"], 3)
@@ -135,22 +139,37 @@ def fj_uses_parallel(model: Any, samples: Any, length: int) -> bool:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--lengths", type=int, nargs="+", default=[10_000, 100_000, 1_000_000])
+    parser.add_argument("--lengths", type=int, nargs="*", default=[10_000, 100_000, 1_000_000])
     parser.add_argument("--models", nargs="+", default=["lugre", "maxwell_nlr7"], choices=["lugre", "maxwell_nlr7"])
     parser.add_argument("--sequential-max", type=int, default=100_000, help="on an accelerator (launch-bound)")
     parser.add_argument("--fit-length", type=int, default=0, help="0: no fit")
-    parser.add_argument("--prefix", default=None, choices=["auto", "doubling", "blelloch"], help="default: fricjax's")
+    parser.add_argument(
+        "--prefix",
+        nargs="+",
+        default=[None],
+        help="prefix forms to time (fricjax._simulate._parallel.PREFIX), each 'doubling', 'blelloch' or "
+        "'blocked:BLOCK:WITHIN[:ACROSS]' (WITHIN 'doubling' or 'sequential', ACROSS 'doubling' or 'blocked'), e.g. "
+        "blocked:8:sequential:doubling; default: fricjax's",
+    )
+    parser.add_argument("--forward-only", action="store_true", help="time the free run only (no gradient)")
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--budget", type=float, default=5.0, help="seconds of timing per configuration")
     cfg = parser.parse_args(argv)
     from fricjax._simulate import _parallel
 
-    if cfg.prefix:
-        _parallel.PREFIX = cfg.prefix
-    ENV.update(environment(), prefix=_parallel.PREFIX)
-    for length in cfg.lengths:
-        for name in cfg.models:
-            emit(long_record(name, length, cfg))
+    ENV.update(environment())
+    for prefix in cfg.prefix:
+        if prefix:
+            jax.clear_caches()  # fj.simulate's traces read the prefix form: trace again
+            method, *options = prefix.split(":")
+            _parallel.PREFIX = method
+            if method == "blocked":
+                _parallel.BLOCK, _parallel.WITHIN = int(options[0]), options[1]
+                _parallel.ACROSS = options[2] if len(options) > 2 else "blocked"
+        ENV["prefix"] = prefix or _parallel.PREFIX
+        for length in cfg.lengths:
+            for name in cfg.models:
+                emit(long_record(name, length, cfg))
     if cfg.fit_length:
         emit(fit(cfg.fit_length))
 

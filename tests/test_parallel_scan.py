@@ -75,6 +75,24 @@ def test_parallel_gradients_equal_sequential(name):
         assert _relative(a, b) < 1e-10
 
 
+def test_parallel_on_records_of_every_length_and_in_forward_mode():
+    """Records shorter than two blocks, one sample past them, and a length no block divides; then a jvp."""
+    model = MODELS["nlr"]
+    for length in (2, 17, 1031):
+        motion = _motion(length, seed=length)
+        parallel = fj.simulate(model, motion, scan="parallel")
+        assert _relative(parallel, fj.simulate(model, motion, scan="sequential")) < 1e-12
+    lugre, motion = MODELS["lugre"], _motion(300, seed=6)
+
+    def force(sigma0: jax.Array, scan: str) -> jax.Array:
+        return fj.simulate(eqx.tree_at(lambda m: m.sigma0, lugre, sigma0), motion, scan=scan)
+
+    sigma0 = fj.unwrap(lugre).sigma0
+    _, parallel = jax.jvp(lambda s: force(s, "parallel"), (sigma0,), (jnp.asarray(1e3),))
+    _, sequential = jax.jvp(lambda s: force(s, "sequential"), (sigma0,), (jnp.asarray(1e3),))
+    assert _relative(parallel, sequential) < 1e-10
+
+
 @pytest.mark.slow
 def test_parallel_play_operators_and_forward_mode():
     motion = _motion(600, seed=2)

@@ -101,13 +101,13 @@ class AbstractModel(eqx.Module):
         return False
 
     def parallel_maps(self, samples: Any) -> Any:
-        """The time-parallel form of the free run, or `None` (no such form): a pytree shaped like the state whose
-        leaves are state maps (`AffineMaps`, `ClampMaps` in `fricjax._models._state_maps`), map k taking the state
-        entering sample k to the state leaving it, every array with the leading time axis of `samples`. The maps
-        must agree with `step` to round-off; `fj.simulate(..., scan="parallel")` composes them by an associative
-        scan and evaluates `step` at every sample from the state entering it. Whether a model has the form must not
-        depend on parameter values (only on its type, structure and smoothing). Default: `()` for a model without
-        state (a static friction law), `None` otherwise."""
+        """The time-parallel form of the free run, or `None` (no such form): a pytree shaped like the state whose leaves
+        are state maps (`AffineMaps`, `ClampMaps` in `fricjax._models._state_maps`, acting elementwise on the state),
+        map k taking the state entering sample k to the state leaving it, every array with the leading time axis of
+        `samples`. The maps must agree with `step` to round-off; `fj.simulate(..., scan="parallel")` composes them by a
+        parallel prefix and evaluates `step` at every sample from the state entering it. Whether a model has the form
+        must not depend on parameter values (only on its type, structure and smoothing). Default: `()` for a model
+        without state (a static friction law), `None` otherwise."""
         return () if not jax.tree_util.tree_leaves(self.init_state()) else None
 
     @abc.abstractmethod

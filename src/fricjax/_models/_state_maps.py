@@ -20,7 +20,8 @@ evaluates the model's own `step` at every sample, in parallel, from the state en
 from __future__ import annotations
 
 import abc
-from typing import Any
+import dataclasses
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -30,7 +31,23 @@ from jaxtyping import Array
 
 class AbstractStateMaps(eqx.Module):
     """Maps of one state array, one per sample along the leading axis (every field shaped `(T, *state.shape)`, or
-    broadcastable to it after the time axis). Subclasses define composition and application."""
+    broadcastable to it after the time axis), acting elementwise on the state (component i of the result depends
+    on component i of the state only). Subclasses define composition, application and `IDENTITY`, the values of
+    their fields that make the identity map."""
+
+    IDENTITY: ClassVar[tuple[float, ...]] = ()
+
+    def delayed(self, places: int, axis: int = 0) -> Any:
+        """The maps moved `places` samples later along `axis`, the first `places` being identity maps (the last
+        `places` dropped): one pad of every field, which XLA fuses into the composition that reads it."""
+        fields = [getattr(self, field.name) for field in dataclasses.fields(self)]
+
+        def delay(value: Array, fill: float) -> Array:
+            config = [(0, 0, 0)] * value.ndim
+            config[axis] = (places, -places, 0)
+            return jax.lax.pad(value, jnp.asarray(fill, value.dtype), config)
+
+        return type(self)(*(delay(value, fill) for value, fill in zip(fields, self.IDENTITY, strict=True)))
 
     @abc.abstractmethod
     def then(self, later: Any) -> Any:
@@ -46,6 +63,7 @@ class AffineMaps(AbstractStateMaps):
 
     scale: Array
     shift: Array
+    IDENTITY: ClassVar[tuple[float, ...]] = (1.0, 0.0)
 
     def then(self, later: AffineMaps) -> AffineMaps:
         return AffineMaps(later.scale * self.scale, later.scale * self.shift + later.shift)
@@ -61,6 +79,7 @@ class ClampMaps(AbstractStateMaps):
     shift: Array
     lower: Array
     upper: Array
+    IDENTITY: ClassVar[tuple[float, ...]] = (0.0, -jnp.inf, jnp.inf)
 
     def then(self, later: ClampMaps) -> ClampMaps:
         def clamp(value: Array) -> Array:
@@ -81,6 +100,11 @@ def compose(earlier: Any, later: Any) -> Any:
     """Elementwise composition of two trees of state maps (`later o earlier`): the operator of the associative
     scan."""
     return jax.tree_util.tree_map(lambda first, second: first.then(second), earlier, later, is_leaf=is_state_maps)
+
+
+def delayed(maps: Any, places: int, axis: int = 0) -> Any:
+    """A tree of state maps moved `places` samples later along `axis`, identity maps first."""
+    return jax.tree_util.tree_map(lambda m: m.delayed(places, axis), maps, is_leaf=is_state_maps)
 
 
 def apply(maps: Any, state: Any) -> Any:

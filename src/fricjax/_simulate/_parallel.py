@@ -1,23 +1,24 @@
-"""The time-parallel free run: a model's per-sample state maps (`AbstractModel.parallel_maps`) composed by
-`jax.lax.associative_scan`, then the model's own `step` evaluated at every sample at once.
+"""The time-parallel free run: a model's per-sample state maps (`AbstractModel.parallel_maps`) composed in
+O(log T) dependent rounds of O(T) parallel work, then the model's own `step` evaluated at every sample at once.
 
 A sequential scan takes T dependent steps; on a GPU each is a kernel launch of a few microseconds, so one long
-record runs hundreds of times slower than a compiled CPU loop. The associative scan takes O(log T) dependent
-steps of O(T) parallel work (Blelloch 1990), which is what an accelerator does well; on a CPU the sequential loop
-is faster (more arithmetic, no parallelism to gain), so `scan="auto"` uses this form on accelerators only
-(benchmarks/README.md, "Time-parallel simulation"). Values equal the sequential scan's to round-off and derivatives
-are JAX's own of these operations (tests/test_parallel_scan.py).
+record runs hundreds of times slower than a compiled CPU loop. A parallel prefix (Hillis & Steele 1986; Blelloch
+1990) takes log2 T rounds, which is what an accelerator does well; on a CPU the sequential loop is faster for most
+models (more arithmetic, no parallelism to gain), so `scan="auto"` uses this form on accelerators only
+(benchmarks/README.md, "Accelerators"). Values equal the sequential scan's to round-off; derivatives come from
+`_states_after_jvp`, one more parallel scan, of affine maps (tests/test_parallel_scan.py).
 """
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 
 from .._models._base import AbstractModel
-from .._models._state_maps import apply, compose
+from .._models._state_maps import AffineMaps, apply, compose, delayed
 from ._scan import split_time_signals
 
 SCANS = ("auto", "sequential", "parallel")
@@ -25,14 +26,21 @@ SCANS = ("auto", "sequential", "parallel")
 # 10 us there, so the log-depth scan wins from a few dozen samples (H100: 1 000 samples 0.29 ms against 11 ms;
 # benchmarks/README.md, "Accelerators")
 PARALLEL_MIN_LENGTH = 256
-# how the prefix compositions are computed: "doubling" (Hillis & Steele 1986: log2 T rounds, each composing every
-# map with the one 2^r samples earlier: one fused kernel per round, O(T log T) work), "blelloch"
-# (`jax.lax.associative_scan`: O(T) work in about 2 log2 T rounds of strided slices and interleaves), or "auto":
-# doubling for maps of at most DOUBLING_MAX_WIDTH numbers per sample, blelloch for wider ones. On an H100 (10^6
-# samples, benchmarks/README.md): LuGre (2 numbers) 0.80 ms doubling against 1.2 ms blelloch, compiled in 0.4 s
-# against 3.6 s; Maxwell-slip NLR(7) (21) 6.6 ms against 4.2 ms
-PREFIX = "auto"
-DOUBLING_MAX_WIDTH = 8
+# How the states after every sample are computed (`states_after`):
+# - "blocked": the record cut into blocks of BLOCK samples; inside every block the prefix compositions by a loop
+#   along the block (WITHIN = "sequential", BLOCK - 1 compositions of whole columns) or by doubling ("doubling");
+#   the blocks' totals by doubling (ACROSS = "doubling") or blocked again ("blocked"); then each block's maps applied
+#   to the state entering it;
+# - "doubling": log2 T rounds over the whole record, each composing every map with the one 2^r samples earlier;
+# - "blelloch": `jax.lax.associative_scan` (O(T) work in about 2 log2 T rounds of strided slices).
+# H100, 10^6 samples, forward (benchmarks/README.md, "Accelerators", session of 2026-11-27): LuGre 0.66-0.73 ms
+# blocked 8 / sequential / doubling, 0.68-0.78 ms other blocked forms, 0.90 ms doubling, 1.2 ms blelloch; Maxwell-slip
+# NLR(7) 1.16-1.30 ms blocked 8 / sequential / doubling, 1.6-3.8 ms other blocked forms, 4.2 ms blelloch, 6.6-6.8 ms
+# doubling.
+PREFIX = "blocked"
+BLOCK = 8
+WITHIN = "sequential"
+ACROSS = "doubling"
 
 
 def on_accelerator() -> bool:
@@ -74,11 +82,7 @@ def parallel_run(model: AbstractModel, samples: Any, state: Any, return_states: 
     maps = model.parallel_maps(samples)
     state = jax.tree_util.tree_map(jnp.asarray, state)
     if jax.tree_util.tree_leaves(maps):
-        method = PREFIX
-        if method == "auto":
-            width = sum(leaf.size // leaf.shape[0] for leaf in jax.tree_util.tree_leaves(maps))
-            method = "doubling" if width <= DOUBLING_MAX_WIDTH else "blelloch"
-        after = apply(prefix_compositions(maps, method), state)  # the state after each sample
+        after = states_after(maps, state)
         entering = jax.tree_util.tree_map(
             lambda s0, s: jnp.concatenate([s0[None].astype(s.dtype), s[:-1]]), state, after
         )
@@ -90,22 +94,86 @@ def parallel_run(model: AbstractModel, samples: Any, state: Any, return_states: 
     return final, ((outputs, leaving) if return_states else outputs)
 
 
-def prefix_compositions(maps: Any, method: str = "doubling") -> Any:
-    """Map k composed with every map before it (`maps[k] o ... o maps[0]`), for every k: the state maps from the
-    initial state to the state after each sample. `method` as `PREFIX`."""
-    if method == "blelloch":
-        return jax.lax.associative_scan(compose, maps)
+def states_after(maps: Any, state: Any, method: str | None = None) -> Any:
+    """The state after every sample: the prefix compositions of `maps` applied to the initial `state`, by
+    `method` (default `PREFIX`). Differentiated by `_states_after_jvp`."""
+    return _states_after(PREFIX if method is None else method, maps, state)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _states_after(method: str, maps: Any, state: Any) -> Any:
+    if method == "blocked":
+        return _blocked_states(maps, state, BLOCK)
+    return apply(prefix_compositions(maps, method), state)
+
+
+@_states_after.defjvp
+def _states_after_jvp(method: str, primals: tuple[Any, Any], tangents: tuple[Any, Any]) -> tuple[Any, Any]:
+    """The tangent of the states is itself a parallel scan, of affine maps: the maps act elementwise, so
+    `dot s_k = J_k dot s_k-1 + dmap_k`, with `J_k` the derivative of map k with respect to the state entering it
+    and `dmap_k` its derivative along the maps' own tangent, both at that state. One affine scan (two numbers per
+    state component, linear in the tangents, so JAX transposes it for reverse mode) in place of differentiating
+    every composition of the prefix (a clamp map's three fields through every round)."""
+    maps, state = primals
+    maps_dot, state_dot = tangents
+    after = _states_after(method, maps, state)
+    entering = jax.tree_util.tree_map(
+        lambda s0, s: jnp.concatenate([jnp.asarray(s0, s.dtype)[None], s[:-1]]), state, after
+    )
+    ones = jax.tree_util.tree_map(jnp.ones_like, entering)
+    _, scale = jax.jvp(lambda s: apply(maps, s), (entering,), (ones,))
+    _, shift = jax.jvp(lambda m: apply(m, entering), (maps,), (maps_dot,))
+    linear = jax.tree_util.tree_map(AffineMaps, scale, shift)
+    state_dot = jax.tree_util.tree_map(lambda d, s: jnp.asarray(d, s.dtype), state_dot, state)
+    return after, _states_after(method, linear, state_dot)
+
+
+def _blocked_states(maps: Any, state: Any, block: int) -> Any:
+    """`states_after` in blocks of `block` samples: the prefix compositions inside every block at once (`WITHIN`),
+    the blocks' totals one level up (`ACROSS`), and each block's maps applied to the state entering it: a few
+    passes over the whole record where doubling takes log2 T, the remaining rounds on T / `block` totals."""
     length = jax.tree_util.tree_leaves(maps)[0].shape[0]
-    index = jnp.arange(length)
+    if length <= 2 * block:
+        return apply(prefix_compositions(maps, "doubling"), state)
+    blocks = -(-length // block)
+
+    def split(leaf: jax.Array) -> jax.Array:  # the maps padded with zeros after the record (never read back)
+        leaf = jnp.pad(leaf, [(0, blocks * block - length)] + [(0, 0)] * (leaf.ndim - 1))
+        return leaf.reshape((blocks, block, *leaf.shape[1:]))
+
+    within = _within_blocks(jax.tree_util.tree_map(split, maps))
+    totals = jax.tree_util.tree_map(lambda leaf: leaf[:, -1], within)
+    if ACROSS == "doubling":
+        after = apply(prefix_compositions(totals, "doubling"), state)
+    else:
+        after = _blocked_states(totals, state, block)  # the state leaving every block
+    entering = jax.tree_util.tree_map(
+        lambda s0, s: jnp.concatenate([s0[None].astype(s.dtype), s[:-1]])[:, None], state, after
+    )
+    states = apply(within, entering)
+    return jax.tree_util.tree_map(lambda s: s.reshape((blocks * block, *s.shape[2:]))[:length], states)
+
+
+def _within_blocks(maps: Any) -> Any:
+    """Prefix compositions along axis 1 (inside each block), by `WITHIN`."""
+    if WITHIN == "doubling":
+        return prefix_compositions(maps, "doubling", axis=1)
+    block = jax.tree_util.tree_leaves(maps)[0].shape[1]
+    column = [jax.tree_util.tree_map(lambda leaf, k=k: leaf[:, k], maps) for k in range(block)]
+    prefix = [column[0]]
+    for k in range(1, block):
+        prefix.append(compose(prefix[-1], column[k]))
+    return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves, axis=1), *prefix)
+
+
+def prefix_compositions(maps: Any, method: str = "doubling", axis: int = 0) -> Any:
+    """Map k composed with every map before it (`maps[k] o ... o maps[0]`), for every k along `axis`: the state
+    maps from the initial state to the state after each sample. `method`: "doubling" or "blelloch"."""
+    if method == "blelloch":
+        return jax.lax.associative_scan(compose, maps, axis=axis)
+    length = jax.tree_util.tree_leaves(maps)[0].shape[axis]
     shift = 1
     while shift < length:  # after the round with shift s, map k holds the composition of samples k - 2s + 1 ... k
-        earlier = jax.tree_util.tree_map(lambda leaf, s=shift: jnp.roll(leaf, s, axis=0), maps)
-        composed = compose(earlier, maps)  # the first `shift` entries compose with wrapped-around maps: not kept
-
-        def keep(new: jax.Array, old: jax.Array, s: int = shift) -> jax.Array:
-            reached = (index >= s).reshape((length,) + (1,) * (new.ndim - 1))
-            return jnp.where(reached, new, old)
-
-        maps = jax.tree_util.tree_map(keep, composed, maps)
+        maps = compose(delayed(maps, shift, axis), maps)  # identity maps before the first sample
         shift *= 2
     return maps
