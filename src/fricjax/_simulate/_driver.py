@@ -92,12 +92,12 @@ def simulate(
       loop's minor axis, outputs written in `(batch, time)` order (models that declare it: LuGre, Maxwell-slip LR /
       NLR); `"vmap"` vmap's own batching; `"auto"` (default) batch-minor where the model declares it.
     - `scan`: how time is traversed (the values are the same to round-off; speed only): `"sequential"` one step
-      after another (`lax.scan`); `"parallel"` the time-parallel form, an associative scan over the model's state
+      after another (`lax.scan`); `"parallel"` the time-parallel form, a parallel prefix of the model's state
       maps in O(log T) depth (LuGre, exact Maxwell-slip LR / NLR, exact play operators, static laws; an error for
       other models); `"auto"` (default) the parallel form on a GPU / TPU for records of at least 256 samples
       when the model has one, the sequential scan otherwise (on a CPU the sequential loop is faster).
-      Differentiated, the parallel form uses JAX's derivatives of its operations (`derivatives` applies to the
-      sequential scan).
+      Differentiated, the parallel form's tangent is one more parallel scan, of affine maps (`derivatives`
+      applies to the sequential scan).
 
     **Returns:** the outputs along time: the friction force `(T,)` for friction models.
 
