@@ -3,7 +3,17 @@
 import os
 import pathlib
 
-import jax
+# The command line's persistent compilation cache stays off in the test process and its subprocesses: one in-process
+# `fj.main(["compare", ...])` would turn it on for the rest of the session, writing every program the session compiles
+# into the user's ~/.cache/fricjax (a cold cache's writes cost the fast tier 70-90 s). The tests of the cache itself
+# drop this variable for their subprocesses.
+os.environ.setdefault("FRICJAX_NO_CACHE", "1")
+# One host device: the tests compile thousands of small programs, and with one device per core (fricjax's default,
+# src/fricjax/_xla_flags.py) the batches of 32 and more rows compile as partitioned programs, which takes longer (fast
+# tier 369 s against 340 s, cold, 2 cores). tests/test_sharding.py and tests/test_xla_flags.py run the default.
+os.environ.setdefault("FRICJAX_HOST_DEVICES", "1")
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 

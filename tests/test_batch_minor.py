@@ -133,6 +133,7 @@ def test_nested_vmap_and_fir_force_maps_with_history():
     np.testing.assert_allclose(out, simulate_each([dnlrx(s) for s in scales], [mo] * 4), rtol=0, atol=ATOL)
 
 
+@pytest.mark.slow  # moved from the fast tier, which must run cold in under 5 minutes on 2 cores (2026-11-27: 319 s)
 def test_derivatives_are_the_plain_scans():
     """Forward derivatives of a batch (first: a jitted program batched before it is differentiated, the case
     where the derivative rule's batch axes must match the vmap rule's), gradients of a loss summed over a batch

@@ -96,6 +96,7 @@ def test_records_that_do_not_go_together_are_refused_in_one_line(records, tmp_pa
     assert not (tmp_path / "never" / "report.json").exists()
 
 
+@pytest.mark.slow  # moved from the fast tier, which must run cold in under 5 minutes on 2 cores (2026-11-27: 345 s)
 def test_a_test_record_starts_from_the_state_fitted_on_its_window():
     """`predict_test_record`: a record cut mid-loop, scored after its window: starting from the fitted state beats
     the run from rest with the window's mean error as offset (the former default, `--init offset`)."""

@@ -469,7 +469,11 @@ def test_separable_maxwell_slip_dnlrx_fir():
     np.testing.assert_allclose(got, ls, rtol=1e-6, atol=1e-8)
 
 
-@pytest.mark.parametrize("solver", [optax.adam(1e-3), fj.levenberg_marquardt()], ids=["optax", "optimistix"])
+@pytest.mark.parametrize(
+    "solver",
+    [pytest.param(optax.adam(1e-3), marks=pytest.mark.slow), fj.levenberg_marquardt()],
+    ids=["optax", "optimistix"],
+)
 def test_separable_only_linear_parameters_left(solver):
     motion = sine_motion(growing=True)
     thresholds = fj.Fixed(jnp.array([2e-6, 2e-5]))

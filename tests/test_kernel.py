@@ -241,6 +241,7 @@ def polynomial_truth():
     return fj.PolynomialNARX(regressors(), terms, theta, THETA0)
 
 
+@pytest.mark.slow  # moved from the fast tier, which must run cold in under 5 minutes on 2 cores (2026-11-27: 319 s)
 def test_identification_recovers_a_known_polynomial_narx(motion):
     """Clean free-run data of a degree-2 polynomial NARX; the polynomial kernel of degree 2 spans every such
     model (28 monomials of 6 regressors), so kernel ridge regression with a tiny ridge recovers it: the free
@@ -286,7 +287,9 @@ def test_output_error_refinement_with_fit(motion):
     np.testing.assert_array_equal(fj.unwrap(fitted.model.centres), fj.unwrap(result.model.centres))
 
 
-@pytest.mark.parametrize("input_lags", [1, pytest.param([0, 1], marks=pytest.mark.slow)])
+@pytest.mark.parametrize(
+    "input_lags", [pytest.param(1, marks=pytest.mark.slow), pytest.param([0, 1], marks=pytest.mark.slow)]
+)
 def test_grid_scores_and_the_chosen_candidate(noisy_record, input_lags):
     """Lags x two widths x three ridges: every candidate scored on the validation part; the chosen one has the
     lowest free-run NMSE, and that score is its own free run's (one vmapped simulation scores them all)."""
@@ -346,7 +349,7 @@ def series(kernels, z):
     return float(total)
 
 
-@pytest.mark.parametrize("physical", [False, True])
+@pytest.mark.parametrize("physical", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_volterra_expansion_reproduces_the_model(motion, physical):
     """The polynomial kernel of degree D: the kernels up to order D are the whole model, in normalised or
     physical coordinates (with masks and a linear output transform); the exponential kernel's series converges

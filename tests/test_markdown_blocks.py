@@ -47,6 +47,10 @@ SLOW = {
     "docs/models/neural-narx.md": 25,
     "docs/models/polynomial-narx.md": 10,
     "docs/write-your-own-model.md": 12,
+    # fast tier under 5 minutes cold on 2 cores (2026-11-27): these run in the slow tier
+    "docs/models/static.md": 20,
+    "docs/models/dahl.md": 20,
+    "docs/models/maxwell-slip.md": 20,
 }
 
 

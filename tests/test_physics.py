@@ -541,6 +541,7 @@ def _gms_packed_case():
     return model, free, plain
 
 
+@pytest.mark.slow  # moved from the fast tier, which must run cold in under 5 minutes on 2 cores (2026-11-27: 319 s)
 def test_gms_packed_free_run_equals_plain_scan_values_and_gradients():
     """The free run of GMS packs its parameters (a custom JVP whose rule is the plain scan's JVP); the one-step
     mode (`measured=`, equal to the free run for a model without fed-back outputs) runs the plain scan."""

@@ -36,6 +36,7 @@ def _records(drift: bool = False, noise: float = 0.005) -> list[fj.FrictionData]
     return out
 
 
+@pytest.mark.slow  # moved from the fast tier, which must run cold in under 5 minutes on 2 cores (2026-11-27: 345 s)
 def test_padding_never_leaks_the_loss_is_the_mean_of_each_records_nmse():
     """Without nuisances the batch loss is exactly the mean of the single-record losses (each normalised by its own
     force spread): padding to the longest record changes nothing."""
@@ -79,6 +80,7 @@ def test_shared_parameters_and_each_records_offset_and_drift_are_recovered():
     assert fj.nmse(np.asarray(records[1].force), alone) < 0.1  # % (the noise floor is ~0.003 %)
 
 
+@pytest.mark.slow  # moved from the fast tier, which must run cold in under 5 minutes on 2 cores (2026-11-27: 345 s)
 def test_initial_state_of_each_record_is_estimated():
     """Records cut from the middle of a motion start in a state the model's rest state is not: the per-record
     initial state lets the fit explain the first samples (a Dahl model: its state is the force itself)."""
@@ -99,6 +101,7 @@ def test_initial_state_of_each_record_is_estimated():
     np.testing.assert_allclose(float(fj.unwrap(with_state.model).Fc), 1.0, rtol=1e-3)
 
 
+@pytest.mark.slow  # moved from the fast tier, which must run cold in under 5 minutes on 2 cores (2026-11-27: 319 s)
 def test_gradients_of_the_records_loss_agree_with_finite_differences():
     records = _records(drift=True)
     model = fj.unwrap(_start())
@@ -126,6 +129,7 @@ def test_gradients_of_the_records_loss_agree_with_finite_differences():
             np.testing.assert_allclose(analytic, numeric, rtol=1e-4, atol=1e-9)
 
 
+@pytest.mark.slow  # moved from the fast tier, which must run cold in under 5 minutes on 2 cores (2026-11-27: 345 s)
 def test_one_step_and_multiple_shooting_losses_take_record_lists():
     records = _records()
     narx = fj.MLPNARX.init(fj.NARXRegressors(("v",), 1, 2), 4, key=jax.random.PRNGKey(0))
@@ -172,6 +176,7 @@ def test_records_that_cannot_go_together_get_one_line_errors():
         fj.fit(_start(), [records[1], constant], steps=1)
 
 
+@pytest.mark.slow  # moved from the fast tier, which must run cold in under 5 minutes on 2 cores (2026-11-27: 345 s)
 def test_initialise_recovers_the_offset_and_state_a_record_starts_in():
     """Test-time initialisation: on a record cut from the middle of a motion (its model state is not rest) with a
     force-cell offset, the window's least-squares fit finds both, and the free run from them matches the record;

@@ -32,7 +32,7 @@ def test_one_device_is_the_identity_and_errors_name_the_fix():
 
 def _run(tmp_path: pathlib.Path, devices: int) -> dict[str, np.ndarray]:
     out = tmp_path / f"devices{devices}.npz"
-    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    env = dict(os.environ, JAX_PLATFORMS="cpu", FRICJAX_SHARD_MIN_ROWS="1")  # the small test batches sharded too
     flags = [f for f in env.get("XLA_FLAGS", "").split() if "device_count" not in f]
     env["XLA_FLAGS"] = " ".join([*flags, f"--xla_force_host_platform_device_count={devices}"])
     completed = subprocess.run(

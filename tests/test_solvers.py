@@ -178,6 +178,7 @@ def test_hostile_sweep_arguments(kwargs, argument):
         fj.sweep([START, START], DATA, **kwargs)
 
 
+@pytest.mark.slow  # moved from the fast tier, which must run cold in under 5 minutes on 2 cores (2026-11-27: 319 s)
 def test_strategies_are_the_keywords_in_any_order():
     """The keywords are strategies: the same fit from `strategies=[...]`, in another order, to the bit."""
     lm = fj.levenberg_marquardt()

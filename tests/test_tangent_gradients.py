@@ -96,6 +96,7 @@ def test_tangent_gradients_refuses_a_model_that_feeds_back():
         fj.TangentGradients(narx)
 
 
+@pytest.mark.slow  # moved from the fast tier, which must run cold in under 5 minutes on 2 cores (2026-11-27: 345 s)
 def test_derivatives_are_an_option_of_the_driver():
     """`fj.simulate(..., derivatives="tangent")` and `fj.SimulationLoss(derivatives="tangent")` give the scan's
     derivatives (the choice on the driver, not on the model) and the wrapper's values, through a SensorDrift too

@@ -33,11 +33,14 @@ print(json.dumps({{"flags": os.environ.get("XLA_FLAGS", ""), "one_function": "xl
 """
 
 
-def _probe(xla_flags: str, *, started: bool = False, keep: bool = False) -> dict:
-    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "FRICJAX_KEEP_XLA_FLAGS")}
+def _probe(xla_flags: str, *, started: bool = False, keep: bool = False, host_devices: str | None = None) -> dict:
+    unset = ("XLA_FLAGS", "FRICJAX_KEEP_XLA_FLAGS", "FRICJAX_HOST_DEVICES")
+    env = {k: v for k, v in os.environ.items() if k not in unset}
     env.update(JAX_PLATFORMS="cpu", XLA_FLAGS=xla_flags)
     if keep:
         env["FRICJAX_KEEP_XLA_FLAGS"] = "1"
+    if host_devices is not None:
+        env["FRICJAX_HOST_DEVICES"] = host_devices
     result = subprocess.run(
         [sys.executable, "-c", PROBE, "started" if started else "fresh"],
         env=env,
@@ -71,8 +74,21 @@ def test_opting_out_leaves_xla_flags_alone_and_xla_its_default():
     out = _probe("--xla_force_host_platform_device_count=2", keep=True)
     assert out["flags"] == "--xla_force_host_platform_device_count=2"
     assert not out["one_function"]  # XLA's own default threshold: the scan runs op by op
-    own = _probe(f"--xla_backend_extra_options={KEY}=1024")  # the user's own value wins
+    own = _probe(f"--xla_backend_extra_options={KEY}=1024", host_devices="1")  # the user's own value wins
     assert own["flags"] == f"--xla_backend_extra_options={KEY}=1024" and not own["one_function"]
+
+
+@pytest.mark.slow  # three subprocesses (~2 s each)
+def test_every_core_is_a_host_device_unless_the_user_says_otherwise():
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    default = _probe("")
+    assert default["devices"] == max(1, min(cores, 8)) and default["one_function"]
+    assert _probe("", host_devices="3")["devices"] == 3
+    assert _probe("--xla_force_host_platform_device_count=5", host_devices="3")["devices"] == 5  # the user's flag
+    assert _probe("", host_devices="1")["devices"] == 1
+    with pytest.raises(subprocess.CalledProcessError) as error:
+        _probe("", host_devices="many")
+    assert "FRICJAX_HOST_DEVICES='many': expected a whole number" in error.value.stderr
 
 
 @pytest.mark.slow  # a subprocess (~2 s): the fast tier stays well under 5 minutes

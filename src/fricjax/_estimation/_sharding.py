@@ -12,6 +12,7 @@ sharding. For machines beyond one host see `benchmarks/multihost_sweep.py` (`jax
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 from typing import Any
 
@@ -20,14 +21,30 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+# With the default devices, a batch is spread only where each device gets at least this many rows
+# (`FRICJAX_SHARD_MIN_ROWS` to change): below that the partitioned program's overhead outweighs the second core (the
+# default `fricjax compare` on 2 host devices with every batch sharded, its 4-start fits included: 44.6 s, against
+# 40.6 s on one device and 38.1 s with this threshold; benchmarks/README.md)
+MIN_ROWS_PER_DEVICE = 16
+
+
+def min_rows_per_device() -> int:
+    """`MIN_ROWS_PER_DEVICE`, or `FRICJAX_SHARD_MIN_ROWS` when set."""
+    chosen = os.environ.get("FRICJAX_SHARD_MIN_ROWS", "").strip()
+    return int(chosen) if chosen else MIN_ROWS_PER_DEVICE
+
 
 def batch_devices(batch: int, devices: Sequence[Any] | None = None) -> list[Any]:
-    """The devices a batch of `batch` problems is spread over: of `devices` (default every local device) the
-    largest count that divides the batch (1 device: no sharding)."""
+    """The devices a batch of `batch` problems is spread over: of `devices` the largest count that divides the
+    batch (1 device: no sharding); with the default `devices` (every local device) only counts that leave each
+    device at least `min_rows_per_device()` rows."""
     pool = list(jax.local_devices() if devices is None else devices)
     if not pool:
         raise ValueError("shard_batch: `devices` is empty; pass None (every local device) or a list of devices.")
     count = math.gcd(int(batch), len(pool)) if batch > 0 else 1
+    if devices is None:
+        while count > 1 and batch < count * min_rows_per_device():
+            count = max(d for d in range(1, count) if count % d == 0)  # the next divisor down
     return pool[:count]
 
 
