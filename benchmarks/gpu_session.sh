@@ -32,16 +32,6 @@ done
 timeout "${FIT_S:-60}" python3 parallel_scan.py --lengths --prefix "$(best lugre)" --fit-length "${FIT_LENGTH:-1000000}" \
   | tee "$out/fit.jsonl"
 cd "$root"
-if [ "${COMPARE:-0}" = 1 ]; then
-  export FRICJAX_NO_CACHE=1  # first runs, compiled from scratch on both
-  for platform in default cpu; do
-    start=$(date +%s.%N)
-    if [ "$platform" = cpu ]; then env JAX_PLATFORMS=cpu timeout 150 python3 -m fricjax compare --no-progress \
-      --out "/tmp/compare-$platform" > "$out/compare-$platform.log" 2>&1
-    else timeout 150 python3 -m fricjax compare --no-progress --out "/tmp/compare-$platform" \
-      > "$out/compare-$platform.log" 2>&1; fi
-    status=$?
-    echo "compare on $platform: exit $status, $(python3 -c "import time; print(round(time.time() - $start, 1))") s" \
-      | tee -a "$out/compare.txt"
-  done
+if [ "${COMPARE:-0}" = 1 ]; then  # the wall time of a default compare on the GPU machine and on its CPU
+  bash "$root/benchmarks/accelerator.sh" "$out" compare
 fi
