@@ -10,7 +10,8 @@ import pathlib
 os.environ.setdefault("FRICJAX_NO_CACHE", "1")
 # One host device: the tests compile thousands of small programs, and with one device per core (fricjax's default,
 # src/fricjax/_xla_flags.py) the batches of 32 and more rows compile as partitioned programs, which takes longer (fast
-# tier 369 s against 340 s, cold, 2 cores). tests/test_sharding.py and tests/test_xla_flags.py run the default.
+# tier 369 s against 340 s, cold, 2 cores). tests/test_xla_flags.py runs the default
+# in subprocesses, tests/test_sharding.py several forced devices.
 os.environ.setdefault("FRICJAX_HOST_DEVICES", "1")
 
 import jax  # noqa: E402

@@ -93,6 +93,22 @@ def test_parallel_on_records_of_every_length_and_in_forward_mode():
     assert _relative(parallel, sequential) < 1e-10
 
 
+def test_parallel_gradients_of_a_float32_model_from_a_python_float_state():
+    """A weakly typed initial state (a Python float) takes the float32 model's dtype: so must its tangent."""
+    motion = fj.Motion.from_position(np.asarray(_motion(300, seed=7).x, np.float32), dt=1e-3)
+    model = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32) if eqx.is_inexact_array(x) else x, _lugre())
+    state = eqx.tree_at(lambda s: s.z, fj.unwrap(model).init_state(), 0.0)
+
+    def loss(m: object, scan: str) -> jax.Array:
+        return jnp.mean(fj.simulate(m, motion, state, scan=scan) ** 2)
+
+    parallel = eqx.filter_grad(loss)(model, "parallel")
+    sequential = eqx.filter_grad(loss)(model, "sequential")
+    for a, b in zip(jax.tree_util.tree_leaves(parallel), jax.tree_util.tree_leaves(sequential), strict=True):
+        assert a.dtype == jnp.float32
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-3, atol=1e-6)
+
+
 @pytest.mark.slow
 def test_parallel_play_operators_and_forward_mode():
     motion = _motion(600, seed=2)

@@ -73,8 +73,10 @@ def add_host_devices_flag(environ: MutableMapping[str, str]) -> bool:
     if environ.get("FRICJAX_KEEP_XLA_FLAGS"):
         return False
     flags = environ.get("XLA_FLAGS", "")
+    if HOST_DEVICES_FLAG in flags:  # the user's own count (or a parent process's, inherited with XLA_FLAGS) wins
+        return False
     count = host_device_count(environ)
-    if HOST_DEVICES_FLAG in flags or count == 1:
+    if count == 1:
         return False
     environ["XLA_FLAGS"] = " ".join([*flags.split(), f"{HOST_DEVICES_FLAG}={count}"])
     return True

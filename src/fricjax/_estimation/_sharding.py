@@ -31,18 +31,23 @@ MIN_ROWS_PER_DEVICE = 16
 def min_rows_per_device() -> int:
     """`MIN_ROWS_PER_DEVICE`, or `FRICJAX_SHARD_MIN_ROWS` when set."""
     chosen = os.environ.get("FRICJAX_SHARD_MIN_ROWS", "").strip()
-    return int(chosen) if chosen else MIN_ROWS_PER_DEVICE
+    if not chosen:
+        return MIN_ROWS_PER_DEVICE
+    try:
+        return int(chosen)
+    except ValueError:
+        raise ValueError(f"FRICJAX_SHARD_MIN_ROWS={chosen!r}: expected a whole number of rows per device") from None
 
 
 def batch_devices(batch: int, devices: Sequence[Any] | None = None) -> list[Any]:
     """The devices a batch of `batch` problems is spread over: of `devices` the largest count that divides the
-    batch (1 device: no sharding); with the default `devices` (every local device) only counts that leave each
-    device at least `min_rows_per_device()` rows."""
+    batch (1 device: no sharding); with the default `devices` (every local device) on a CPU only counts that leave
+    each host device at least `min_rows_per_device()` rows."""
     pool = list(jax.local_devices() if devices is None else devices)
     if not pool:
         raise ValueError("shard_batch: `devices` is empty; pass None (every local device) or a list of devices.")
     count = math.gcd(int(batch), len(pool)) if batch > 0 else 1
-    if devices is None:
+    if devices is None and pool[0].platform == "cpu":  # measured on host devices; accelerators take any batch
         while count > 1 and batch < count * min_rows_per_device():
             count = max(d for d in range(1, count) if count % d == 0)  # the next divisor down
     return pool[:count]

@@ -107,6 +107,17 @@ def delayed(maps: Any, places: int, axis: int = 0) -> Any:
     return jax.tree_util.tree_map(lambda m: m.delayed(places, axis), maps, is_leaf=is_state_maps)
 
 
+def full_fields(maps: Any, state: Any) -> Any:
+    """A tree of state maps with every field broadcast to `(T, *state.shape)` of its state leaf (fields may be
+    given broadcastable, e.g. `(T, 1)`; the blocked prefix stacks compositions, which broadcast)."""
+
+    def full(m: AbstractStateMaps, s: Any) -> AbstractStateMaps:
+        fields = [getattr(m, field.name) for field in dataclasses.fields(m)]
+        return type(m)(*(jnp.broadcast_to(v, (jnp.shape(v)[0], *jnp.shape(s))) for v in fields))
+
+    return jax.tree_util.tree_map(full, maps, state, is_leaf=is_state_maps)
+
+
 def apply(maps: Any, state: Any) -> Any:
     """A tree of state maps applied to the state tree it is shaped like."""
     return jax.tree_util.tree_map(lambda m, s: m(jnp.asarray(s)), maps, state, is_leaf=is_state_maps)

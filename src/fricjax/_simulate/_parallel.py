@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from .._models._base import AbstractModel
-from .._models._state_maps import AffineMaps, apply, compose, delayed
+from .._models._state_maps import AffineMaps, apply, compose, delayed, full_fields
 from ._scan import split_time_signals
 
 SCANS = ("auto", "sequential", "parallel")
@@ -97,7 +97,7 @@ def parallel_run(model: AbstractModel, samples: Any, state: Any, return_states: 
 def states_after(maps: Any, state: Any, method: str | None = None) -> Any:
     """The state after every sample: the prefix compositions of `maps` applied to the initial `state`, by
     `method` (default `PREFIX`). Differentiated by `_states_after_jvp`."""
-    return _states_after(PREFIX if method is None else method, maps, state)
+    return _states_after(PREFIX if method is None else method, full_fields(maps, state), state)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
@@ -124,7 +124,8 @@ def _states_after_jvp(method: str, primals: tuple[Any, Any], tangents: tuple[Any
     _, scale = jax.jvp(lambda s: apply(maps, s), (entering,), (ones,))
     _, shift = jax.jvp(lambda m: apply(m, entering), (maps,), (maps_dot,))
     linear = jax.tree_util.tree_map(AffineMaps, scale, shift)
-    state_dot = jax.tree_util.tree_map(lambda d, s: jnp.asarray(d, s.dtype), state_dot, state)
+    # the tangents in the dtype of the states (a weakly typed Python-float initial state takes the maps' dtype)
+    state_dot = jax.tree_util.tree_map(lambda d, s: jnp.asarray(d, s.dtype), state_dot, after)
     return after, _states_after(method, linear, state_dot)
 
 
