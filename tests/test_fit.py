@@ -169,6 +169,7 @@ def lugre_problem():
     return model, fj.FrictionData(motion, fj.simulate(model, motion))
 
 
+@pytest.mark.slow  # moved from the fast tier (under 5 minutes cold on 2 cores; 2026-11-27: 291 s, clean clone)
 def test_multiple_shooting_loss_at_true_model(lugre_problem):
     model, data = lugre_problem
     length = 64  # 300 samples hold 4 whole segments; the last 44 samples are not scored

@@ -94,7 +94,10 @@ def numpy_rnn(model, motion, eps=None):
 NARX_NAMES = ["mlp_narx", "gsnn", "gsnn_exp", "gsnn_tanh", "avd", "mlp_plays", "gsnn_plays"]
 
 
-@pytest.mark.parametrize("name", NARX_NAMES)
+@pytest.mark.parametrize(
+    "name",  # the MLP NARX is checked against NumPy in test_battery.py too: its compile here in the slow tier
+    [pytest.param(n, marks=pytest.mark.slow) if n == "mlp_narx" else n for n in NARX_NAMES],
+)
 def test_narx_free_run_and_one_step_match_numpy(name):
     model = neural_table()[name]
     free = np.asarray(fj.simulate(model, MOTION))

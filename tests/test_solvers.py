@@ -228,6 +228,7 @@ def test_strategy_arguments_are_checked():
         fj.EarlyStopping(-1)
 
 
+@pytest.mark.slow  # moved from the fast tier (under 5 minutes cold on 2 cores; 2026-11-27: 291 s, clean clone)
 def test_least_squares_steps_optimistix_as_optimistix_does():
     """fj.least_squares runs an optimistix solver in the one loop: the same iterate as optx.least_squares."""
     t = jnp.linspace(0.0, 1.0, 80)
