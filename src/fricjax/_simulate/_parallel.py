@@ -83,15 +83,18 @@ def parallel_run(model: AbstractModel, samples: Any, state: Any, return_states: 
     state = jax.tree_util.tree_map(jnp.asarray, state)
     if jax.tree_util.tree_leaves(maps):
         after = states_after(maps, state)
-        entering = jax.tree_util.tree_map(
-            lambda s0, s: jnp.concatenate([s0[None].astype(s.dtype), s[:-1]]), state, after
-        )
+        entering = _entering(state, after)
     else:  # no state (a static law): every sample is evaluated at once
         entering = state
     steps, rebuild = split_time_signals(samples)
     leaving, outputs = jax.vmap(lambda s, signals: model.step(s, rebuild(signals)))(entering, steps)
     final = jax.tree_util.tree_map(lambda s: s[-1], leaving)
     return final, ((outputs, leaving) if return_states else outputs)
+
+
+def _entering(state: Any, after: Any) -> Any:
+    """The state entering every sample (or block): the initial `state`, then `after` shifted by one."""
+    return jax.tree_util.tree_map(lambda s0, s: jnp.concatenate([jnp.asarray(s0, s.dtype)[None], s[:-1]]), state, after)
 
 
 def states_after(maps: Any, state: Any, method: str | None = None) -> Any:
@@ -117,9 +120,7 @@ def _states_after_jvp(method: str, primals: tuple[Any, Any], tangents: tuple[Any
     maps, state = primals
     maps_dot, state_dot = tangents
     after = _states_after(method, maps, state)
-    entering = jax.tree_util.tree_map(
-        lambda s0, s: jnp.concatenate([jnp.asarray(s0, s.dtype)[None], s[:-1]]), state, after
-    )
+    entering = _entering(state, after)
     ones = jax.tree_util.tree_map(jnp.ones_like, entering)
     _, scale = jax.jvp(lambda s: apply(maps, s), (entering,), (ones,))
     _, shift = jax.jvp(lambda m: apply(m, entering), (maps,), (maps_dot,))
@@ -148,9 +149,7 @@ def _blocked_states(maps: Any, state: Any, block: int) -> Any:
         after = apply(prefix_compositions(totals, "doubling"), state)
     else:
         after = _blocked_states(totals, state, block)  # the state leaving every block
-    entering = jax.tree_util.tree_map(
-        lambda s0, s: jnp.concatenate([s0[None].astype(s.dtype), s[:-1]])[:, None], state, after
-    )
+    entering = jax.tree_util.tree_map(lambda s: s[:, None], _entering(state, after))
     states = apply(within, entering)
     return jax.tree_util.tree_map(lambda s: s.reshape((blocks * block, *s.shape[2:]))[:length], states)
 
