@@ -153,6 +153,51 @@ def test_multistart_sweep_and_validation_records():
     assert result.train_loss.shape == (2,) and np.all(np.isfinite(result.val_loss))
 
 
+def test_host_signals_are_the_samples_signals_in_numpy():
+    """`Motion.host_signals` derives the missing signals as `Motion.samples` does (central differences, zero-order
+    hold), in NumPy: what a batch of records is padded from."""
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=57)
+    for motion in (
+        fj.Motion(x=np.cumsum(v) * 1e-4, dt=1e-3),
+        fj.Motion(v=v, dt=1e-3),
+        fj.Motion.from_velocity(v, 1e-3),
+    ):
+        requires = frozenset({"a"})
+        host, traced = motion.host_signals(requires), motion.samples(requires)
+        for ours, theirs in zip(host[:3], (traced.x, traced.v, traced.a), strict=True):
+            assert isinstance(ours, np.ndarray)
+            np.testing.assert_allclose(ours, np.asarray(theirs), rtol=1e-13, atol=1e-18)
+        assert host[3] is None
+
+
+def test_a_fit_to_several_records_compiles_a_few_programs_however_many_records():
+    """Padding and stacking run on the host and every per-record step inside compiled programs: the first fit over
+    five records of five lengths compiles the start (one run of every record), the solver's evaluation and the
+    report, and maybe the model's own parameter ranges (at most 4 programs, not some per record); a second fit of
+    the same shapes compiles none."""
+    truth = _truth()
+    records = []
+    for i, n in enumerate((301, 407, 523, 611, 719)):  # lengths no other test uses: nothing compiled before
+        motion = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * (1.0 + 0.3 * i) * np.arange(n) * DT), dt=DT)
+        records.append(fj.FrictionData(motion, np.asarray(fj.simulate(truth, motion)) + 0.1 * i))
+    compiled = []
+
+    def listen(name, duration, **_):
+        if name == "/jax/core/compile/backend_compile_duration":
+            compiled.append(duration)
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    kwargs = dict(solver=fj.levenberg_marquardt(), steps=3, progress=False)
+    first = fj.fit(_start(), records, **kwargs)
+    count = len(compiled)
+    again = fj.fit(_start(), records, **kwargs)
+    assert count <= 4, f"the first fit compiled {count} programs"
+    assert len(compiled) == count, f"the second fit of the same shapes compiled {len(compiled) - count} programs"
+    assert first.records is not None and first.records.offset.shape == (5,)
+    np.testing.assert_allclose(first.train_loss, again.train_loss, rtol=1e-12)
+
+
 def test_records_that_cannot_go_together_get_one_line_errors():
     records = _records()
     other = fj.FrictionData(fj.Motion.from_position(np.asarray(records[0].motion.x), dt=2e-3), records[0].force)

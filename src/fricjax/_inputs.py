@@ -4,7 +4,7 @@ input signals of a system model), the per-step samples a model's `step` sees, an
 from __future__ import annotations
 
 import warnings
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax
@@ -119,19 +119,33 @@ class Motion(eqx.Module):
         by zero-order hold, `a` from `v` by central differences (only when `"a"` is in `requires`);
         `normal_force` is included when `"normal_force"` is in `requires` (it cannot be derived).
         """
-        dt = self.dt
-        x, v = self.x, self.v
+        x, v, a, normal_force = self._signals(requires, host=False)
+        dx = jnp.diff(x, axis=-1, prepend=x[..., :1])
+        dt_value = jnp.ones((), x.dtype) if self.dt is None else self.dt
+        return MotionSample(x=x, v=v, dx=dx, dt=dt_value, a=a, normal_force=normal_force)
+
+    def host_signals(self, requires: frozenset[str] | tuple[str, ...] = ()) -> tuple[np.ndarray, ...]:
+        """`(x, v, a, normal_force)` as NumPy arrays, derived as in `samples` but on the host (no XLA program per
+        record length: what padding several records of different lengths into one batch uses); `a` and
+        `normal_force` are None unless asked for in `requires`."""
+        return self._signals(requires, host=True)
+
+    def _signals(self, requires: frozenset[str] | tuple[str, ...], host: bool) -> tuple[Any, ...]:
+        def take(signal: Any) -> Any:  # on the host: NumPy arrays; traced: as they are
+            return np.asarray(signal) if host and signal is not None else signal
+
+        dt = take(self.dt)
+        x, v = take(self.x), take(self.v)
+        zeros = np.zeros_like if host else jnp.zeros_like
         if v is None:
             assert x is not None  # __init__ guarantees one of the two
-            v = velocity_from_position(x, dt) if dt is not None else jnp.zeros_like(x)
+            v = velocity_from_position(x, dt) if dt is not None else zeros(x)
         if x is None:
-            x = position_from_velocity(v, dt) if dt is not None else jnp.zeros_like(v)
-        dx = jnp.diff(x, axis=-1, prepend=x[..., :1])
-        dt_value = jnp.ones((), x.dtype) if dt is None else dt
+            x = position_from_velocity(v, dt) if dt is not None else zeros(v)
         a = None
         if "a" in requires:
             if self.a is not None:
-                a = self.a
+                a = take(self.a)
             elif dt is not None:
                 a = velocity_from_position(v, dt)
             else:
@@ -140,8 +154,8 @@ class Motion(eqx.Module):
         if "normal_force" in requires:
             if self.normal_force is None:
                 raise ValueError("Motion: the model needs the normal load; pass Motion(..., normal_force=...) [N].")
-            normal_force = self.normal_force
-        return MotionSample(x=x, v=v, dx=dx, dt=dt_value, a=a, normal_force=normal_force)
+            normal_force = take(self.normal_force)
+        return x, v, a, normal_force
 
     @classmethod
     def from_position(cls, x: ArrayLike, dt: ArrayLike) -> Motion:
@@ -160,11 +174,17 @@ def velocity_from_position(x: Array, dt: Array) -> Array:
     """Central differences (second order inside, first order at the two ends) along the last axis."""
     if x.shape[-1] < 2:
         raise ValueError("Motion: need at least 2 samples to differentiate a signal.")
+    if isinstance(x, np.ndarray):  # on the host (NumPy in, NumPy out)
+        return np.gradient(x, axis=-1) / np.asarray(dt, x.dtype)
     return jnp.asarray(jnp.gradient(x, axis=-1)) / dt
 
 
 def position_from_velocity(v: Array, dt: Array, x0: ArrayLike = 0.0) -> Array:
     """Displacement from velocity under zero-order hold: `x_0 = x0`, `x_k = x_{k-1} + v_k * dt`."""
+    if isinstance(v, np.ndarray):  # on the host (NumPy in, NumPy out)
+        increments = v * np.asarray(dt, v.dtype)
+        increments[..., 0] = 0.0
+        return np.asarray(x0, v.dtype) + np.cumsum(increments, axis=-1)
     increments = v.at[..., 0].set(0.0) * dt
     return jnp.asarray(x0, v.dtype) + jnp.cumsum(increments, axis=-1)
 

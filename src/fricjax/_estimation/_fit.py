@@ -227,10 +227,13 @@ def fit(
     )
     count = jax.tree_util.tree_leaves(plan.starts)[0].shape[0] if jax.tree_util.tree_leaves(plan.starts) else 1
     if isinstance(loss, RecordsLoss):
-        loss = loss.bind(model, data)
+        loss, extra0 = loss.bind_and_start(model, data)
         problem = dataclasses.replace(problem, loss=loss, val_loss=loss.validation_loss())
-    extra0 = loss.init_extra(model, data)
-    extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + e.shape), extra0)
+    else:
+        extra0 = loss.init_extra(model, data)
+    extras = jax.tree_util.tree_map(
+        lambda e: jax.device_put(np.broadcast_to(np.asarray(e), (count,) + e.shape)), extra0
+    )
     ys0 = shard_batch((plan.starts, extras))  # the starts spread over the local devices (identity on one)
 
     bar = _progress_bar(progress, steps, solver.kind)

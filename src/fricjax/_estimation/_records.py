@@ -137,7 +137,9 @@ class RecordBatch(eqx.Module):
                 raise ValueError(f"fit: {name} of `{argument}` scores from sample {start} of {length}: nothing left.")
         total = max(lengths)
         padded = [_padded(r, total, requires, all(with_normal)) for r in records]
-        data = jax.tree_util.tree_map(lambda *leaves: jnp.stack([jnp.asarray(a) for a in leaves]), *padded)
+        data = jax.tree_util.tree_map(
+            lambda *leaves: jax.device_put(np.stack([np.asarray(a) for a in leaves])), *padded
+        )
         index = np.arange(total)
         mask = np.stack([(index >= s) & (index < n) for s, n in zip(starts, lengths, strict=True)])
         scale = np.array(
@@ -149,8 +151,8 @@ class RecordBatch(eqx.Module):
                     f"fit: the measured force of {name} in `{argument}` is constant over its scored samples (std = 0); "
                     "drop the record or check its force column."
                 )
-        dtype = jnp.asarray(records[0].force).dtype
-        return cls(data, jnp.asarray(mask), jnp.asarray(scale, dtype), lengths, names)
+        dtype = np.dtype(jnp.asarray(records[0].force).dtype)
+        return cls(data, jax.device_put(mask), jax.device_put(scale.astype(dtype)), lengths, names)
 
     @property
     def count(self) -> int:
@@ -180,21 +182,20 @@ class RecordBatch(eqx.Module):
 def _padded(record: FrictionData, total: int, requires: frozenset[str], normal: bool) -> FrictionData:
     """`record` with its position, velocity (and acceleration where the model reads it) derived once at its own
     length, then padded to `total` samples at rest (last position held, velocity 0); its normal load with `normal`
-    (every record of the batch holds one)."""
-    samples = record.motion.samples(requires & {"a", "normal_force"})
+    (every record of the batch holds one). All on the host (NumPy): no XLA program per record length."""
+    x, v, a, load = record.motion.host_signals(requires & {"a", "normal_force"})
+    if normal and load is None:
+        load = np.asarray(record.motion.normal_force)
     extra = total - record.length
 
-    def hold(a: Any) -> Any:
-        return None if a is None else jnp.concatenate([a, jnp.broadcast_to(a[-1:], (extra,))])
+    def hold(signal: Any) -> Any:
+        return None if signal is None else np.concatenate([signal, np.broadcast_to(signal[-1:], (extra,))])
 
-    def zero(a: Any) -> Any:
-        return None if a is None else jnp.concatenate([a, jnp.zeros((extra,), a.dtype)])
+    def zero(signal: Any) -> Any:
+        return None if signal is None else np.concatenate([signal, np.zeros((extra,), signal.dtype)])
 
-    load = record.motion.normal_force if normal else None
-    motion = Motion(
-        x=hold(samples.x), v=zero(samples.v), dt=record.motion.dt, a=zero(samples.a), normal_force=hold(load)
-    )
-    return FrictionData(motion, hold(record.force))
+    motion = Motion(x=hold(x), v=zero(v), dt=record.motion.dt, a=zero(a), normal_force=hold(load))
+    return FrictionData(motion, hold(np.asarray(record.force)))
 
 
 def as_record_batch(value: Any, model: Any, argument: str, score_from: Sequence[int] | None = None) -> Any:
@@ -294,23 +295,23 @@ class RecordsLoss(AbstractLoss):
     def bind(self, model: Any, batch: RecordBatch) -> RecordsLoss:
         """This loss with the initial-state scales of `model` on `batch` (the RMS of each state leaf along each
         record, from one simulation)."""
+        return self.bind_and_start(model, batch)[0]
+
+    def bind_and_start(self, model: Any, batch: RecordBatch) -> tuple[RecordsLoss, RecordExtra]:
+        """`bind(model, batch)` and the bound loss's `init_extra(model, batch)` from one simulation of every record,
+        in one compiled program (what `fj.fit` and `fj.sweep` call)."""
         if isinstance(self.loss, OneStepLoss) and not feeds_back(unwrap(model)):
             self.loss.residuals(model, None, batch.record(0))  # the loss's own error (no fed-back outputs)
-        if not self.nuisances.initial_state:
-            return self
-        _, states = _record_states(unwrap(model), batch)
-
-        def rms(leaf: Array) -> Array:
-            mask = batch.mask.reshape(batch.mask.shape + (1,) * (leaf.ndim - 2)).astype(leaf.dtype)
-            mean = jnp.sum(mask * leaf**2, axis=1) / jnp.maximum(jnp.sum(mask, axis=1), 1.0)
-            return jnp.sqrt(mean) + 1e-30
-
-        scales = jax.tree_util.tree_map(lambda leaf: rms(leaf) if eqx.is_inexact_array(leaf) else None, states)
-        return dataclasses.replace(self, state_scale=scales)
+        scales, extra = _bound_start(self, unwrap(model), batch)
+        return dataclasses.replace(self, state_scale=scales), extra
 
     def init_extra(self, model: Any, batch: RecordBatch) -> RecordExtra:
-        physical = unwrap(model)
-        forces, _ = _record_states(physical, batch, states=False)
+        return _initial_extra(self, unwrap(model), batch)
+
+    def _init_extra(self, physical: Any, batch: RecordBatch, forces: Array | None = None) -> RecordExtra:
+        """The starting nuisances (inside a compiled program); `forces`: the initial model's run, if made."""
+        if forces is None:
+            forces, _ = _record_states(physical, batch, states=False)
         count = jnp.maximum(jnp.sum(batch.mask, axis=1), 1)
         offset = None
         if self.nuisances.offset:  # least-squares offsets of the initial model
@@ -380,8 +381,32 @@ class RecordsLoss(AbstractLoss):
 
 
 @eqx.filter_jit
+def _bound_start(loss: RecordsLoss, model: Any, batch: RecordBatch) -> tuple[Any, RecordExtra]:
+    """The initial-state scales of `model` on `batch` (the RMS of each state leaf along each record over its scored
+    samples: leaves (R, ...), None for leaves that are not inexact arrays; None without initial-state nuisances)
+    and the bound loss's starting nuisances, from one run of the initial model along every record."""
+    if not loss.nuisances.initial_state:
+        return None, loss._init_extra(model, batch)
+    forces, states = _record_states(model, batch)
+
+    def rms(leaf: Array) -> Array:
+        mask = batch.mask.reshape(batch.mask.shape + (1,) * (leaf.ndim - 2)).astype(leaf.dtype)
+        mean = jnp.sum(mask * leaf**2, axis=1) / jnp.maximum(jnp.sum(mask, axis=1), 1.0)
+        return jnp.sqrt(mean) + 1e-30
+
+    scales = jax.tree_util.tree_map(lambda leaf: rms(leaf) if eqx.is_inexact_array(leaf) else None, states)
+    return scales, dataclasses.replace(loss, state_scale=scales)._init_extra(model, batch, forces)
+
+
+@eqx.filter_jit
+def _initial_extra(loss: RecordsLoss, model: Any, batch: RecordBatch) -> RecordExtra:
+    """`RecordsLoss.init_extra` as one compiled program (the initial model's run along every record included)."""
+    return loss._init_extra(model, batch)
+
+
 def _record_states(model: Any, batch: RecordBatch, states: bool = True) -> tuple[Array, Any]:
-    """The initial model's forces (R, T) and, with `states`, its states (leaves (R, T, ...)) along every record."""
+    """The initial model's forces (R, T) and, with `states`, its states (leaves (R, T, ...)) along every record
+    (inside a compiled program)."""
 
     def one(record: FrictionData) -> Any:
         samples = model.samples(record.motion)
@@ -433,17 +458,27 @@ class RecordNuisances:
 
 def record_nuisances(loss: RecordsLoss, model: Any, extra: RecordExtra, batch: RecordBatch) -> RecordNuisances:
     """The nuisances of a fitted `model` in SI units, with each record's training NMSE."""
+    offset, drift, state, nmse = jax.tree_util.tree_map(np.asarray, _nuisance_values(loss, model, extra, batch))
+    return RecordNuisances(
+        batch.names,
+        offset if extra.offset is not None else None,
+        drift if extra.rate is not None else None,
+        state if extra.state is not None else None,
+        nmse,
+    )
+
+
+@eqx.filter_jit
+def _nuisance_values(loss: RecordsLoss, model: Any, extra: RecordExtra, batch: RecordBatch) -> tuple[Any, ...]:
+    """Every record's offset [N], drift [N/s], initial state (leaves (R, ...)) and training NMSE, in one program."""
     physical = unwrap(model)
-    recorded = [loss._recorded(physical, extra, batch, jnp.asarray(i)) for i in range(batch.count)]
-    offset = None if extra.offset is None else np.asarray([float(r.offset) for r in recorded])
-    drift = None if extra.rate is None else np.asarray([float(r.rate) for r in recorded])
-    state = None
-    if extra.state is not None:
-        state = jax.tree_util.tree_map(
-            lambda *leaves: np.stack([np.asarray(a) for a in leaves]), *[r.state0 for r in recorded]
-        )
-    nmse = np.asarray(_record_nmse(loss, model, extra, batch))
-    return RecordNuisances(batch.names, offset, drift, state, nmse)
+
+    def one(index: Array) -> tuple[Any, ...]:
+        recorded = loss._recorded(physical, extra, batch, index)
+        return recorded.offset, recorded.rate, recorded.state0
+
+    offset, rate, state = jax.vmap(one)(jnp.arange(batch.count))
+    return offset, rate, state, _record_nmse(loss, model, extra, batch)
 
 
 @eqx.filter_jit
@@ -526,8 +561,9 @@ def initialise(
     if isinstance(physical, AbstractModel):
         physical.check_inputs(window.motion)
     batch = RecordBatch.from_records([window], requires=frozenset(getattr(physical, "requires", ())), argument="window")
-    loss = RecordsLoss(SimulationLoss(), Nuisances(offset, drift, initial_state)).bind(physical, batch)
-    extra0 = loss.init_extra(physical, batch)
+    loss, extra0 = RecordsLoss(SimulationLoss(), Nuisances(offset, drift, initial_state)).bind_and_start(
+        physical, batch
+    )
     if not (offset or initial_state or drift):
         nmse = float(_record_nmse(loss, physical, extra0, batch)[0])
         return Initialisation(0.0, physical.init_state(), nmse, 0)

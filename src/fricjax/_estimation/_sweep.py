@@ -147,7 +147,7 @@ def sweep(
     if isinstance(data, (list, tuple, dict, RecordBatch)):  # several records: per-record nuisances, as fj.fit
         nuisances = Nuisances() if nuisances is None else nuisances
         data = as_record_batch(data, one, "data")
-        loss = RecordsLoss(loss, nuisances).bind(one, data)
+        loss, extra0 = RecordsLoss(loss, nuisances).bind_and_start(one, data)
         val_loss_fn = loss.validation_loss()
         if isinstance(validation, (list, tuple, dict)):
             starts = [validation_burn_in] * len(validation)
@@ -155,7 +155,8 @@ def sweep(
     elif nuisances is not None:
         raise ValueError("sweep: `nuisances` are per-record parameters of a sweep over several records; pass a list.")
     params, static = eqx.partition(batch, trainable_filter(one))
-    extra0 = loss.init_extra(one, data)
+    if not isinstance(loss, RecordsLoss):
+        extra0 = loss.init_extra(one, data)
     extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + jnp.shape(e)), extra0)
     problem = Problem(loss, None, None, None, None, data, None, loss)
     ys = (params, extras)
