@@ -340,3 +340,27 @@ def test_levenberg_marquardt_step_keeps_well_determined_directions_beside_a_bare
     step = solver.propose(np, state, flat)[0]  # lambda = 1 / step_size = 1
     exact = -np.linalg.solve(J.T @ J + np.eye(3), J.T @ r)
     np.testing.assert_allclose(step, exact, rtol=1e-10, atol=1e-25)
+
+
+def test_levenberg_marquardt_converges_where_the_full_step_would_not_change_the_predictions():
+    """An accepted trial from which the full Gauss-Newton step changes the residuals by less than `rtol` of their norm
+    has converged, although that step is large relative to a parameter at 0 (a record's initial state, an offset):
+    on long simulations such steps stay at round-off and the step-length tests would hold only after ten more
+    rejected trials. A step that still changes the predictions is not converged."""
+    rng = np.random.default_rng(1)
+    J = rng.normal(size=(50, 3))
+    q, _ = np.linalg.qr(J)
+    r_perp = rng.normal(size=50)
+    r_perp -= q @ (q.T @ r_perp)  # the part of the residuals no parameter can explain
+    e = np.array([0.0, 1.0, 1.0])
+    solver, flat = fj.LevenbergMarquardt(rtol=1e-10, atol=1e-12), np.zeros((1, 3))
+
+    def products(y):  # [J r]^T [J r] at y, with r(y) = r_perp + J (e + y)
+        Jr = np.column_stack([J, r_perp + J @ (e + y)])
+        return (Jr.T @ Jr)[None]
+
+    state, _, _ = solver.judge(np, solver.start_state(np, flat), flat, flat, products(flat[0]), np.array([1.0]))
+    for leftover, converged in ((1e-11, True), (1e-6, False)):
+        trial = (-e + np.array([leftover, 0.0, 0.0]))[None]
+        new_state, accept, _ = solver.judge(np, state, flat, trial, products(trial[0]), np.array([1.0]))
+        assert accept.all() and bool(new_state.done[0]) is converged, leftover

@@ -8,11 +8,11 @@ of the predicted decrease, the step size grows 3.5x when it achieves 99 %, shrin
 (a non-finite trial is rejected). It converges on an accepted step that moves every parameter by less than
 `atol + rtol |y|` and changes the cost by less than `atol + rtol * cost` (optimistix compares each residual's
 change instead: a stricter test), and also where the full Gauss-Newton step from the new iterate would move every
-parameter by less than that. Same steps as `optx.LevenbergMarquardt` on well-conditioned problems, so the fits and
-benchmarks tuned on it keep their minima (the test checks the iterates against it); the step comes from the normal
-equations (scaled to a unit diagonal, SVD) where optimistix solves `[J; sqrt(lambda) I]` by QR, so on a Jacobian of
-condition ~1e6 and beyond its last digits are less accurate (more steps to the same tolerance), and in float32
-sooner.
+parameter by less than that, or change the residuals by less than `rtol` of their norm. Same steps as
+`optx.LevenbergMarquardt` on well-conditioned problems, so the fits and benchmarks tuned on it keep their minima
+(the test checks the iterates against it); the step comes from the normal equations (scaled to a unit diagonal,
+SVD) where optimistix solves `[J; sqrt(lambda) I]` by QR, so on a Jacobian of condition ~1e6 and beyond its last
+digits are less accurate (more steps to the same tolerance), and in float32 sooner.
 
 Why a solver of our own beside the optimistix adapter (`fj.OptimistixSolver(optx.LevenbergMarquardt(...))`): a
 fit's first call is dominated by compiling, and XLA spends 10-50 ms on every small kernel of a program (a P x P
@@ -107,7 +107,12 @@ def _judge(
     # tolerance (the model's minimum is there; optimistix takes further trust-region steps to see it)
     newton_step = _solve(xp, A_new, g_new, xp.zeros_like(cost_new))
     at_minimum = xp.all(xp.abs(newton_step) < atol + rtol * xp.abs(trial), axis=-1)
-    done = accept & evaluated & ((small_step & small_change) | at_minimum | (cost_new == 0))
+    # or where that full step would change the residuals by less than `rtol` of their norm (`|J d|^2 = g.d`): the
+    # model's predictions have converged. On long simulations the step itself stays near 1e-8 relative there
+    # (round-off; parameters near 0, such as a record's state), and the step length test alone shrinks the trust
+    # region for ten more rejected steps before it holds
+    flat = xp.sum(g_new * newton_step, axis=-1) < rtol**2 * 2 * cost_new
+    done = accept & evaluated & ((small_step & small_change) | at_minimum | flat | (cost_new == 0))
     pick = lambda new, old: xp.where(accept.reshape(accept.shape + (1,) * (new.ndim - accept.ndim)), new, old)  # noqa: E731
     new_state = LMState(
         gram=pick(A_new, A),
@@ -130,7 +135,8 @@ class LevenbergMarquardt(AbstractSolver):
     **Arguments:** `rtol`, `atol`: a start has converged on an accepted step that moves every parameter by less
     than `atol + rtol * |parameter|` and changes the cost (half the sum of squared residuals) by less than
     `atol + rtol * cost`, or after which even the full Gauss-Newton step would move every
-    parameter by less than `atol + rtol * |parameter|`, or at a cost of 0. For simulation fits of long records the
+    parameter by less than `atol + rtol * |parameter|` or change the residuals by less than `rtol` of their norm,
+    or at a cost of 0. For simulation fits of long records the
     Gauss-Newton steps meet round-off near 1e-9 relative: `rtol=1e-8` (scipy's default tolerances) ends such fits
     where further steps cannot be resolved; the default 1e-10 then lets the trust region shrink the steps first.
 
