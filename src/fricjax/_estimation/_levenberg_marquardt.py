@@ -175,13 +175,7 @@ class LevenbergMarquardt(AbstractSolver):
         """The trial point projected onto the bounds, `[J r]^T [J r]` there and the problem's loss (one start;
         traced)."""
         y = problem.project(y)
-        flat, unravel = jax.flatten_util.ravel_pytree(y)
-
-        def with_residuals(q: jax.Array) -> tuple[jax.Array, jax.Array]:
-            residuals = problem.residuals(unravel(q), args)
-            return residuals, residuals
-
-        J, r = jax.jacfwd(with_residuals, has_aux=True)(flat)
+        J, r = problem.jacobian(y, args)
         Jr = jnp.concatenate([J, r[:, None]], axis=1)
         products = jnp.matmul(Jr.T, Jr, precision=jax.lax.Precision.HIGHEST)
         return y, products, problem.loss_of_residuals(r)

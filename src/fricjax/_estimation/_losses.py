@@ -57,6 +57,14 @@ class AbstractLoss(eqx.Module):
         """Which samples of a record of `length` the force errors of `residuals` cover (in order)."""
         return slice(0, length)
 
+    def jacobian_groups(self, extra: Any, data: Any) -> tuple[int, Any] | None:
+        """The sparsity of the residuals' Jacobian, where the loss knows it: `(count, groups)` when the residual
+        vector is `count` equal consecutive blocks and block i depends on the model's parameters and on the elements
+        of `extra` whose group (`groups`: a pytree like `extra` of integer NumPy arrays) is i only (-1: on every
+        block); None (the default): every residual may depend on everything. A forward-mode Jacobian then shares
+        one tangent among the columns of different groups (`Problem.jacobian`)."""
+        return None
+
     def __call__(self, model: Any, extra: Any, data: Any) -> Array:
         return jnp.mean(self.residuals(model, extra, data) ** 2)
 

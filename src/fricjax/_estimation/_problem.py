@@ -269,6 +269,38 @@ class Problem(eqx.Module):
         params, extra = state
         return self.loss.residuals(self.materialise(params, static), extra, self.data)
 
+    def jacobian(self, state: Any, static: Any) -> tuple[jax.Array, jax.Array]:
+        """`(J, r)`: the residuals at `state` and their Jacobian with respect to the flattened `state`, by forward
+        mode. Where the loss declares a block structure (`AbstractLoss.jacobian_groups`: several records, each
+        residual block depending on the shared parameters and its own record's nuisances) the columns of different
+        records share one tangent (Curtis, Powell & Reid 1974: structurally orthogonal columns compressed), so a
+        fit to R records with k nuisances each propagates P + k tangents through the simulation instead of
+        P + R k; the Jacobian is then read back from the compressed one by each row's block."""
+        flat, unravel = jax.flatten_util.ravel_pytree(state)
+
+        def residuals(q: jax.Array) -> jax.Array:
+            return self.residuals(unravel(q), static)
+
+        def twice(q: jax.Array) -> tuple[jax.Array, jax.Array]:
+            r = residuals(q)
+            return r, r
+
+        groups = None if self.linear_spec is not None else self.loss.jacobian_groups(state[1], self.data)
+        if groups is None:  # a separable fit's linear solve couples every row with every variable
+            return jax.jacfwd(twice, has_aux=True)(flat)
+        count, extra_groups = groups
+        shared = jax.tree_util.tree_map(lambda leaf: np.full(np.shape(leaf), -1), state[0])
+        columns = np.concatenate(
+            [np.ravel(g) for g in jax.tree_util.tree_leaves((shared, extra_groups))] or [np.zeros(0, int)]
+        )
+        colors = _colours(columns)
+        seeds = np.zeros((colors.max(initial=-1) + 1, columns.size), flat.dtype)
+        seeds[colors, np.arange(columns.size)] = 1.0
+        r, compressed = jax.vmap(lambda seed: jax.jvp(residuals, (flat,), (seed,)), out_axes=(None, -1))(seeds)
+        block = jax.lax.broadcasted_iota(np.int32, (r.shape[0], 1), 0) // (r.shape[0] // count)
+        owned = (columns[None, :] < 0) | (block == columns[None, :])
+        return jnp.where(owned, compressed[:, colors], 0.0), r
+
     def loss_of_residuals(self, residuals: jax.Array) -> jax.Array:
         """`objective` from the residual vector: every fricjax loss is the mean square of its residuals."""
         return jnp.mean(residuals**2)
@@ -277,6 +309,19 @@ class Problem(eqx.Module):
         if self.validation is None:
             return jnp.asarray(jnp.nan)
         return self.val_loss(self.materialise(state[0], static), None, self.validation)
+
+
+def _colours(columns: np.ndarray) -> np.ndarray:
+    """One tangent (colour) per column of a grouped Jacobian (`columns`: each column's group, -1 for the columns
+    every row depends on): those get a colour each, and the k-th column of every group shares the k-th of the
+    rest (columns of different groups touch different rows)."""
+    colors = np.empty(columns.size, int)
+    shared = columns < 0
+    colors[shared] = np.arange(int(shared.sum()))
+    for group in np.unique(columns[~shared]):
+        where = np.flatnonzero(columns == group)
+        colors[where] = int(shared.sum()) + np.arange(where.size)
+    return colors
 
 
 def _times(u: Any, c: Any) -> Any:

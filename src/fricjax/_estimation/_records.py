@@ -308,6 +308,16 @@ class RecordsLoss(AbstractLoss):
     def init_extra(self, model: Any, batch: RecordBatch) -> RecordExtra:
         return _initial_extra(self, unwrap(model), batch)
 
+    def jacobian_groups(self, extra: Any, batch: RecordBatch) -> tuple[int, Any] | None:
+        """Record i's residuals (one block each) depend on the shared parameters and on record i's nuisances (every
+        leaf of `extra` has the records along its first axis) only."""
+        if extra is None:
+            return None
+        return batch.count, jax.tree_util.tree_map(
+            lambda leaf: np.broadcast_to(np.arange(batch.count).reshape((-1,) + (1,) * (leaf.ndim - 1)), leaf.shape),
+            extra,
+        )
+
     def _init_extra(self, physical: Any, batch: RecordBatch, forces: Array | None = None) -> RecordExtra:
         """The starting nuisances (inside a compiled program); `forces`: the initial model's run, if made."""
         if forces is None:
