@@ -37,12 +37,16 @@ class AbstractStateMaps(eqx.Module):
 
     IDENTITY: ClassVar[tuple[float, ...]] = ()
 
-    def delayed(self, places: int, axis: int = 0) -> Any:
+    def delayed(self, places: int | Array, axis: int = 0) -> Any:
         """The maps moved `places` samples later along `axis`, the first `places` being identity maps (the last
-        `places` dropped): one pad of every field, which XLA fuses into the composition that reads it."""
+        `places` dropped): one pad of every field, which XLA fuses into the composition that reads it; a traced
+        `places` (inside a loop) rolls every field and puts identity maps in front."""
         fields = [getattr(self, field.name) for field in dataclasses.fields(self)]
 
         def delay(value: Array, fill: float) -> Array:
+            if not isinstance(places, int):
+                index = jax.lax.broadcasted_iota(jnp.int32, value.shape, axis)
+                return jnp.where(index < places, jnp.asarray(fill, value.dtype), jnp.roll(value, places, axis))
             config = [(0, 0, 0)] * value.ndim
             config[axis] = (places, -places, 0)
             return jax.lax.pad(value, jnp.asarray(fill, value.dtype), config)
@@ -102,7 +106,7 @@ def compose(earlier: Any, later: Any) -> Any:
     return jax.tree_util.tree_map(lambda first, second: first.then(second), earlier, later, is_leaf=is_state_maps)
 
 
-def delayed(maps: Any, places: int, axis: int = 0) -> Any:
+def delayed(maps: Any, places: int | Array, axis: int = 0) -> Any:
     """A tree of state maps moved `places` samples later along `axis`, identity maps first."""
     return jax.tree_util.tree_map(lambda m: m.delayed(places, axis), maps, is_leaf=is_state_maps)
 

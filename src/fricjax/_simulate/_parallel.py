@@ -168,10 +168,15 @@ def _within_blocks(maps: Any) -> Any:
 
 def prefix_compositions(maps: Any, method: str = "doubling", axis: int = 0) -> Any:
     """Map k composed with every map before it (`maps[k] o ... o maps[0]`), for every k along `axis`: the state
-    maps from the initial state to the state after each sample. `method`: "doubling" or "blelloch"."""
+    maps from the initial state to the state after each sample. `method`: "doubling" or "blelloch". On a CPU
+    device the doubling rounds run in a `fori_loop` (benchmarks/README.md, "XLA:CPU and unrolled doubling
+    rounds"); on an accelerator they are unrolled (as measured there)."""
     if method == "blelloch":
         return jax.lax.associative_scan(compose, maps, axis=axis)
     length = jax.tree_util.tree_leaves(maps)[0].shape[axis]
+    if not on_accelerator():  # XLA:CPU runs unrolled rounds 20-30x slower than the same rounds in a loop
+        rounds = (length - 1).bit_length()
+        return jax.lax.fori_loop(0, rounds, lambda r, m: compose(delayed(m, jnp.left_shift(1, r), axis), m), maps)
     shift = 1
     while shift < length:  # after the round with shift s, map k holds the composition of samples k - 2s + 1 ... k
         maps = compose(delayed(maps, shift, axis), maps)  # identity maps before the first sample
