@@ -188,10 +188,13 @@ def test_a_fit_to_several_records_compiles_a_few_programs_however_many_records()
             compiled.append(duration)
 
     jax.monitoring.register_event_duration_secs_listener(listen)
-    kwargs = dict(solver=fj.levenberg_marquardt(), steps=3, progress=False)
-    first = fj.fit(_start(), records, **kwargs)
-    count = len(compiled)
-    again = fj.fit(_start(), records, **kwargs)
+    try:
+        kwargs = dict(solver=fj.levenberg_marquardt(), steps=3, progress=False)
+        first = fj.fit(_start(), records, **kwargs)
+        count = len(compiled)
+        again = fj.fit(_start(), records, **kwargs)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
     assert count <= 4, f"the first fit compiled {count} programs"
     assert len(compiled) == count, f"the second fit of the same shapes compiled {len(compiled) - count} programs"
     assert first.records is not None and first.records.offset.shape == (5,)

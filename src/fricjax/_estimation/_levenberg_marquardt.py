@@ -66,12 +66,14 @@ def _solve(xp: Any, A: Any, g: Any, damping: Any) -> Any:
     the damping inside the scale, so that a parameter the residuals barely see, whose diagonal the damping
     dominates, does not make the cut-off drop the well-determined directions)."""
     size = A.shape[-1]
+    # a rejected non-finite trial's matrix (NumPy's SVD raises on it, and its scaling warns): the identity instead,
+    # its result unused
+    finite = xp.all(xp.isfinite(A), axis=(-2, -1)) & xp.all(xp.isfinite(g), axis=-1) & xp.isfinite(damping)
+    A, g = xp.where(finite[..., None, None], A, xp.eye(size)), xp.where(finite[..., None], g, 0.0)
+    damping = xp.where(finite, damping, 0.0)
     diagonal = xp.maximum(xp.diagonal(A, axis1=-2, axis2=-1), 0.0) + damping[..., None]
     d = xp.where(diagonal > 0, xp.sqrt(xp.where(diagonal > 0, diagonal, 1.0)), 1.0)
     damped = (A + damping[..., None, None] * xp.eye(size)) / d[..., :, None] / d[..., None, :]
-    # a rejected non-finite trial's matrix (NumPy's SVD raises on it): the identity instead, its result unused
-    finite = xp.all(xp.isfinite(damped), axis=(-2, -1)) & xp.all(xp.isfinite(g), axis=-1)
-    damped, g = xp.where(finite[..., None, None], damped, xp.eye(size)), xp.where(finite[..., None], g, 0.0)
     U, s, Vt = np.linalg.svd(damped) if xp is np else jax.vmap(thin_svd)(damped)
     kept = s > s[..., :1] * size * np.finfo(A.dtype).eps
     coefficients = xp.where(kept, xp.einsum("bij,bi->bj", U, g / d) / xp.where(kept, s, 1.0), 0.0)
@@ -111,7 +113,7 @@ def _judge(
     # model's predictions have converged. On long simulations the step itself stays near 1e-8 relative there
     # (round-off; parameters near 0, such as a record's state), and the step length test alone shrinks the trust
     # region for ten more rejected steps before it holds
-    flat = xp.sum(g_new * newton_step, axis=-1) < rtol**2 * 2 * cost_new
+    flat = finite & (xp.sum(xp.where(finite[..., None], g_new, 0.0) * newton_step, axis=-1) < rtol**2 * 2 * cost_new)
     done = accept & evaluated & ((small_step & small_change) | at_minimum | flat | (cost_new == 0))
     pick = lambda new, old: xp.where(accept.reshape(accept.shape + (1,) * (new.ndim - accept.ndim)), new, old)  # noqa: E731
     new_state = LMState(

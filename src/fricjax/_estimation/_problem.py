@@ -22,6 +22,7 @@ from .._smoothing import on_host
 from ._covariance import parameter_std
 from ._losses import AbstractLoss, SimulationLoss
 from ._lstsq import lstsq
+from ._solvers import forward_jacobian
 from ._strategies import submodels, where_from_path
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -281,13 +282,9 @@ class Problem(eqx.Module):
         def residuals(q: jax.Array) -> jax.Array:
             return self.residuals(unravel(q), static)
 
-        def twice(q: jax.Array) -> tuple[jax.Array, jax.Array]:
-            r = residuals(q)
-            return r, r
-
         groups = None if self.linear_spec is not None else self.loss.jacobian_groups(state[1], self.data)
         if groups is None:  # a separable fit's linear solve couples every row with every variable
-            return jax.jacfwd(twice, has_aux=True)(flat)
+            return forward_jacobian(residuals, flat)
         count, extra_groups = groups
         shared = jax.tree_util.tree_map(lambda leaf: np.full(np.shape(leaf), -1), state[0])
         columns = np.concatenate(

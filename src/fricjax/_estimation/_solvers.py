@@ -40,6 +40,16 @@ def tree_finite(tree: Any) -> jax.Array:
     return jnp.all(jnp.stack(leaves)) if leaves else jnp.asarray(True)
 
 
+def forward_jacobian(residuals: Any, flat: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """`(J, r)`: the vector `residuals(flat)` and its dense Jacobian, by forward mode (one pass for both)."""
+
+    def twice(q: jax.Array) -> tuple[jax.Array, jax.Array]:
+        r = residuals(q)
+        return r, r
+
+    return jax.jacfwd(twice, has_aux=True)(flat)
+
+
 class AbstractSolver(eqx.Module):
     """A solver of the fit loop: `init` / `step` / `terminate` over a state (see the module docstring)."""
 

@@ -112,12 +112,14 @@ def delayed(maps: Any, places: int | Array, axis: int = 0) -> Any:
 
 
 def full_fields(maps: Any, state: Any) -> Any:
-    """A tree of state maps with every field broadcast to `(T, *state.shape)` of its state leaf (fields may be
-    given broadcastable, e.g. `(T, 1)`; the blocked prefix stacks compositions, which broadcast)."""
+    """A tree of state maps with every field broadcast to `(T, *state.shape)` of its state leaf and of one dtype
+    (fields may be given broadcastable, e.g. `(T, 1)`, or of mixed precision; the blocked prefix stacks
+    compositions, and the doubling rounds on a CPU carry them through a loop, which need both)."""
 
     def full(m: AbstractStateMaps, s: Any) -> AbstractStateMaps:
         fields = [getattr(m, field.name) for field in dataclasses.fields(m)]
-        return type(m)(*(jnp.broadcast_to(v, (jnp.shape(v)[0], *jnp.shape(s))) for v in fields))
+        dtype = jnp.result_type(*fields)
+        return type(m)(*(jnp.broadcast_to(v, (jnp.shape(v)[0], *jnp.shape(s))).astype(dtype) for v in fields))
 
     return jax.tree_util.tree_map(full, maps, state, is_leaf=is_state_maps)
 
