@@ -274,9 +274,10 @@ class Problem(eqx.Module):
         """`(J, r)`: the residuals at `state` and their Jacobian with respect to the flattened `state`, by forward
         mode. Where the loss declares a block structure (`AbstractLoss.jacobian_groups`: several records, each
         residual block depending on the shared parameters and its own record's nuisances) the columns of different
-        records share one tangent (Curtis, Powell & Reid 1974: structurally orthogonal columns compressed), so a
-        fit to R records with k nuisances each propagates P + k tangents through the simulation instead of
-        P + R k; the Jacobian is then read back from the compressed one by each row's block."""
+        records share one tangent (structurally orthogonal columns compressed: Curtis, Powell & Reid, "On the
+        estimation of sparse Jacobian matrices", J. Inst. Math. Appl. 13, 1974), so a fit to R records with k
+        nuisances each propagates P + k tangents through the simulation instead of P + R k; the Jacobian is then
+        read back from the compressed one by each row's block."""
         flat, unravel = jax.flatten_util.ravel_pytree(state)
 
         def residuals(q: jax.Array) -> jax.Array:
