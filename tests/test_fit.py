@@ -189,6 +189,41 @@ def test_multiple_shooting_loss_at_true_model(lugre_problem):
     assert np.max(np.abs(r_wrong[4 * length :])) > 0.1  # the continuity gaps show the wrong states
 
 
+def _gms_truth_and_start():
+    stribeck = fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3)
+    truth = fj.GMS(stribeck, k=[2e4, 1e4, 5e3], alpha=[0.5, 0.3, 0.2], C=20.0)
+    start = fj.GMS(fj.ExponentialStribeck(Fc=0.8, Fs=1.2, vs=2e-3), k=[3e4, 5e3, 5e3], alpha=[0.4, 0.4, 0.2], C=30.0)
+    return truth, start
+
+
+def _lugre_truth_and_start():
+    start = fj.LuGre(fj.ExponentialStribeck(Fc=0.7, Fs=1.2, vs=2e-3), sigma0=5e4, sigma1=200.0, sigma2=20.0)
+    return lugre(offset=0.0), start
+
+
+@pytest.mark.parametrize(
+    "models",
+    [
+        pytest.param(_lugre_truth_and_start, id="lugre"),
+        pytest.param(_gms_truth_and_start, id="gms", marks=pytest.mark.slow),  # the same check, two state leaves
+    ],
+)
+def test_multiple_shooting_jacobian_shares_tangents_and_takes_the_dense_steps(models):
+    """A segment's start moves only that segment and the two continuity gaps beside it, so fricjax's
+    Levenberg-Marquardt shares one tangent among every other segment's start (2 per state component instead of one
+    per segment); optimistix's differentiates every column. Both take the same iterates: LuGre (one state) and GMS
+    (two state leaves of three elements each)."""
+    truth, start = models()
+    motion = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * 1.3 * np.arange(900) * 1e-3), dt=1e-3)
+    data = fj.FrictionData(motion, fj.simulate(truth, motion))
+    start = fj.with_smoothing(start, fj.Smooth(1e-7))
+    kwargs = dict(loss=fj.MultipleShootingLoss(100), steps=3, scaling=fj.ParameterScaling())
+    ours = fj.fit(start, data, solver=fj.levenberg_marquardt(), **kwargs)
+    theirs = fj.fit(start, data, solver=optx.LevenbergMarquardt(1e-10, 1e-12), **kwargs)
+    for a, b in zip(jax.tree_util.tree_leaves(ours.model), jax.tree_util.tree_leaves(theirs.model), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-7, atol=1e-12)
+
+
 def test_multiple_shooting_loss_rejects_bad_segments(lugre_problem):
     model, data = lugre_problem
     for bad in (1, 0):

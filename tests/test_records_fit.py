@@ -201,7 +201,14 @@ def test_a_fit_to_several_records_compiles_a_few_programs_however_many_records()
     np.testing.assert_allclose(first.train_loss, again.train_loss, rtol=1e-12)
 
 
-def test_the_compressed_jacobian_of_several_records_takes_the_dense_one_s_steps():
+@pytest.mark.parametrize(
+    "loss",
+    [
+        pytest.param(fj.SimulationLoss(), id="simulation"),
+        pytest.param(fj.MultipleShootingLoss(400), id="multiple-shooting", marks=pytest.mark.slow),  # the same check
+    ],
+)
+def test_the_compressed_jacobian_of_several_records_takes_the_dense_one_s_steps(loss):
     """fricjax's Levenberg-Marquardt shares one tangent among the nuisances of different records (record i's
     residuals depend on its own offset, drift and state only); optimistix's differentiates every column. Both take
     the same iterates (the same algorithm), with the simulation loss and with multiple shooting (whose per-record
@@ -209,14 +216,13 @@ def test_the_compressed_jacobian_of_several_records_takes_the_dense_one_s_steps(
     import optimistix as optx
 
     records = _records(drift=True)
-    for loss in (fj.SimulationLoss(), fj.MultipleShootingLoss(400)):
-        kwargs = dict(nuisances=fj.Nuisances(drift=True), loss=loss, steps=3, scaling=fj.ParameterScaling())
-        ours = fj.fit(_start(), records, solver=fj.levenberg_marquardt(), **kwargs)
-        theirs = fj.fit(_start(), records, solver=optx.LevenbergMarquardt(1e-10, 1e-12), **kwargs)
-        for a, b in zip(jax.tree_util.tree_leaves(ours.model), jax.tree_util.tree_leaves(theirs.model), strict=True):
-            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-7, atol=1e-12)
-        np.testing.assert_allclose(ours.records.offset, theirs.records.offset, rtol=1e-7, atol=1e-9)
-        np.testing.assert_allclose(ours.records.drift, theirs.records.drift, rtol=1e-7, atol=1e-9)
+    kwargs = dict(nuisances=fj.Nuisances(drift=True), loss=loss, steps=3, scaling=fj.ParameterScaling())
+    ours = fj.fit(_start(), records, solver=fj.levenberg_marquardt(), **kwargs)
+    theirs = fj.fit(_start(), records, solver=optx.LevenbergMarquardt(1e-10, 1e-12), **kwargs)
+    for a, b in zip(jax.tree_util.tree_leaves(ours.model), jax.tree_util.tree_leaves(theirs.model), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(ours.records.offset, theirs.records.offset, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(ours.records.drift, theirs.records.drift, rtol=1e-7, atol=1e-9)
 
 
 def test_records_that_cannot_go_together_get_one_line_errors():

@@ -54,6 +54,7 @@ from ._estimation._levenberg_marquardt import levenberg_marquardt as levenberg_m
 from ._estimation._local_models import LocalModelResult as LocalModelResult
 from ._estimation._local_models import identify_local_model as identify_local_model
 from ._estimation._losses import AbstractLoss as AbstractLoss
+from ._estimation._losses import JacobianGroups as JacobianGroups
 from ._estimation._losses import MultipleShootingLoss as MultipleShootingLoss
 from ._estimation._losses import OneStepLoss as OneStepLoss
 from ._estimation._losses import SimulationLoss as SimulationLoss

@@ -8,11 +8,13 @@ loss value of 0.01 is an NMSE of 1 % (worden2007 eq. 1).
 from __future__ import annotations
 
 import abc
-from typing import Any, ClassVar
+from collections.abc import Callable
+from typing import Any, ClassVar, NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from .._constraints import unwrap
@@ -21,6 +23,23 @@ from .._metrics import scaled_std
 from .._models._base import feeds_back
 from .._simulate import check_options, run, split_time_signals
 from .._validation import integer, nonnegative_float, nonnegative_int
+
+
+class JacobianGroups(NamedTuple):
+    """Which residuals each element of a loss's `extra` moves (the model's parameters move every residual).
+
+    - `rows(n)`: the group of each of the `n` residuals, an `(n,)` integer array (traced or NumPy); a residual of
+      group < 0 depends on no element of `extra`;
+    - `columns`: a pytree like `extra` of integer NumPy arrays, the group of each element (>= 0);
+    - `reach`: an element of group g moves only residuals of groups `g + r`, r in `reach` (a superset is safe).
+
+    Several records: group = record, reach (0,). Multiple shooting: the start of segment m + 1 moves that segment's
+    errors and the continuity gaps m and m + 1: reach (0, 1).
+    """
+
+    rows: Callable[[int], Any]
+    columns: Any
+    reach: tuple[int, ...] = (0,)
 
 
 class AbstractLoss(eqx.Module):
@@ -57,12 +76,10 @@ class AbstractLoss(eqx.Module):
         """Which samples of a record of `length` the force errors of `residuals` cover (in order)."""
         return slice(0, length)
 
-    def jacobian_groups(self, extra: Any, data: Any) -> tuple[int, Any] | None:
-        """The sparsity of the residuals' Jacobian, where the loss knows it: `(count, groups)` when the residual
-        vector is `count` equal consecutive blocks and block i depends on the model's parameters and on the elements
-        of `extra` whose group (`groups`: a pytree like `extra` of integer NumPy arrays) is i only (-1: on every
-        block); None (the default): every residual may depend on everything. A forward-mode Jacobian then shares
-        one tangent among the columns of different groups (`Problem.jacobian`)."""
+    def jacobian_groups(self, extra: Any, data: Any) -> JacobianGroups | None:
+        """The sparsity of the residuals' Jacobian in `extra`, where the loss knows it (`JacobianGroups`); None (the
+        default): every residual may depend on every element of `extra`. Forward-mode Jacobians then share one
+        tangent among the elements whose residuals do not overlap (`Problem.jacobian`)."""
         return None
 
     def __call__(self, model: Any, extra: Any, data: Any) -> Array:
@@ -199,6 +216,30 @@ class MultipleShootingLoss(AbstractLoss):
 
     def scored_samples(self, length: int) -> slice:
         return slice(0, (length // self.segment_length) * self.segment_length)
+
+    def jacobian_groups(self, extra: Any, data: FrictionData) -> JacobianGroups | None:
+        """The start of segment m + 1 (`extra[m]`, group m) moves that segment's force errors (group m) and the
+        continuity gaps m (its own) and m + 1 (the segment's end); the first segment's errors depend on no extra."""
+        leaves = jax.tree_util.tree_leaves(extra)
+        if not leaves:
+            return None
+        gaps = len(leaves[0])  # K - 1
+        width = [int(np.prod(leaf.shape[1:], dtype=int)) for leaf in leaves]
+        length = self.segment_length
+
+        def rows(n: int) -> Any:
+            index = jax.lax.iota(np.int32, n)
+            start = (gaps + 1) * length
+            groups = [index[:start] // length - 1]  # segment j's errors: group j - 1
+            for w in width:  # each state leaf's gaps, (K - 1, w) flattened: gap m is group m
+                groups.append((index[start : start + gaps * w] - start) // w)
+                start += gaps * w
+            return jnp.concatenate(groups)
+
+        columns = jax.tree_util.tree_map(
+            lambda leaf: np.broadcast_to(np.arange(gaps).reshape((-1,) + (1,) * (leaf.ndim - 1)), leaf.shape), extra
+        )
+        return JacobianGroups(rows, columns, (0, 1))
 
     def scaled_residuals(self, model: Any, extra: Any, data: FrictionData, scale: Array, mask: Array | None) -> Array:
         model = unwrap(model)

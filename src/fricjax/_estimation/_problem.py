@@ -286,17 +286,18 @@ class Problem(eqx.Module):
         groups = None if self.linear_spec is not None else self.loss.jacobian_groups(state[1], self.data)
         if groups is None:  # a separable fit's linear solve couples every row with every variable
             return forward_jacobian(residuals, flat)
-        count, extra_groups = groups
         shared = jax.tree_util.tree_map(lambda leaf: np.full(np.shape(leaf), -1), state[0])
         columns = np.concatenate(
-            [np.ravel(g) for g in jax.tree_util.tree_leaves((shared, extra_groups))] or [np.zeros(0, int)]
+            [np.ravel(g) for g in jax.tree_util.tree_leaves((shared, groups.columns))] or [np.zeros(0, int)]
         )
-        colors = _colours(columns)
+        colors = _colours(columns, max(groups.reach) - min(groups.reach))
         seeds = np.zeros((colors.max(initial=-1) + 1, columns.size), flat.dtype)
         seeds[colors, np.arange(columns.size)] = 1.0
         r, compressed = jax.vmap(lambda seed: jax.jvp(residuals, (flat,), (seed,)), out_axes=(None, -1))(seeds)
-        block = jax.lax.broadcasted_iota(np.int32, (r.shape[0], 1), 0) // (r.shape[0] // count)
-        owned = (columns[None, :] < 0) | (block == columns[None, :])
+        rows = jnp.asarray(groups.rows(r.shape[0]))[:, None]
+        owned = columns[None, :] < 0
+        for offset in groups.reach:
+            owned = owned | ((rows >= 0) & (rows == columns[None, :] + offset))
         return jnp.where(owned, compressed[:, colors], 0.0), r
 
     def loss_of_residuals(self, residuals: jax.Array) -> jax.Array:
@@ -309,16 +310,20 @@ class Problem(eqx.Module):
         return self.val_loss(self.materialise(state[0], static), None, self.validation)
 
 
-def _colours(columns: np.ndarray) -> np.ndarray:
+def _colours(columns: np.ndarray, span: int = 0) -> np.ndarray:
     """One tangent (colour) per column of a grouped Jacobian (`columns`: each column's group, -1 for the columns
-    every row depends on): those get a colour each, and the k-th column of every group shares the k-th of the
-    rest (columns of different groups touch different rows)."""
+    every row depends on): those get a colour each; the k-th column of group g shares its colour with the k-th
+    column of the groups g + j (span + 1), j = +-1, +-2, ..., whose rows do not overlap (a column of group g
+    reaches the rows of groups g + r, r in an interval of width `span`)."""
     colors = np.empty(columns.size, int)
     shared = columns < 0
-    colors[shared] = np.arange(int(shared.sum()))
-    for group in np.unique(columns[~shared]):
+    base = int(shared.sum())
+    colors[shared] = np.arange(base)
+    grouped = np.unique(columns[~shared])
+    largest = max((int(np.sum(columns == g)) for g in grouped), default=0)
+    for group in grouped:
         where = np.flatnonzero(columns == group)
-        colors[where] = int(shared.sum()) + np.arange(where.size)
+        colors[where] = base + (int(group) % (span + 1)) * largest + np.arange(where.size)
     return colors
 
 

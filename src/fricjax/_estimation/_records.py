@@ -30,7 +30,7 @@ from .._inputs import Motion
 from .._metrics import scaled_std
 from .._models._base import AbstractModel, feeds_back
 from .._simulate import run
-from ._losses import AbstractLoss, OneStepLoss, SimulationLoss
+from ._losses import AbstractLoss, JacobianGroups, OneStepLoss, SimulationLoss
 
 __all__ = [
     "Initialisation",
@@ -308,14 +308,18 @@ class RecordsLoss(AbstractLoss):
     def init_extra(self, model: Any, batch: RecordBatch) -> RecordExtra:
         return _initial_extra(self, unwrap(model), batch)
 
-    def jacobian_groups(self, extra: Any, batch: RecordBatch) -> tuple[int, Any] | None:
-        """Record i's residuals (one block each) depend on the shared parameters and on record i's nuisances (every
-        leaf of `extra` has the records along its first axis) only."""
-        if extra is None:
+    def jacobian_groups(self, extra: Any, batch: RecordBatch) -> JacobianGroups | None:
+        """Record i's residuals (one equal block each, in record order) depend on the shared parameters and on
+        record i's nuisances only (every leaf of `extra` has the records along its first axis)."""
+        if not jax.tree_util.tree_leaves(extra):
             return None
-        return batch.count, jax.tree_util.tree_map(
-            lambda leaf: np.broadcast_to(np.arange(batch.count).reshape((-1,) + (1,) * (leaf.ndim - 1)), leaf.shape),
-            extra,
+        count = batch.count
+        return JacobianGroups(
+            rows=lambda n: jax.lax.iota(np.int32, n) // (n // count),
+            columns=jax.tree_util.tree_map(
+                lambda leaf: np.broadcast_to(np.arange(count).reshape((-1,) + (1,) * (leaf.ndim - 1)), leaf.shape),
+                extra,
+            ),
         )
 
     def _init_extra(self, physical: Any, batch: RecordBatch, forces: Array | None = None) -> RecordExtra:
