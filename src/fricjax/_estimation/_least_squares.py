@@ -43,7 +43,7 @@ class ResidualProblem(eqx.Module):
     def jacobian(self, y: Any, args: Any) -> tuple[jax.Array, jax.Array]:
         """`(J, r)`: the residuals and their dense Jacobian with respect to the flattened `y`."""
         flat, unravel = jax.flatten_util.ravel_pytree(y)
-        return forward_jacobian(lambda q: self.fn(unravel(q), args), flat)
+        return forward_jacobian(lambda q: jnp.ravel(self.fn(unravel(q), args)), flat)
 
     def val_objective(self, y: Any, args: Any) -> jax.Array:
         return jnp.asarray(jnp.nan)

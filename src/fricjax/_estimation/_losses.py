@@ -256,6 +256,8 @@ class MultipleShootingLoss(AbstractLoss):
         gaps = []
         for final, start in zip(jax.tree_util.tree_leaves(finals), jax.tree_util.tree_leaves(extra), strict=True):
             gap = (final[:-1] - start).reshape(count - 1, -1)
+            # a constant scale for the derivatives: without stop_gradient every gap would depend on every segment's
+            # start, and `jacobian_groups` (a start moves its own segment and the two gaps beside it) would not hold
             scale = jax.lax.stop_gradient(jnp.sqrt(jnp.mean(start**2)) + 1e-30)
             gaps.append((gap / scale).reshape(-1))
         continuity = jnp.sqrt(self.continuity_weight) * jnp.concatenate(gaps) if gaps else jnp.zeros((0,))

@@ -272,12 +272,13 @@ class Problem(eqx.Module):
 
     def jacobian(self, state: Any, static: Any) -> tuple[jax.Array, jax.Array]:
         """`(J, r)`: the residuals at `state` and their Jacobian with respect to the flattened `state`, by forward
-        mode. Where the loss declares a block structure (`AbstractLoss.jacobian_groups`: several records, each
-        residual block depending on the shared parameters and its own record's nuisances) the columns of different
-        records share one tangent (structurally orthogonal columns compressed: Curtis, Powell & Reid, "On the
-        estimation of sparse Jacobian matrices", J. Inst. Math. Appl. 13, 1974), so a fit to R records with k
-        nuisances each propagates P + k tangents through the simulation instead of P + R k; the Jacobian is then
-        read back from the compressed one by each row's block."""
+        mode. Where the loss declares which residuals each element of its `extra` moves (`AbstractLoss.
+        jacobian_groups`: several records, each record's residuals moved by the shared parameters and its own
+        nuisances; multiple shooting, a segment's start moving that segment and the two gaps beside it) the columns
+        whose residuals do not overlap share one tangent (structurally orthogonal columns compressed: Curtis, Powell &
+        Reid, "On the estimation of sparse Jacobian matrices", J. Inst. Math. Appl. 13, 1974), so a fit to R records
+        with k nuisances each propagates P + k tangents through the simulation instead of P + R k; the Jacobian is
+        then read back from the compressed one by each row's group."""
         flat, unravel = jax.flatten_util.ravel_pytree(state)
 
         def residuals(q: jax.Array) -> jax.Array:
@@ -290,6 +291,8 @@ class Problem(eqx.Module):
         columns = np.concatenate(
             [np.ravel(g) for g in jax.tree_util.tree_leaves((shared, groups.columns))] or [np.zeros(0, int)]
         )
+        if not groups.reach:
+            raise ValueError(f"{type(self.loss).__name__}.jacobian_groups: `reach` is empty; give at least (0,).")
         colors = _colours(columns, max(groups.reach) - min(groups.reach))
         seeds = np.zeros((colors.max(initial=-1) + 1, columns.size), flat.dtype)
         seeds[colors, np.arange(columns.size)] = 1.0
@@ -324,7 +327,7 @@ def _colours(columns: np.ndarray, span: int = 0) -> np.ndarray:
     for group in grouped:
         where = np.flatnonzero(columns == group)
         colors[where] = base + (int(group) % (span + 1)) * largest + np.arange(where.size)
-    return colors
+    return np.unique(colors, return_inverse=True)[1].reshape(colors.shape)  # no colour left without a column
 
 
 def _times(u: Any, c: Any) -> Any:
