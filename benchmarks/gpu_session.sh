@@ -2,7 +2,8 @@
 # One prepared run of the accelerator figures of issue 33 on a lent GPU machine, from a source checkout (the
 # machine's own jax / equinox / optax / optimistix / numba):   bash benchmarks/gpu_session.sh OUT_DIR
 # 1. every prefix form of the time-parallel free run, forward only, at LENGTH (10^6) samples, LuGre and Maxwell-slip
-#    NLR(7) against numba on the host (prefix_forms.jsonl);
+#    NLR(7) against numba on the host (prefix_forms.jsonl), and the default form with its doubling rounds in a loop
+#    (rounds_loop.jsonl);
 # 2. per model, the fastest form of step 1 again with its gradient, at 10^5 and 10^6 samples (best_forms.jsonl);
 # 3. a Levenberg-Marquardt fit of LuGre on FIT_LENGTH samples with LuGre's fastest form (fit.jsonl);
 # 4. with COMPARE=1, a default `fricjax compare` with the GPU as JAX's default device, then with JAX_PLATFORMS=cpu.
@@ -18,6 +19,9 @@ forms="${PREFIXES:-blocked:8:sequential:doubling blocked:16:sequential:doubling 
   blocked:256:doubling:doubling doubling}"
 timeout "${SWEEP_S:-150}" python3 parallel_scan.py --lengths "${LENGTH:-1000000}" --sequential-max 0 --budget 1 \
   --repeats 10 --forward-only --prefix $forms | tee "$out/prefix_forms.jsonl"
+# the default form with its doubling rounds in a fori_loop (what CPU devices run) instead of unrolled
+timeout "${LOOP_S:-60}" python3 parallel_scan.py --lengths "${LENGTH:-1000000}" --sequential-max 0 --budget 1 \
+  --repeats 10 --forward-only --rounds loop | tee "$out/rounds_loop.jsonl"
 best() {  # the fastest form of model $1 in step 1
   python3 -c "
 import json, sys

@@ -151,6 +151,13 @@ def main(argv: list[str] | None = None) -> None:
         "'blocked:BLOCK:WITHIN[:ACROSS]' (WITHIN 'doubling' or 'sequential', ACROSS 'doubling' or 'blocked'), e.g. "
         "blocked:8:sequential:doubling; default: fricjax's",
     )
+    parser.add_argument(
+        "--rounds",
+        choices=["auto", "loop", "unrolled"],
+        default="auto",
+        help="the doubling rounds (fricjax._simulate._parallel.ROUNDS): in a fori_loop, unrolled, or auto (a loop "
+        "on CPU devices, unrolled on accelerators)",
+    )
     parser.add_argument("--forward-only", action="store_true", help="time the free run only (no gradient)")
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--budget", type=float, default=5.0, help="seconds of timing per configuration")
@@ -158,6 +165,7 @@ def main(argv: list[str] | None = None) -> None:
     from fricjax._simulate import _parallel
 
     ENV.update(environment())
+    _parallel.ROUNDS = ENV["rounds"] = cfg.rounds
     for prefix in cfg.prefix:
         if prefix:
             jax.clear_caches()  # fj.simulate's traces read the prefix form: trace again

@@ -41,6 +41,10 @@ PREFIX = "blocked"
 BLOCK = 8
 WITHIN = "sequential"
 ACROSS = "doubling"
+# How the doubling rounds run: "auto" in a `fori_loop` on CPU devices (XLA:CPU ran 17 unrolled rounds of clamp maps
+# 27x slower than the same rounds in a loop) and unrolled on accelerators (as measured on the H100); "loop" or
+# "unrolled" everywhere (benchmarks/parallel_scan.py --rounds)
+ROUNDS = "auto"
 
 
 def on_accelerator() -> bool:
@@ -174,7 +178,7 @@ def prefix_compositions(maps: Any, method: str = "doubling", axis: int = 0) -> A
     if method == "blelloch":
         return jax.lax.associative_scan(compose, maps, axis=axis)
     length = jax.tree_util.tree_leaves(maps)[0].shape[axis]
-    if not on_accelerator():  # XLA:CPU runs unrolled rounds 20-30x slower than the same rounds in a loop
+    if ROUNDS == "loop" or (ROUNDS == "auto" and not on_accelerator()):  # see ROUNDS
         rounds = (length - 1).bit_length()
         return jax.lax.fori_loop(0, rounds, lambda r, m: compose(delayed(m, jnp.left_shift(1, r), axis), m), maps)
     shift = 1
