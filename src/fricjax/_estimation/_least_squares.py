@@ -21,7 +21,7 @@ from .._validation import positive_int
 from ._levenberg_marquardt import levenberg_marquardt
 from ._loop import Search, run_stage
 from ._solution import FitFailed, Solution
-from ._solvers import as_solver, forward_jacobian
+from ._solvers import as_solver, dense_gauss_newton
 
 
 class ResidualProblem(eqx.Module):
@@ -40,10 +40,10 @@ class ResidualProblem(eqx.Module):
     def loss_of_residuals(self, residuals: jax.Array) -> jax.Array:
         return 0.5 * jnp.sum(residuals * residuals)
 
-    def jacobian(self, y: Any, args: Any) -> tuple[jax.Array, jax.Array]:
-        """`(J, r)`: the residuals and their dense Jacobian with respect to the flattened `y`."""
+    def gauss_newton(self, y: Any, args: Any) -> tuple[jax.Array, jax.Array]:
+        """`([J r]^T [J r], r)`: the residuals' Gauss-Newton products (J with respect to the flattened `y`)."""
         flat, unravel = jax.flatten_util.ravel_pytree(y)
-        return forward_jacobian(lambda q: jnp.ravel(self.fn(unravel(q), args)), flat)
+        return dense_gauss_newton(lambda q: jnp.ravel(self.fn(unravel(q), args)), flat)
 
     def val_objective(self, y: Any, args: Any) -> jax.Array:
         return jnp.asarray(jnp.nan)

@@ -177,9 +177,7 @@ class LevenbergMarquardt(AbstractSolver):
         """The trial point projected onto the bounds, `[J r]^T [J r]` there and the problem's loss (one start;
         traced)."""
         y = problem.project(y)
-        J, r = problem.jacobian(y, args)
-        Jr = jnp.concatenate([J, r[:, None]], axis=1)
-        products = jnp.matmul(Jr.T, Jr, precision=jax.lax.Precision.HIGHEST)
+        products, r = problem.gauss_newton(y, args)
         return y, products, problem.loss_of_residuals(r)
 
     def propose(self, xp: Any, state: LMState, flat: Any) -> Any:

@@ -28,8 +28,9 @@ from .._validation import integer, nonnegative_float, nonnegative_int
 class JacobianGroups(NamedTuple):
     """Which residuals each element of a loss's `extra` moves (the model's parameters move every residual).
 
-    - `rows(n)`: the group of each of the `n` residuals, an `(n,)` integer array (traced or NumPy); a residual of
-      group < 0 depends on no element of `extra`;
+    - `rows(n)`: the groups of the `n` residuals, as runs `(start, stop, block, first)` covering `0 ... n` in order:
+      the rows of a run are consecutive blocks of `block` rows, the k-th of group `first + k` (a group < 0: rows no
+      element of `extra` moves);
     - `columns`: a pytree like `extra` of integer NumPy arrays, the group of each element (>= 0);
     - `reach`: an element of group g moves only residuals of groups `g + r`, r in `reach` (a superset is safe).
 
@@ -79,7 +80,7 @@ class AbstractLoss(eqx.Module):
     def jacobian_groups(self, extra: Any, data: Any) -> JacobianGroups | None:
         """The sparsity of the residuals' Jacobian in `extra`, where the loss knows it (`JacobianGroups`); None (the
         default): every residual may depend on every element of `extra`. Forward-mode Jacobians then share one
-        tangent among the elements whose residuals do not overlap (`Problem.jacobian`)."""
+        tangent among the elements whose residuals do not overlap (`Problem.gauss_newton`)."""
         return None
 
     def __call__(self, model: Any, extra: Any, data: Any) -> Array:
@@ -227,14 +228,13 @@ class MultipleShootingLoss(AbstractLoss):
         width = [int(np.prod(leaf.shape[1:], dtype=int)) for leaf in leaves]
         length = self.segment_length
 
-        def rows(n: int) -> Any:
-            index = jax.lax.iota(np.int32, n)
+        def rows(n: int) -> list[tuple[int, int, int, int]]:
             start = (gaps + 1) * length
-            groups = [index[:start] // length - 1]  # segment j's errors: group j - 1
+            runs = [(0, start, length, -1)]  # segment j's errors: group j - 1
             for w in width:  # each state leaf's gaps, (K - 1, w) flattened: gap m is group m
-                groups.append((index[start : start + gaps * w] - start) // w)
+                runs.append((start, start + gaps * w, max(w, 1), 0))
                 start += gaps * w
-            return jnp.concatenate(groups)
+            return runs
 
         columns = jax.tree_util.tree_map(
             lambda leaf: np.broadcast_to(np.arange(gaps).reshape((-1,) + (1,) * (leaf.ndim - 1)), leaf.shape), extra

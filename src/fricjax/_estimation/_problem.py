@@ -22,7 +22,7 @@ from .._smoothing import on_host
 from ._covariance import parameter_std
 from ._losses import AbstractLoss, SimulationLoss
 from ._lstsq import lstsq
-from ._solvers import forward_jacobian
+from ._solvers import dense_gauss_newton
 from ._strategies import submodels, where_from_path
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -270,15 +270,15 @@ class Problem(eqx.Module):
         params, extra = state
         return self.loss.residuals(self.materialise(params, static), extra, self.data)
 
-    def jacobian(self, state: Any, static: Any) -> tuple[jax.Array, jax.Array]:
-        """`(J, r)`: the residuals at `state` and their Jacobian with respect to the flattened `state`, by forward
-        mode. Where the loss declares which residuals each element of its `extra` moves (`AbstractLoss.
-        jacobian_groups`: several records, each record's residuals moved by the shared parameters and its own
-        nuisances; multiple shooting, a segment's start moving that segment and the two gaps beside it) the columns
-        whose residuals do not overlap share one tangent (structurally orthogonal columns compressed: Curtis, Powell &
-        Reid, "On the estimation of sparse Jacobian matrices", J. Inst. Math. Appl. 13, 1974), so a fit to R records
-        with k nuisances each propagates P + k tangents through the simulation instead of P + R k; the Jacobian is
-        then read back from the compressed one by each row's group."""
+    def gauss_newton(self, state: Any, static: Any) -> tuple[jax.Array, jax.Array]:
+        """`([J r]^T [J r], r)`: the residuals at `state` and their Gauss-Newton products (J their Jacobian with
+        respect to the flattened `state`, by forward mode). Where the loss declares which residuals each element of
+        its `extra` moves (`AbstractLoss.jacobian_groups`: several records, each record's residuals moved by the
+        shared parameters and its own nuisances; multiple shooting, a segment's start moving that segment and the two
+        gaps beside it) the columns whose residuals do not overlap share one tangent (structurally orthogonal columns
+        compressed: Curtis, Powell & Reid, "On the estimation of sparse Jacobian matrices", J. Inst. Math. Appl. 13,
+        1974), so a fit to R records with k nuisances each propagates P + k tangents through the simulation instead
+        of P + R k; the products are then summed group by group from the compressed columns (no N x P Jacobian)."""
         flat, unravel = jax.flatten_util.ravel_pytree(state)
 
         def residuals(q: jax.Array) -> jax.Array:
@@ -286,7 +286,7 @@ class Problem(eqx.Module):
 
         groups = None if self.linear_spec is not None else self.loss.jacobian_groups(state[1], self.data)
         if groups is None:  # a separable fit's linear solve couples every row with every variable
-            return forward_jacobian(residuals, flat)
+            return dense_gauss_newton(residuals, flat)
         shared = jax.tree_util.tree_map(lambda leaf: np.full(np.shape(leaf), -1), state[0])
         columns = np.concatenate(
             [np.ravel(g) for g in jax.tree_util.tree_leaves((shared, groups.columns))] or [np.zeros(0, int)]
@@ -297,11 +297,7 @@ class Problem(eqx.Module):
         seeds = np.zeros((colors.max(initial=-1) + 1, columns.size), flat.dtype)
         seeds[colors, np.arange(columns.size)] = 1.0
         r, compressed = jax.vmap(lambda seed: jax.jvp(residuals, (flat,), (seed,)), out_axes=(None, -1))(seeds)
-        rows = jnp.asarray(groups.rows(r.shape[0]))[:, None]
-        owned = columns[None, :] < 0
-        for offset in groups.reach:
-            owned = owned | ((rows >= 0) & (rows == columns[None, :] + offset))
-        return jnp.where(owned, compressed[:, colors], 0.0), r
+        return _grouped_products(compressed, r, columns, colors, groups, type(self.loss).__name__), r
 
     def loss_of_residuals(self, residuals: jax.Array) -> jax.Array:
         """`objective` from the residual vector: every fricjax loss is the mean square of its residuals."""
@@ -311,6 +307,48 @@ class Problem(eqx.Module):
         if self.validation is None:
             return jnp.asarray(jnp.nan)
         return self.val_loss(self.materialise(state[0], static), None, self.validation)
+
+
+def _grouped_products(
+    compressed: jax.Array, r: jax.Array, columns: np.ndarray, colors: np.ndarray, groups: Any, owner: str
+) -> jax.Array:
+    """`[J r]^T [J r]` from the compressed Jacobian (`compressed[:, colors[p]]` is column p of J on the rows it
+    moves): the products of the compressed columns summed over every block of rows of one group (`groups.rows(n)`:
+    runs of equal blocks), then each entry (p, q) of the result the sum over the row groups both p and q move (all
+    rows for the parameters and the residual)."""
+    n, size = r.shape[0], columns.size
+    runs = [tuple(int(v) for v in run) for run in groups.rows(n)]
+    if [run[0] for run in runs] != [0] + [run[1] for run in runs[:-1]] or runs[-1][1] != n:
+        raise ValueError(f"{owner}.jacobian_groups: the runs of `rows({n})` must cover the residuals in order: {runs}")
+    a = jnp.concatenate([compressed, r[:, None]], axis=1)  # (n, C + 1): the last column is the residual
+    blocks, labels = [], []
+    for start, stop, block, first in runs:
+        if stop > start:
+            part = a[start:stop].reshape((stop - start) // block, block, a.shape[1])
+            blocks.append(jnp.einsum("gbi,gbj->gij", part, part, precision=jax.lax.Precision.HIGHEST))
+            labels.append(first + np.arange((stop - start) // block))
+    per_block = jnp.concatenate(blocks)
+    block_group = np.concatenate(labels)
+    ids = np.unique(block_group[block_group >= 0])  # the row groups some column of `extra` moves
+    owned = block_group >= 0
+    per_group = jax.ops.segment_sum(per_block[owned], np.searchsorted(ids, block_group[owned]), len(ids))
+    zero = jnp.zeros((1,) + per_block.shape[1:], per_block.dtype)
+    table = jnp.concatenate([jnp.sum(per_block, axis=0)[None], per_group, zero])  # all rows, each group, nothing
+    # which table rows make entry (p, q): all rows when both move every row, else the groups both move
+    group = np.append(columns, -1)
+    colour = np.append(colors, a.shape[1] - 1)
+    reach = np.asarray(groups.reach)
+    where = np.full((size + 1, size + 1, len(reach)), len(ids) + 1)  # "nothing" by default
+    for p in range(size + 1):
+        for q in range(size + 1):
+            if group[p] < 0 and group[q] < 0:
+                where[p, q, 0] = 0
+                continue
+            moved = [set((g + reach).tolist()) for g in (group[p], group[q]) if g >= 0]
+            both = sorted(set.intersection(*moved))
+            found = [1 + int(np.searchsorted(ids, g)) for g in both if g in ids]
+            where[p, q, : len(found)] = found
+    return jnp.sum(table[where, colour[:, None, None], colour[None, :, None]], axis=-1)
 
 
 def _colours(columns: np.ndarray, span: int = 0) -> np.ndarray:

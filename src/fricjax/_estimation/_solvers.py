@@ -40,14 +40,17 @@ def tree_finite(tree: Any) -> jax.Array:
     return jnp.all(jnp.stack(leaves)) if leaves else jnp.asarray(True)
 
 
-def forward_jacobian(residuals: Any, flat: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """`(J, r)`: the vector `residuals(flat)` and its dense Jacobian, by forward mode (one pass for both)."""
+def dense_gauss_newton(residuals: Any, flat: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """`([J r]^T [J r], r)`: the Gauss-Newton products of the vector `residuals(flat)` (its dense Jacobian J by
+    forward mode, one pass with the residuals) and the residuals."""
 
     def twice(q: jax.Array) -> tuple[jax.Array, jax.Array]:
         r = residuals(q)
         return r, r
 
-    return jax.jacfwd(twice, has_aux=True)(flat)
+    J, r = jax.jacfwd(twice, has_aux=True)(flat)
+    Jr = jnp.concatenate([J, r[:, None]], axis=1)
+    return jnp.matmul(Jr.T, Jr, precision=jax.lax.Precision.HIGHEST), r
 
 
 class AbstractSolver(eqx.Module):
