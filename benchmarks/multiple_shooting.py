@@ -5,7 +5,7 @@ fitted with `fj.MultipleShootingLoss(L)` from a start 50 % off, by
 
 - `fricjax_lm`: `fj.levenberg_marquardt()`: a segment's start moves only that segment's errors and the two
   continuity gaps beside it, so every other segment's start shares one forward-mode tangent (2 tangents per state
-  component, whatever the number of segments; `Problem.jacobian`);
+  component, whatever the number of segments; `Problem.gauss_newton`);
 - `fricjax_lm_dense`: the same solver with the structure hidden (a `MultipleShootingLoss` whose `jacobian_groups`
   is None: one tangent per segment start), the baseline of the same code;
 - `optimistix_lm`: `optx.LevenbergMarquardt` through `fj.fit` (the same algorithm; its Jacobian has one column per
