@@ -316,10 +316,14 @@ def _grouped_products(
     moves): the products of the compressed columns summed over every block of rows of one group (`groups.rows(n)`:
     runs of equal blocks), then each entry (p, q) of the result the sum over the row groups both p and q move (all
     rows for the parameters and the residual)."""
-    n, size = r.shape[0], columns.size
+    n = r.shape[0]
     runs = [tuple(int(v) for v in run) for run in groups.rows(n)]
-    if [run[0] for run in runs] != [0] + [run[1] for run in runs[:-1]] or runs[-1][1] != n:
-        raise ValueError(f"{owner}.jacobian_groups: the runs of `rows({n})` must cover the residuals in order: {runs}")
+    covers = bool(runs) and [run[0] for run in runs] == [0] + [run[1] for run in runs[:-1]] and runs[-1][1] == n
+    if not covers or any(stop > start and (block < 1 or (stop - start) % block) for start, stop, block, _ in runs):
+        raise ValueError(
+            f"{owner}.jacobian_groups: `rows({n})` must give runs (start, stop, block, first) covering the {n} "
+            f"residuals in order, each a whole number of blocks; got {runs}."
+        )
     a = jnp.concatenate([compressed, r[:, None]], axis=1)  # (n, C + 1): the last column is the residual
     blocks, labels = [], []
     for start, stop, block, first in runs:
@@ -334,20 +338,21 @@ def _grouped_products(
     per_group = jax.ops.segment_sum(per_block[owned], np.searchsorted(ids, block_group[owned]), len(ids))
     zero = jnp.zeros((1,) + per_block.shape[1:], per_block.dtype)
     table = jnp.concatenate([jnp.sum(per_block, axis=0)[None], per_group, zero])  # all rows, each group, nothing
-    # which table rows make entry (p, q): all rows when both move every row, else the groups both move
+    # which table rows make entry (p, q): all rows when both move every row, else the groups both move (those of a
+    # grouped one, `g + reach`, that the other moves too)
     group = np.append(columns, -1)
     colour = np.append(colors, a.shape[1] - 1)
     reach = np.asarray(groups.reach)
-    where = np.full((size + 1, size + 1, len(reach)), len(ids) + 1)  # "nothing" by default
-    for p in range(size + 1):
-        for q in range(size + 1):
-            if group[p] < 0 and group[q] < 0:
-                where[p, q, 0] = 0
-                continue
-            moved = [set((g + reach).tolist()) for g in (group[p], group[q]) if g >= 0]
-            both = sorted(set.intersection(*moved))
-            found = [1 + int(np.searchsorted(ids, g)) for g in both if g in ids]
-            where[p, q, : len(found)] = found
+    gp, gq = group[:, None, None], group[None, :, None]
+    candidate = np.where(gp >= 0, gp, gq) + reach  # (P + 1, P + 1, k)
+    other = np.where(gp >= 0, gq, -1)
+    moved_by_other = (other < 0) | np.isin(candidate - other, reach)
+    index = np.searchsorted(ids, candidate)
+    present = (index < len(ids)) & (ids[np.minimum(index, max(len(ids) - 1, 0))] == candidate) if len(ids) else False
+    where = np.where(moved_by_other & present, 1 + index, len(ids) + 1)
+    everywhere = (gp < 0)[..., 0] & (gq < 0)[..., 0]  # both move every row: the sum over all rows, once
+    where[everywhere] = len(ids) + 1
+    where[everywhere, 0] = 0
     return jnp.sum(table[where, colour[:, None, None], colour[None, :, None]], axis=-1)
 
 
