@@ -43,6 +43,15 @@ class JacobianGroups(NamedTuple):
     reach: tuple[int, ...] = (0,)
 
 
+def leading_groups(extra: Any) -> Any:
+    """`JacobianGroups.columns` where each element's group is its index along the leading axis of its leaf (a
+    record, a segment start)."""
+    return jax.tree_util.tree_map(
+        lambda leaf: np.broadcast_to(np.arange(leaf.shape[0]).reshape((-1,) + (1,) * (leaf.ndim - 1)), leaf.shape),
+        extra,
+    )
+
+
 class AbstractLoss(eqx.Module):
     """A loss: `residuals(model, extra, data)` and `value = mean(residuals ** 2)`.
 
@@ -236,10 +245,7 @@ class MultipleShootingLoss(AbstractLoss):
                 start += gaps * w
             return runs
 
-        columns = jax.tree_util.tree_map(
-            lambda leaf: np.broadcast_to(np.arange(gaps).reshape((-1,) + (1,) * (leaf.ndim - 1)), leaf.shape), extra
-        )
-        return JacobianGroups(rows, columns, (0, 1))
+        return JacobianGroups(rows, leading_groups(extra), (0, 1))
 
     def scaled_residuals(self, model: Any, extra: Any, data: FrictionData, scale: Array, mask: Array | None) -> Array:
         model = unwrap(model)

@@ -30,7 +30,7 @@ from .._inputs import Motion
 from .._metrics import scaled_std
 from .._models._base import AbstractModel, feeds_back
 from .._simulate import run
-from ._losses import AbstractLoss, JacobianGroups, OneStepLoss, SimulationLoss
+from ._losses import AbstractLoss, JacobianGroups, OneStepLoss, SimulationLoss, leading_groups
 
 __all__ = [
     "Initialisation",
@@ -183,9 +183,7 @@ def _padded(record: FrictionData, total: int, requires: frozenset[str], normal: 
     """`record` with its position, velocity (and acceleration where the model reads it) derived once at its own
     length, then padded to `total` samples at rest (last position held, velocity 0); its normal load with `normal`
     (every record of the batch holds one). All on the host (NumPy): no XLA program per record length."""
-    x, v, a, load = record.motion.host_signals(requires & {"a", "normal_force"})
-    if normal and load is None:
-        load = np.asarray(record.motion.normal_force)
+    x, v, a, load = record.motion.host_signals((requires & {"a"}) | ({"normal_force"} if normal else set()))
     extra = total - record.length
 
     def hold(signal: Any) -> Any:
@@ -314,13 +312,7 @@ class RecordsLoss(AbstractLoss):
         if not jax.tree_util.tree_leaves(extra):
             return None
         count = batch.count
-        return JacobianGroups(
-            rows=lambda n: [(0, n, n // count, 0)],
-            columns=jax.tree_util.tree_map(
-                lambda leaf: np.broadcast_to(np.arange(count).reshape((-1,) + (1,) * (leaf.ndim - 1)), leaf.shape),
-                extra,
-            ),
-        )
+        return JacobianGroups(rows=lambda n: [(0, n, n // count, 0)], columns=leading_groups(extra))
 
     def _init_extra(self, physical: Any, batch: RecordBatch, forces: Array | None = None) -> RecordExtra:
         """The starting nuisances (inside a compiled program); `forces`: the initial model's run, if made."""
