@@ -20,7 +20,8 @@ model and the fitted GMS. Acceptance (issue 30): fitted GMS within 1.5x, best mo
 
 `--lugre`: instead, a record made by an exact LuGre (5000 samples, 1 % force noise), `fricjax compare --models
 lugre gms`
-on its own split: GMS's test NMSE against LuGre's (issue 30: within 3x).
+on its own split: GMS's test NMSE against LuGre's (issue 30: within 3x); `--sigma0 1e5 1e6 1e7 --regime mixed sliding`
+sweeps the bristle stiffness (pre-sliding length 10, 1, 0.1 um) and the regime, one record each.
 
 Run: `python benchmarks/held_out_compare.py [--seed 0] [--out DIR] [--records DIR] [--lugre]` (2 training scenarios:
 about 4 minutes on 2 cores).
@@ -103,11 +104,15 @@ def reference_nmse(truth: fj.GMS, path: pathlib.Path) -> float:
     return score_prediction(predict_test_record(truth, test), test)[0].nmse
 
 
-def lugre_made_record(seed: int, out: str | None) -> None:
-    """A record made by an exact LuGre (mixed regime, 5000 samples, force noise 1 % of its range) fitted by
-    `fricjax compare` on its own 60 / 20 / 20 split: GMS's test NMSE against LuGre's (issue 30: within 3x)."""
-    truth = fj.exact(fj.LuGre(fj.ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3), sigma0=1e5, sigma1=300.0, sigma2=10.0))
-    data = fj.make_tribometer("mixed", seed=seed, model=truth, duration=2.5)
+def lugre_made_record(seed: int, out: str | None, sigma0: float = 1e5, regime: str = "mixed") -> None:
+    """A record made by an exact LuGre (5000 samples, force noise 1 % of its range; bristle stiffness `sigma0`
+    [N/m], so pre-sliding length `Fc / sigma0` = 1 N / sigma0) fitted by `fricjax compare` on its own 60 / 20 / 20
+    split: GMS's test NMSE against LuGre's (issue 30: within 3x). `sigma1` keeps the damping ratio of the default
+    record (300 N s/m at 1e5 N/m: `sigma1 = 300 sqrt(sigma0 / 1e5)`)."""
+    sigma1 = 300.0 * float(np.sqrt(sigma0 / 1e5))
+    stribeck = fj.ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3)
+    truth = fj.exact(fj.LuGre(stribeck, sigma0=sigma0, sigma1=sigma1, sigma2=10.0))
+    data = fj.make_tribometer(regime, seed=seed, model=truth, duration=2.5)
     noise = 0.01 * float(np.ptp(np.asarray(data.clean_force)))
     force = np.asarray(data.clean_force) + noise * np.random.default_rng(seed).standard_normal(data.full.length)
     with tempfile.TemporaryDirectory() as scratch:
@@ -125,6 +130,11 @@ def lugre_made_record(seed: int, out: str | None) -> None:
         "models_nmse_percent": scores,
         "gms_over_lugre": scores["gms"] / scores["lugre"],
         "gms_label": next(m["label"] for m in report["models"] if m["name"] == "gms"),
+        "regime": regime,
+        "sigma0": sigma0,
+        "sigma1": sigma1,
+        "presliding_length_um": 1e6 / sigma0,
+        "peak_displacement_um": round(1e6 * float(np.max(np.abs(np.asarray(data.full.motion.x)))), 3),
         "compare_wall_s": round(time.perf_counter() - start, 1),
         "seed": seed,
     }
@@ -139,10 +149,26 @@ def main() -> None:
     parser.add_argument(
         "--lugre", action="store_true", help="instead: a LuGre-made record, GMS's test NMSE against LuGre's (issue 30)"
     )
+    parser.add_argument(
+        "--sigma0",
+        type=float,
+        nargs="+",
+        default=[1e5],
+        help="--lugre: the LuGre bristle stiffnesses [N/m], one record each (default 1e5: pre-sliding length 10 um)",
+    )
+    parser.add_argument(
+        "--regime",
+        nargs="+",
+        default=["mixed"],
+        help="--lugre: the tribometer regimes, one record each (default mixed)",
+    )
     args = parser.parse_args()
     warnings.simplefilter("ignore")  # the window warnings of fj.initialise on pre-sliding windows
     if args.lugre:
-        lugre_made_record(args.seed, args.out)
+        for regime in args.regime:
+            for sigma0 in args.sigma0:
+                out = None if args.out is None else f"{args.out}/{regime}-{sigma0:g}"
+                lugre_made_record(args.seed, out, sigma0, regime)
         return
     truth = six_element_truth()
     with tempfile.TemporaryDirectory() as scratch:

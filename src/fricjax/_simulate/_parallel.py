@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from .._models._base import AbstractModel
-from .._models._state_maps import AffineMaps, apply, compose, delayed, full_fields
+from .._models._state_maps import apply, compose, delayed, full_fields, is_state_maps
 from ._scan import split_time_signals
 
 SCANS = ("auto", "sequential", "parallel")
@@ -125,10 +125,9 @@ def _states_after_jvp(method: str, primals: tuple[Any, Any], tangents: tuple[Any
     maps_dot, state_dot = tangents
     after = _states_after(method, maps, state)
     entering = _entering(state, after)
-    ones = jax.tree_util.tree_map(jnp.ones_like, entering)
-    _, scale = jax.jvp(lambda s: apply(maps, s), (entering,), (ones,))
-    _, shift = jax.jvp(lambda m: apply(m, entering), (maps,), (maps_dot,))
-    linear = jax.tree_util.tree_map(AffineMaps, scale, shift)
+    linear = jax.tree_util.tree_map(
+        lambda m, s, dm: m.linearised(s, dm), maps, entering, maps_dot, is_leaf=is_state_maps
+    )
     # the tangents in the dtype of the states (a weakly typed Python-float initial state takes the maps' dtype)
     state_dot = jax.tree_util.tree_map(lambda d, s: jnp.asarray(d, s.dtype), state_dot, after)
     return after, _states_after(method, linear, state_dot)
