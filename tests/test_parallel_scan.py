@@ -36,6 +36,9 @@ MODELS = {
     "tustin": fj.Tustin(Fc=1.0, Fs=1.5, vs=1e-3, Fv=0.3),
     "drift_lugre": fj.SensorDrift(_lugre(), rate=0.3),
     "leaky_drift_nlr": fj.SensorDrift(fj.MaxwellSlip.nlr(k=[1e5, 5e4], thresholds=[1e-6, 3e-6]), 0.3, tau=0.5),
+    # the classical Dahl model (exponent fixed at 1), asymmetric Coulomb levels, from a loaded initial force
+    "dahl": fj.Dahl(1e5, [1.0, 0.7], alpha=fj.Fixed(1.0), offset=0.1, F0=0.2),
+    "dahl_smooth": fj.Dahl(1e5, 1.0, alpha=fj.Fixed(1.0), F0=-0.3, smoothing=fj.Smooth(1e-4)),
 }
 
 
@@ -44,7 +47,7 @@ def _relative(a: object, b: object) -> float:
     return float(np.max(np.abs(a - b)) / max(float(np.max(np.abs(b))), 1e-300))
 
 
-FAST = ("lugre", "nlr", "tustin", "drift_lugre")  # the fast tier; the others in the slow one (compilation time)
+FAST = ("lugre", "nlr", "tustin", "drift_lugre", "dahl")  # the fast tier; the others in the slow one (compilation time)
 
 
 def _tiers(names: list[str], fast: tuple[str, ...]) -> list[object]:
@@ -60,7 +63,9 @@ def test_parallel_equals_sequential(name):
     assert _relative(parallel, sequential) < 1e-12
 
 
-@pytest.mark.parametrize("name", _tiers(["lugre", "lugre_smooth", "nlr", "drift_lugre"], ("lugre", "nlr")))
+@pytest.mark.parametrize(
+    "name", _tiers(["lugre", "lugre_smooth", "nlr", "drift_lugre", "dahl", "dahl_smooth"], ("lugre", "nlr"))
+)
 def test_parallel_gradients_equal_sequential(name):
     model, motion = MODELS[name], _motion(400, seed=1)
     target = fj.simulate(model, motion) * 1.02 + 0.01
@@ -159,6 +164,8 @@ def test_auto_is_sequential_on_cpu_and_agrees():
         fj.MaxwellSlip.nlr(k=[1e5], thresholds=[1e-6], smoothing=fj.Smooth(0.01)),
         fj.MaxwellSlip.dlr(np.ones((3, 2)), max_deflection=1e-5),
         fj.GMS(fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3), k=[1e4, 5e3], alpha=[0.5, 0.5], C=20.0),
+        fj.Dahl(1e5, 1.0),  # the exponent is trained: the update is affine only at alpha = 1
+        fj.Dahl(1e5, 1.0, alpha=fj.Fixed(0.8)),
     ],
 )
 def test_parallel_refused_without_the_form(model):

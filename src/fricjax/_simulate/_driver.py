@@ -93,9 +93,10 @@ def simulate(
       NLR); `"vmap"` vmap's own batching; `"auto"` (default) batch-minor where the model declares it.
     - `scan`: how time is traversed (the values are the same to round-off; speed only): `"sequential"` one step
       after another (`lax.scan`); `"parallel"` the time-parallel form, a parallel prefix of the model's state
-      maps in O(log T) depth (LuGre, exact Maxwell-slip LR / NLR, exact play operators, static laws; an error for
-      other models); `"auto"` (default) the parallel form on a GPU / TPU for records of at least 256 samples
-      when the model has one, the sequential scan otherwise (on a CPU the sequential loop is faster).
+      maps in O(log T) depth (LuGre, exact Maxwell-slip LR / NLR, exact play operators, the classical Dahl model
+      with `alpha=fj.Fixed(1.0)`, static laws; an error for other models); `"auto"` (default) the parallel form
+      on a GPU / TPU for records of at least 256 samples when the model has one, the sequential scan otherwise
+      (on a CPU the sequential loop is faster).
       Differentiated, the parallel form's tangent is one more parallel scan, of affine maps (`derivatives`
       applies to the sequential scan).
 

@@ -72,9 +72,9 @@ def uses_parallel(model: AbstractModel, samples: Any, scan: str, length: int) ->
         if not has_parallel_form(model, samples):
             raise ValueError(
                 f"simulate: scan='parallel' needs a model with a time-parallel form (LuGre, exact Maxwell-slip LR / "
-                f"NLR, exact play operators, static friction laws); {type(model).__name__} has none here (a smooth "
-                "clip, an FIR force map, or a state that is not a composition of affine or clamp maps): use "
-                "scan='auto' or 'sequential'."
+                f"NLR, exact play operators, Dahl with alpha=fj.Fixed(1.0), static friction laws); "
+                f"{type(model).__name__} has none here (a smooth clip, an FIR force map, a trained Dahl exponent, or "
+                "a state that is not a composition of affine or clamp maps): use scan='auto' or 'sequential'."
             )
         return True
     return length >= PARALLEL_MIN_LENGTH and on_accelerator() and has_parallel_form(model, samples)

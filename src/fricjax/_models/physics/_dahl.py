@@ -2,17 +2,18 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ..._constraints import Parameter, ParamLike, SidedParameter, model_dtype, positive, real, unwrap
+from ..._constraints import Fixed, Parameter, ParamLike, SidedParameter, model_dtype, positive, real, unwrap
 from ..._inputs import MotionSample
-from ..._smoothing import AbstractSmoothing, Exact
+from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._base import AbstractFrictionModel
+from .._state_maps import AffineMaps, shaped_like
 from ._stribeck import side, sided_positive
 
 
@@ -61,7 +62,10 @@ class Dahl(AbstractFrictionModel):
     - `sigma0`: rest stiffness [N/m] (> 0); pre-sliding force ≈ sigma0 · x.
     - `Fc`: Coulomb force [N] (> 0), the asymptote in sliding; a (+, -) pair for asymmetric friction: `Fc+`
       while dx > 0 (the force tends to +Fc+), `Fc-` while dx < 0 (to -Fc-), the rest stiffness sigma0 in both.
-    - `alpha`: shape exponent (> 0; 1 is the classical Dahl model).
+    - `alpha`: shape exponent (> 0; 1 is the classical Dahl model). `fj.Fixed(1.0)` holds the classical model
+      (not trained) and gives it a time-parallel form (`fj.simulate(..., scan="parallel")`): with alpha = 1 the
+      update of a sample is affine in the force, `F_k = e_k F_k-1 + Fc (1 - e_k) sgn(dx)`,
+      `e_k = exp(-sigma0 |dx| / Fc)`.
     - `offset`: constant force offset [N]. `F0`: initial force [N].
     - `smoothing`: `Exact()` or `Smooth(eps)`, eps in m/s.
     """
@@ -72,6 +76,7 @@ class Dahl(AbstractFrictionModel):
     offset: Parameter
     F0: Parameter
     smoothing: AbstractSmoothing
+    classical: bool = eqx.field(static=True)  # alpha fixed at 1 when built: the affine maps of `parallel_maps`
 
     requires: ClassVar[frozenset[str]] = frozenset({"x"})
     initial_state_fields: ClassVar[frozenset[str]] = frozenset({"F0"})
@@ -90,6 +95,8 @@ class Dahl(AbstractFrictionModel):
         self.sigma0 = positive(sigma0, "sigma0", dtype, scalar=True)
         self.Fc = sided_positive(Fc, "Fc", dtype)
         self.alpha = positive(alpha, "alpha", dtype, scalar=True)
+        fixed = unwrap(self.alpha) if isinstance(self.alpha, Fixed) else None
+        self.classical = fixed is not None and is_concrete(fixed) and float(np.asarray(fixed)) == 1.0
         self.offset = real(offset, "offset", dtype, scalar=True)
         self.F0 = real(F0, "F0", dtype, scalar=True)
         self.smoothing = smoothing
@@ -100,6 +107,26 @@ class Dahl(AbstractFrictionModel):
 
     def init_state(self) -> DahlState:
         return DahlState(F=jnp.asarray(unwrap(self.F0)))
+
+    def parallel_maps(self, samples: MotionSample) -> Any:
+        """With the exponent fixed at 1 (`classical`), the update of a sample is affine in the force for either
+        direction, and so is its smooth blend of the two: `F -> (up e+ + (1 - up) e-) F + up Fc+ (1 - e+) -
+        (1 - up) Fc- (1 - e-)`, `e+- = exp(-sigma0 d+- / Fc+-)`, `d+-` the distance moved each way (the
+        time-parallel free run). `None` otherwise (a trained exponent: no such form)."""
+        if not self.classical:
+            return None
+        p = unwrap(self)
+        v_step = samples.dx / samples.dt
+        up = p.smoothing.step(v_step)
+
+        def decay(direction: float, Fc: Array) -> Array:
+            return jnp.exp(-p.sigma0 / Fc * p.smoothing.relu(direction * v_step) * samples.dt)
+
+        Fc_up, Fc_down = side(p.Fc, 0), side(p.Fc, 1)
+        e_up, e_down = decay(1.0, Fc_up), decay(-1.0, Fc_down)
+        scale = up * e_up + (1.0 - up) * e_down
+        shift = up * Fc_up * (1.0 - e_up) - (1.0 - up) * Fc_down * (1.0 - e_down)
+        return shaped_like(self.init_state(), [AffineMaps(scale, shift)])
 
     def step(self, state: DahlState, sample: MotionSample) -> tuple[DahlState, Array]:
         p = unwrap(self)
