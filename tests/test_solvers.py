@@ -290,7 +290,11 @@ def test_levenberg_marquardt_on_the_host_equals_its_traced_step():
     for steps in (2, 5, 8):
         ours = fj.least_squares(residuals, y0, args=target, solver=fj.LevenbergMarquardt(), steps=steps)
         theirs = fj.least_squares(residuals, y0, args=target, solver=optimistix, steps=steps)
-        np.testing.assert_allclose(ours.model, theirs.model, rtol=1e-12, atol=1e-14)
+        if not np.allclose(ours.model, theirs.model, rtol=1e-12, atol=1e-14):  # seen once in a whole fast tier
+            direct = optx.least_squares(residuals, optimistix, y0, args=target, max_steps=steps, throw=False).value
+            runs = {"ours": ours, "optimistix through fj": theirs}
+            done = {name: (run.model, run.code, run.evaluations, run.message) for name, run in runs.items()}
+            raise AssertionError(f"{steps} steps: {done}; optimistix called directly: {direct}")
     theirs = fj.least_squares(residuals, y0, args=target, solver=optimistix, steps=60)
     np.testing.assert_allclose(host.train_loss, theirs.train_loss, rtol=1e-9)
 
