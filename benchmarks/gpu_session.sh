@@ -5,8 +5,9 @@
 #    NLR(7) against numba on the host (prefix_forms.jsonl), and the default form with its doubling rounds in a loop
 #    (rounds_loop.jsonl);
 # 2. per model, the fastest form of step 1 again with its gradient, at 10^5 and 10^6 samples (best_forms.jsonl);
-# 3. a Levenberg-Marquardt fit of LuGre on FIT_LENGTH samples with LuGre's fastest form (fit.jsonl);
-# 4. with COMPARE=1, a default `fricjax compare` with the GPU as JAX's default device, then with JAX_PLATFORMS=cpu.
+# 3. Maxwell-slip's gradient with the adjoint transpose of the tangent scan (adjoint.jsonl);
+# 4. a Levenberg-Marquardt fit of LuGre on FIT_LENGTH samples with LuGre's fastest form (fit.jsonl);
+# 5. with COMPARE=1, a default `fricjax compare` with the GPU as JAX's default device, then with JAX_PLATFORMS=cpu.
 set -u
 out="${1:-${OUT:-/tmp/fricjax-gpu}}"
 mkdir -p "$out"
@@ -33,6 +34,9 @@ for model in lugre maxwell_nlr7; do
   timeout "${BEST_S:-100}" python3 parallel_scan.py --lengths ${LENGTHS:-100000 1000000} --sequential-max 0 --budget 1 \
     --repeats 10 --models "$model" --prefix "$(best $model)" | tee -a "$out/best_forms.jsonl"
 done
+# Maxwell-slip's gradient with the adjoint recurrence as a backward affine prefix instead of JAX's transpose
+timeout "${ADJOINT_S:-60}" python3 parallel_scan.py --lengths ${LENGTHS:-100000 1000000} --sequential-max 0 --budget 1 \
+  --repeats 10 --models maxwell_nlr7 --prefix "$(best maxwell_nlr7)" --transpose adjoint | tee "$out/adjoint.jsonl"
 timeout "${FIT_S:-60}" python3 parallel_scan.py --lengths --prefix "$(best lugre)" --fit-length "${FIT_LENGTH:-1000000}" \
   | tee "$out/fit.jsonl"
 cd "$root"

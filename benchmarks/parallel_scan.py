@@ -98,6 +98,18 @@ def long_record(name: str, length: int, cfg: argparse.Namespace) -> dict[str, An
         record["parallel_grad_over_forward"] = round(
             timing["parallel_grad"]["median"] / timing["parallel"]["median"], 3
         )
+    if not cfg.forward_only and cfg.transpose != "jax":  # the gradient against JAX's own transpose, same run
+        from jax.flatten_util import ravel_pytree
+
+        from fricjax._simulate import _parallel
+
+        ours = np.asarray(ravel_pytree(fns["parallel_grad"]()[1])[0])
+        _parallel.TRANSPOSE = "jax"
+        jax.clear_caches()
+        theirs = np.asarray(ravel_pytree(gradient("parallel")(params, motion)[1])[0])
+        _parallel.TRANSPOSE = cfg.transpose
+        jax.clear_caches()
+        record["grad_vs_jax_transpose_rel"] = float(np.max(np.abs(ours - theirs) / np.maximum(np.abs(theirs), 1e-300)))
     if "sequential" in outputs:
         record["parallel_vs_sequential_rel"] = float(np.max(np.abs(force - np.asarray(outputs["sequential"]))) / scale)
         record["sequential_over_parallel"] = round(timing["sequential"]["median"] / timing["parallel"]["median"], 3)
@@ -158,6 +170,14 @@ def main(argv: list[str] | None = None) -> None:
         help="the doubling rounds (fricjax._simulate._parallel.ROUNDS): in a fori_loop, unrolled, or auto (a loop "
         "on CPU devices, unrolled on accelerators)",
     )
+    parser.add_argument(
+        "--transpose",
+        choices=["jax", "adjoint"],
+        default="jax",
+        help="reverse mode of the tangent scan (fricjax._simulate._parallel.TRANSPOSE): JAX's own transpose, or the "
+        "adjoint recurrence as a backward affine prefix (not under vmap); with 'adjoint' the gradient is also "
+        "compared with JAX's transpose (grad_vs_jax_transpose_rel)",
+    )
     parser.add_argument("--forward-only", action="store_true", help="time the free run only (no gradient)")
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--budget", type=float, default=5.0, help="seconds of timing per configuration")
@@ -166,6 +186,7 @@ def main(argv: list[str] | None = None) -> None:
 
     ENV.update(environment())
     _parallel.ROUNDS = ENV["rounds"] = cfg.rounds
+    _parallel.TRANSPOSE = ENV["transpose"] = cfg.transpose
     for prefix in cfg.prefix:
         if prefix:
             jax.clear_caches()  # fj.simulate's traces read the prefix form: trace again

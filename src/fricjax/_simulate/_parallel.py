@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from .._models._base import AbstractModel
-from .._models._state_maps import apply, compose, delayed, full_fields, is_state_maps
+from .._models._state_maps import AffineMaps, apply, compose, delayed, full_fields, is_state_maps
 from ._scan import split_time_signals
 
 SCANS = ("auto", "sequential", "parallel")
@@ -45,6 +45,13 @@ ACROSS = "doubling"
 # 27x slower than the same rounds in a loop) and unrolled on accelerators (as measured on the H100); "loop" or
 # "unrolled" everywhere (benchmarks/parallel_scan.py --rounds)
 ROUNDS = "auto"
+# How reverse mode runs the tangent scan backwards: "jax" (default) JAX's own transpose of the affine prefix; "adjoint"
+# the adjoint recurrence as one more affine prefix, backwards in time (`jax.custom_derivatives.linear_call`), which
+# on a 2-core CPU takes Maxwell-slip NLR(7)'s gradient at 10^5 samples from 3.05-3.20x to 2.65-2.86x its forward pass
+# (LuGre 2.47-2.50x -> 2.26-2.30x), equal to JAX's transpose to 2e-16, but cannot run under `jax.vmap`, `jacfwd` or
+# `jacrev` (jax 0.10 has no batching rule for `linear_call`, nor a transpose rule for `custom_vmap`, which would
+# supply one): a measured option of benchmarks/parallel_scan.py --transpose for the GPU (issue 33), not a default
+TRANSPOSE = "jax"
 
 
 def on_accelerator() -> bool:
@@ -130,7 +137,37 @@ def _states_after_jvp(method: str, primals: tuple[Any, Any], tangents: tuple[Any
     )
     # the tangents in the dtype of the states (a weakly typed Python-float initial state takes the maps' dtype)
     state_dot = jax.tree_util.tree_map(lambda d, s: jnp.asarray(d, s.dtype), state_dot, after)
+    if TRANSPOSE == "adjoint":
+        tangent = functools.partial(_affine_tangent, method)
+        return after, jax.tree_util.tree_map(tangent, linear, state_dot, is_leaf=is_state_maps)
     return after, _states_after(method, linear, state_dot)
+
+
+def _affine_tangent(method: str, linear: AffineMaps, state_dot: jax.Array) -> jax.Array:
+    """`TRANSPOSE = "adjoint"`: the tangents of one state array after every sample, `ds_k = scale_k ds_k-1 + shift_k`
+    from `state_dot`, as a linear function of the shifts with its own transpose (`_affine_transpose`). The initial
+    tangent enters as part of the first sample's shift (`scale_0 state_dot`, what the first map does to it), so that
+    the function has one linear argument, differentiated or constant as a whole (`linear_call` transposes only the
+    first kind)."""
+    first = linear.scale[:1] * state_dot[None] + linear.shift[:1]
+    shift = jnp.concatenate([first, linear.shift[1:]]).astype(state_dot.dtype)
+    return jax.custom_derivatives.linear_call(
+        functools.partial(_affine_states, method), functools.partial(_affine_transpose, method), linear.scale, shift
+    )
+
+
+def _affine_states(method: str, scale: jax.Array, shift: jax.Array) -> jax.Array:
+    """The states after every sample of `s_k = scale_k s_k-1 + shift_k` from `s = 0`."""
+    return _states_after(method, AffineMaps(scale, shift), jnp.zeros_like(shift[0]))
+
+
+def _affine_transpose(method: str, scale: jax.Array, cotangent: jax.Array) -> jax.Array:
+    """The transpose of `_affine_states`: the adjoint recurrence `l_k = g_k + scale_k+1 l_k+1` (`l_k` the cotangent
+    of `shift_k`, `g_k` that of the state after sample k), run backwards in time as one more prefix of affine maps
+    (the scales reversed and shifted by one sample)."""
+    reversed_scale = jnp.concatenate([jnp.ones_like(scale[:1]), jnp.flip(scale, axis=0)[:-1]])
+    maps = AffineMaps(reversed_scale, jnp.flip(cotangent, axis=0).astype(scale.dtype))
+    return jnp.flip(_states_after(method, maps, jnp.zeros_like(scale[0])), axis=0)
 
 
 def _blocked_states(maps: Any, state: Any, block: int) -> Any:
