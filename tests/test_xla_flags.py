@@ -33,10 +33,19 @@ print(json.dumps({{"flags": os.environ.get("XLA_FLAGS", ""), "one_function": "xl
 """
 
 
-def _probe(xla_flags: str, *, started: bool = False, keep: bool = False, host_devices: str | None = None) -> dict:
-    unset = ("XLA_FLAGS", "FRICJAX_KEEP_XLA_FLAGS", "FRICJAX_HOST_DEVICES")
+def _probe(
+    xla_flags: str,
+    *,
+    started: bool = False,
+    keep: bool = False,
+    host_devices: str | None = None,
+    cgroup_root: str | None = None,
+) -> dict:
+    unset = ("XLA_FLAGS", "FRICJAX_KEEP_XLA_FLAGS", "FRICJAX_HOST_DEVICES", "FRICJAX_CGROUP_ROOT")
     env = {k: v for k, v in os.environ.items() if k not in unset}
     env.update(JAX_PLATFORMS="cpu", XLA_FLAGS=xla_flags)
+    if cgroup_root is not None:
+        env["FRICJAX_CGROUP_ROOT"] = cgroup_root
     if keep:
         env["FRICJAX_KEEP_XLA_FLAGS"] = "1"
     if host_devices is not None:
@@ -79,9 +88,9 @@ def test_opting_out_leaves_xla_flags_alone_and_xla_its_default():
 
 
 @pytest.mark.slow  # three subprocesses (~2 s each)
-def test_every_core_is_a_host_device_unless_the_user_says_otherwise():
+def test_every_core_is_a_host_device_unless_the_user_says_otherwise(tmp_path):
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    default = _probe("")
+    default = _probe("", cgroup_root=str(tmp_path))  # no cgroup files there: no quota
     assert default["devices"] == max(1, min(cores, 8)) and default["one_function"]
     assert _probe("", host_devices="3")["devices"] == 3
     assert _probe("--xla_force_host_platform_device_count=5", host_devices="3")["devices"] == 5  # the user's flag
@@ -89,6 +98,24 @@ def test_every_core_is_a_host_device_unless_the_user_says_otherwise():
     with pytest.raises(subprocess.CalledProcessError) as error:
         _probe("", host_devices="many")
     assert "FRICJAX_HOST_DEVICES='many': expected a whole number" in error.value.stderr
+
+
+@pytest.mark.slow  # subprocesses (~2 s each): the fast tier stays well under 5 minutes
+def test_a_cgroup_cpu_quota_caps_the_host_devices(tmp_path):
+    """A container limited to fewer CPUs than its affinity shows (`docker --cpus`) gets one device per allowed CPU:
+    cgroup v2's `cpu.max`, cgroup v1's `cfs_quota_us` / `cfs_period_us`; "max" or -1 is no quota."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    every = max(1, min(cores, 8))
+    v2, v1 = tmp_path / "v2", tmp_path / "v1" / "cpu"
+    v2.mkdir()
+    v1.mkdir(parents=True)
+    (v1 / "cpu.cfs_period_us").write_text("100000\n")
+    for text, expected in (("100000 100000\n", 1), ("max 100000\n", every), ("150000 100000\n", min(2, every))):
+        (v2 / "cpu.max").write_text(text)
+        assert _probe("", cgroup_root=str(v2))["devices"] == expected, text
+    for quota, expected in (("100000", 1), ("-1", every)):
+        (v1 / "cpu.cfs_quota_us").write_text(quota + "\n")
+        assert _probe("", cgroup_root=str(tmp_path / "v1"))["devices"] == expected, quota
 
 
 @pytest.mark.slow  # a subprocess (~2 s): the fast tier stays well under 5 minutes

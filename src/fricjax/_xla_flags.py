@@ -20,7 +20,8 @@ non-empty value. Only the CPU compiler reads the key (`xla::cpu::options`).
 Every core for batched work: XLA:CPU runs one program on one device, and a vmap-ed batch on one device uses the
 cores only as far as XLA's intra-op threads split its operations (little, for a batch of scans). `import fricjax`
 therefore also adds `--xla_force_host_platform_device_count=N` (N the cores this process may use, at most
-`MAX_HOST_DEVICES`; `FRICJAX_HOST_DEVICES=N` to choose, 1 for one device), and `fj.shard_batch` spreads a batch of
+`MAX_HOST_DEVICES`, and at most the CPUs of a cgroup CPU quota, as `docker --cpus` sets; `FRICJAX_HOST_DEVICES=N`
+to choose, 1 for one device), and `fj.shard_batch` spreads a batch of
 at least `MIN_ROWS_PER_DEVICE` rows per device over them (`_estimation/_sharding.py`). A single computation runs on
 the first device as before. On the 2-core CPU of benchmarks/README.md: a vmap over 1024 LuGre models 5.4x a numba
 trajectory's throughput sharded over two devices against 2.5x on one; the default `fricjax compare` 38 s against 40 s.
@@ -29,10 +30,12 @@ Left alone when `XLA_FLAGS` already sets the device count, or with `FRICJAX_KEEP
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import warnings
 from collections.abc import MutableMapping
+from pathlib import Path
 
 SMALL_WHILE_LOOP_KEY = "xla_cpu_small_while_loop_byte_threshold"
 # 64 KiB per iteration: every friction model's loop and its reverse pass (16 KiB suffice for LuGre, GMS and
@@ -44,6 +47,8 @@ _EXTRA_OPTIONS = "--xla_backend_extra_options="
 HOST_DEVICES_FLAG = "--xla_force_host_platform_device_count"
 # more host devices than this gain nothing measured here and multiply the per-device buffers of sharded programs
 MAX_HOST_DEVICES = 8
+# where the cgroup CPU quota is read (`FRICJAX_CGROUP_ROOT` for another mount point)
+CGROUP_ROOT = "/sys/fs/cgroup"
 
 
 def host_device_count(environ: MutableMapping[str, str]) -> int:
@@ -64,7 +69,30 @@ def host_device_count(environ: MutableMapping[str, str]) -> int:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - macOS, Windows
         cores = os.cpu_count() or 1
+    quota = cpu_quota(environ.get("FRICJAX_CGROUP_ROOT", "").strip() or CGROUP_ROOT)
+    if quota is not None:  # a container limited to 2 CPUs of a 64-core host runs on 64 cores' affinity
+        cores = min(cores, quota)
     return max(1, min(cores, MAX_HOST_DEVICES))
+
+
+def cpu_quota(root: str) -> int | None:
+    """The CPUs a cgroup CPU quota gives this process, `ceil(quota / period)`, or None without a quota (or without
+    cgroup files): cgroup v2's `cpu.max` ("200000 100000"; "max 100000" is no quota), else cgroup v1's
+    `cpu/cpu.cfs_quota_us` and `cpu/cpu.cfs_period_us` (a quota of -1 is none), under `root` (a container's own
+    cgroup is mounted there)."""
+    try:
+        fields = Path(root, "cpu.max").read_text().split()
+    except OSError:
+        fields = None
+    try:
+        if fields is not None:
+            quota, period = (-1, 1) if fields[0] == "max" else (int(fields[0]), int(fields[1]))
+        else:
+            quota = int(Path(root, "cpu", "cpu.cfs_quota_us").read_text())
+            period = int(Path(root, "cpu", "cpu.cfs_period_us").read_text())
+    except (OSError, ValueError, IndexError):
+        return None
+    return max(1, math.ceil(quota / period)) if quota > 0 and period > 0 else None
 
 
 def add_host_devices_flag(environ: MutableMapping[str, str]) -> bool:
