@@ -64,7 +64,7 @@ def test_parallel_equals_sequential(name):
 
 
 @pytest.mark.parametrize(
-    "name", _tiers(["lugre", "lugre_smooth", "nlr", "drift_lugre", "dahl", "dahl_smooth"], ("lugre", "nlr"))
+    "name", _tiers(["lugre", "lugre_smooth", "nlr", "drift_lugre", "dahl", "dahl_smooth"], ("lugre", "nlr", "dahl"))
 )
 def test_parallel_gradients_equal_sequential(name):
     model, motion = MODELS[name], _motion(400, seed=1)
