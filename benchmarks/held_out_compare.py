@@ -21,7 +21,8 @@ model and the fitted GMS. Acceptance (issue 30): fitted GMS within 1.5x, best mo
 `--lugre`: instead, a record made by an exact LuGre (5000 samples, 1 % force noise), `fricjax compare --models
 lugre gms`
 on its own split: GMS's test NMSE against LuGre's (issue 30: within 3x); `--sigma0 1e5 1e6 1e7 --regime mixed sliding`
-sweeps the bristle stiffness (pre-sliding length 10, 1, 0.1 um) and the regime, one record each.
+sweeps the bristle stiffness (breakaway displacement 14, 1.4, 0.14 um) and the regime, one record each (compare's
+output of each in `OUT/REGIME-SIGMA0` with `--out OUT`).
 
 Run: `python benchmarks/held_out_compare.py [--seed 0] [--out DIR] [--records DIR] [--lugre]` (2 training scenarios:
 about 4 minutes on 2 cores).
@@ -106,9 +107,10 @@ def reference_nmse(truth: fj.GMS, path: pathlib.Path) -> float:
 
 def lugre_made_record(seed: int, out: str | None, sigma0: float = 1e5, regime: str = "mixed") -> None:
     """A record made by an exact LuGre (5000 samples, force noise 1 % of its range; bristle stiffness `sigma0`
-    [N/m], so pre-sliding length `Fc / sigma0` = 1 N / sigma0) fitted by `fricjax compare` on its own 60 / 20 / 20
-    split: GMS's test NMSE against LuGre's (issue 30: within 3x). `sigma1` keeps the damping ratio of the default
-    record (300 N s/m at 1e5 N/m: `sigma1 = 300 sqrt(sigma0 / 1e5)`)."""
+    [N/m]; breakaway displacement `Fs / sigma0` = 1.4 N / sigma0, to which the tribometer scales the amplitude)
+    fitted by `fricjax compare` on its own 60 / 20 / 20 split: GMS's test NMSE against LuGre's (issue 30: within
+    3x). `sigma1` keeps the damping ratio of the default record (300 N s/m at 1e5 N/m: `sigma1 = 300 sqrt(sigma0 /
+    1e5)`)."""
     sigma1 = 300.0 * float(np.sqrt(sigma0 / 1e5))
     stribeck = fj.ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3)
     truth = fj.exact(fj.LuGre(stribeck, sigma0=sigma0, sigma1=sigma1, sigma2=10.0))
@@ -133,7 +135,7 @@ def lugre_made_record(seed: int, out: str | None, sigma0: float = 1e5, regime: s
         "regime": regime,
         "sigma0": sigma0,
         "sigma1": sigma1,
-        "presliding_length_um": 1e6 / sigma0,
+        "breakaway_um": 1.4e6 / sigma0,  # Fs / sigma0: the tribometer scales the record's amplitude to it
         "peak_displacement_um": round(1e6 * float(np.max(np.abs(np.asarray(data.full.motion.x)))), 3),
         "compare_wall_s": round(time.perf_counter() - start, 1),
         "seed": seed,
@@ -160,6 +162,7 @@ def main() -> None:
         "--regime",
         nargs="+",
         default=["mixed"],
+        choices=["presliding", "mixed", "sliding"],
         help="--lugre: the tribometer regimes, one record each (default mixed)",
     )
     args = parser.parse_args()

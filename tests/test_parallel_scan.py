@@ -191,6 +191,14 @@ def test_parallel_refused_without_the_form(model):
         fj.simulate(model, _motion(50), scan="parallel")
 
 
+def test_a_classical_dahl_whose_exponent_was_replaced_is_refused():
+    """The parallel form is read off how the model was built; replacing `alpha` afterwards is refused at the call
+    instead of running one exponent in `step` and another in the form."""
+    model = eqx.tree_at(lambda m: m.alpha, MODELS["dahl"], fj.Fixed(fj.Positive(0.5)))
+    with pytest.raises(ValueError, match="no longer matches how the model was built"):
+        fj.simulate(model, _motion(50))
+
+
 def test_bad_scan_option():
     with pytest.raises(ValueError, match="`scan` must be one of"):
         fj.simulate(MODELS["lugre"], _motion(50), scan="fast")

@@ -367,3 +367,23 @@ def test_load_model_exact_applies_fj_exact(tmp_path):
     body = data[:14] + struct.pack("<Q", len(old)) + old + data[22 + length : -32]
     (tmp_path / "old.eqx").write_bytes(body + hashlib.sha256(body).digest())
     assert isinstance(fj.load_model(tmp_path / "old.eqx", exact=True).smoothing, fj.Exact)
+
+
+def test_a_static_field_added_since_a_file_was_written_takes_its_default(tmp_path):
+    """Dahl's `classical` flag came after files of Dahl models were written: such a file (no `classical` in the
+    header) loads as a model built with a trained exponent; a classical model round-trips with its flag."""
+    path = tmp_path / "model.eqx"
+    classical = fj.Dahl(sigma0=1e5, Fc=[1.0, 0.7], alpha=fj.Fixed(1.0), F0=0.1)
+    fj.save_model(path, classical)
+    loaded = fj.load_model(path)
+    assert loaded.classical
+    parallel, sequential = fj.simulate(loaded, MOTION, scan="parallel"), fj.simulate(classical, MOTION)
+    np.testing.assert_allclose(parallel, sequential, rtol=0, atol=1e-12)
+    model = fj.Dahl(sigma0=1e5, Fc=1.0, alpha=1.7)
+    fj.save_model(path, model)
+    header, arrays = read_model_file(path.read_bytes()[:-32])  # format 2 ends with the checksum
+    assert header["tree"]["static"].pop("classical") is False
+    write_model_file(tmp_path / "old.eqx", header["tree"], arrays)
+    old = fj.load_model(tmp_path / "old.eqx")
+    assert not old.classical
+    np.testing.assert_array_equal(fj.simulate(old, MOTION), fj.simulate(model, MOTION))

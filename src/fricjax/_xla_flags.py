@@ -30,7 +30,6 @@ Left alone when `XLA_FLAGS` already sets the device count, or with `FRICJAX_KEEP
 
 from __future__ import annotations
 
-import math
 import os
 import sys
 import warnings
@@ -77,22 +76,20 @@ def host_device_count(environ: MutableMapping[str, str]) -> int:
 
 def cpu_quota(root: str) -> int | None:
     """The CPUs a cgroup CPU quota gives this process, `ceil(quota / period)`, or None without a quota (or without
-    cgroup files): cgroup v2's `cpu.max` ("200000 100000"; "max 100000" is no quota), else cgroup v1's
+    readable cgroup files): cgroup v2's `cpu.max` ("200000 100000"; "max 100000" is no quota), else cgroup v1's
     `cpu/cpu.cfs_quota_us` and `cpu/cpu.cfs_period_us` (a quota of -1 is none), under `root` (a container's own
-    cgroup is mounted there)."""
+    cgroup is mounted there). Never raises: `import fricjax` reads it."""
     try:
-        fields = Path(root, "cpu.max").read_text().split()
-    except OSError:
-        fields = None
-    try:
-        if fields is not None:
-            quota, period = (-1, 1) if fields[0] == "max" else (int(fields[0]), int(fields[1]))
-        else:
+        try:
+            fields = Path(root, "cpu.max").read_text().split()
+        except FileNotFoundError:
             quota = int(Path(root, "cpu", "cpu.cfs_quota_us").read_text())
             period = int(Path(root, "cpu", "cpu.cfs_period_us").read_text())
-    except (OSError, ValueError, IndexError):
+        else:
+            quota, period = (-1, 1) if fields[0] == "max" else (int(fields[0]), int(fields[1]))
+    except (OSError, ValueError, IndexError):  # unreadable, not UTF-8, not numbers
         return None
-    return max(1, math.ceil(quota / period)) if quota > 0 and period > 0 else None
+    return max(1, -(-quota // period)) if quota > 0 and period > 0 else None
 
 
 def add_host_devices_flag(environ: MutableMapping[str, str]) -> bool:

@@ -461,6 +461,9 @@ def _build_module(node: dict, allowed: dict[tuple[str, str], type], where: str, 
     fields = dataclasses.fields(cls)
     expected_static = {f.name for f in fields if f.metadata.get("static", False)}
     expected_children = {f.name for f in fields} - expected_static
+    # a static field added to a class since the file was written, with a default, takes it (older files still load)
+    defaults = {f.name: f.default for f in fields if f.name in expected_static and f.default is not dataclasses.MISSING}
+    static = {name: defaults[name] for name in expected_static - set(static) if name in defaults} | static
     if set(static) != expected_static or set(children) != expected_children:
         raise ValueError(
             f"load_model: the description of `{where}` in {path} does not match {qualname} (fields "

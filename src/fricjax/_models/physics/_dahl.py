@@ -46,6 +46,15 @@ def dahl_distance_update(u: Array, distance: Array, rate: Array, alpha: Array) -
     return jnp.where(nonzero, jnp.sign(u) * magnitude, 0.0)
 
 
+class UnitExponent(Fixed):
+    """Dahl's exponent held at exactly 1, the classical model: what `alpha=fj.Fixed(1.0)` builds. Its value is 1
+    whatever its leaf holds (`unwrap` gives ones), so no change of leaves can make `step` and the time-parallel
+    form (`Dahl.classical`) disagree."""
+
+    def unwrap(self) -> Array:
+        return jnp.ones_like(self.value)
+
+
 class Dahl(AbstractFrictionModel):
     """The Dahl model: a rate-independent bristle law in the displacement domain.
 
@@ -63,9 +72,10 @@ class Dahl(AbstractFrictionModel):
     - `Fc`: Coulomb force [N] (> 0), the asymptote in sliding; a (+, -) pair for asymmetric friction: `Fc+`
       while dx > 0 (the force tends to +Fc+), `Fc-` while dx < 0 (to -Fc-), the rest stiffness sigma0 in both.
     - `alpha`: shape exponent (> 0; 1 is the classical Dahl model). `fj.Fixed(1.0)` holds the classical model
-      (not trained) and gives it a time-parallel form (`fj.simulate(..., scan="parallel")`): with alpha = 1 the
-      update of a sample is affine in the force, `F_k = e_k F_k-1 + Fc (1 - e_k) sgn(dx)`,
-      `e_k = exp(-sigma0 |dx| / Fc)`.
+      (not trained; `classical`) and gives it a time-parallel form (`fj.simulate(..., scan="parallel")`): with
+      alpha = 1 the update of a sample is affine in the force, `F_k = e_k F_k-1 + Fc (1 - e_k) sgn(dx)`,
+      `e_k = exp(-sigma0 |dx| / Fc)`. (Its structure differs from another fixed exponent's: `fj.stack_models`
+      stacks classical models with classical ones.)
     - `offset`: constant force offset [N]. `F0`: initial force [N].
     - `smoothing`: `Exact()` or `Smooth(eps)`, eps in m/s.
     """
@@ -76,7 +86,9 @@ class Dahl(AbstractFrictionModel):
     offset: Parameter
     F0: Parameter
     smoothing: AbstractSmoothing
-    classical: bool = eqx.field(static=True)  # alpha fixed at 1 when built: the affine maps of `parallel_maps`
+    # the exponent is a `UnitExponent` (exactly 1): the update is affine in the force (`parallel_maps`); static, so
+    # that the unwrapped model still says so; `check_inputs` refuses a model whose `alpha` was replaced since
+    classical: bool = eqx.field(static=True, default=False)
 
     requires: ClassVar[frozenset[str]] = frozenset({"x"})
     initial_state_fields: ClassVar[frozenset[str]] = frozenset({"F0"})
@@ -96,7 +108,9 @@ class Dahl(AbstractFrictionModel):
         self.Fc = sided_positive(Fc, "Fc", dtype)
         self.alpha = positive(alpha, "alpha", dtype, scalar=True)
         fixed = unwrap(self.alpha) if isinstance(self.alpha, Fixed) else None
-        self.classical = fixed is not None and is_concrete(fixed) and float(np.asarray(fixed)) == 1.0
+        if fixed is not None and is_concrete(fixed) and float(np.asarray(fixed)) == 1.0:
+            self.alpha = UnitExponent(jnp.asarray(1.0, dtype))
+        self.classical = isinstance(self.alpha, UnitExponent)
         self.offset = real(offset, "offset", dtype, scalar=True)
         self.F0 = real(F0, "F0", dtype, scalar=True)
         self.smoothing = smoothing
@@ -107,6 +121,15 @@ class Dahl(AbstractFrictionModel):
 
     def init_state(self) -> DahlState:
         return DahlState(F=jnp.asarray(unwrap(self.F0)))
+
+    def check_inputs(self, inputs: Any) -> None:
+        super().check_inputs(inputs)
+        if self.classical != isinstance(self.alpha, UnitExponent):
+            raise ValueError(
+                f"Dahl: `alpha` ({type(self.alpha).__name__}) no longer matches how the model was built "
+                f"(classical={self.classical}): build a new fj.Dahl(...) with the exponent you want instead of "
+                "replacing the field (alpha=fj.Fixed(1.0) is the classical model)."
+            )
 
     def parallel_maps(self, samples: MotionSample) -> Any:
         """With the exponent fixed at 1 (`classical`), the update of a sample is affine in the force for either
