@@ -115,8 +115,8 @@ def test_parallel_gradients_of_a_float32_model_from_a_python_float_state():
 
 
 def test_parallel_gradients_with_respect_to_the_initial_state_batched():
-    """Reverse mode through the hand-written transpose of the tangent scan: with respect to the initial state alone
-    (the maps constant), and a batch of gradients under vmap."""
+    """Reverse mode through the parallel form's custom derivative (the tangent scan, transposed): with respect to
+    the initial state alone (the maps constant), and a batch of gradients under vmap."""
     model, motion = MODELS["nlr"], _motion(300, seed=8)
     state = fj.unwrap(model).init_state()
     target = fj.simulate(model, motion) * 1.02
