@@ -64,7 +64,8 @@ class AbstractStateMaps(eqx.Module):
     def linearised(self, state: Array, tangent: Any) -> AffineMaps:
         """The maps' first-order change at `state`: `AffineMaps(ds_out/ds, d_out along tangent)`, the derivative
         with respect to the state entering them and along `tangent` (maps of the same fields), which the tangent of
-        the states follows (`_simulate/_parallel.py`). By JAX's own derivatives unless a family writes it out."""
+        the states follows (`_simulate/_parallel.py`), by JAX's own derivatives (a clamp's at a tie: half to each side,
+        as the sequential scan's `minimum` / `maximum`)."""
         _, scale = jax.jvp(self, (state,), (jnp.ones_like(state),))
         _, shift = jax.jvp(lambda maps: maps(state), (self,), (tangent,))
         return AffineMaps(scale, shift)
@@ -101,18 +102,6 @@ class ClampMaps(AbstractStateMaps):
 
     def __call__(self, state: Array) -> Array:
         return jnp.minimum(jnp.maximum(state + self.shift, self.lower), self.upper)
-
-    def linearised(self, state: Array, tangent: ClampMaps) -> AffineMaps:
-        """One pass for what two `jax.jvp`s give: the state passes through where no bound acts (derivative 1),
-        else the acting bound's tangent; at a tie JAX's convention of `maximum` / `minimum` (half to each side),
-        so that the time-parallel run's gradients equal the sequential scan's."""
-        moved = state + self.shift
-        above_lower = jnp.where(moved > self.lower, 1.0, jnp.where(moved == self.lower, 0.5, 0.0)).astype(moved.dtype)
-        raised = jnp.maximum(moved, self.lower)
-        below_upper = jnp.where(raised < self.upper, 1.0, jnp.where(raised == self.upper, 0.5, 0.0)).astype(moved.dtype)
-        scale = below_upper * above_lower
-        inner = above_lower * tangent.shift + (1.0 - above_lower) * tangent.lower
-        return AffineMaps(scale, below_upper * inner + (1.0 - below_upper) * tangent.upper)
 
 
 def is_state_maps(node: Any) -> bool:

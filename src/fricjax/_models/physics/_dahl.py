@@ -143,7 +143,7 @@ class Dahl(AbstractFrictionModel):
         up = p.smoothing.step(v_step)
 
         def decay(direction: float, Fc: Array) -> Array:
-            return jnp.exp(-p.sigma0 / Fc * p.smoothing.relu(direction * v_step) * samples.dt)
+            return jnp.exp(-p.sigma0 / Fc * _travelled(p, direction, v_step, samples.dt))
 
         Fc_up, Fc_down = side(p.Fc, 0), side(p.Fc, 1)
         e_up, e_down = decay(1.0, Fc_up), decay(-1.0, Fc_down)
@@ -159,10 +159,15 @@ class Dahl(AbstractFrictionModel):
         def moved(direction: float, Fc: Array) -> Array:
             rate = p.sigma0 / Fc  # 1/m
             u = 1.0 - direction * F / Fc
-            travelled = p.smoothing.relu(direction * v_step) * sample.dt  # distance moved in `direction` [m]
-            u = dahl_distance_update(u, travelled, rate, p.alpha)
+            u = dahl_distance_update(u, _travelled(p, direction, v_step, sample.dt), rate, p.alpha)
             return direction * Fc * (1.0 - u)
 
         up = p.smoothing.step(v_step)  # direction of motion (exact: dx > 0)
         F = up * moved(1.0, side(p.Fc, 0)) + (1.0 - up) * moved(-1.0, side(p.Fc, 1))
         return DahlState(F=F), F + p.offset
+
+
+def _travelled(p: Dahl, direction: float, v_step: Array, dt: Array) -> Array:
+    """The distance [m] an unwrapped Dahl model `p` moves in `direction` over a sample held at `v_step` (a smooth
+    ramp of it in smooth mode)."""
+    return p.smoothing.relu(direction * v_step) * dt
