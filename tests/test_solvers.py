@@ -250,6 +250,26 @@ def test_least_squares_steps_optimistix_as_optimistix_does():
     np.testing.assert_array_equal(info.value.solution.model, -y0 - 1.0)
 
 
+def test_an_optimistix_trust_region_solver_gives_one_answer_on_every_call():
+    """One compiled program, one answer: XLA:CPU's concurrency-optimized scheduler made this program (optimistix's
+    Dogleg, a LAPACK QR in the loop) return another iterate in about 30 % of its calls on 2 cores; `import fricjax`
+    turns that scheduler off (src/fricjax/_xla_flags.py)."""
+    t = jnp.linspace(0.0, 1.0, 80)
+    target = 2.0 * jnp.exp(-3.0 * t) + 0.5 + 0.01 * jnp.sin(40 * t)
+
+    def residuals(p, args):
+        return p[0] * jnp.exp(-p[1] * t) + p[2] - args
+
+    y0 = jnp.array([1.0, 1.0, 0.0])
+    solver = optx.Dogleg(1e-10, 1e-12)
+    direct = np.asarray(optx.least_squares(residuals, solver, y0, args=target, max_steps=8, throw=False).value)
+    answers = {
+        tuple(np.asarray(fj.least_squares(residuals, y0, args=target, solver=solver, steps=8).model))
+        for _ in range(100)
+    }
+    assert answers == {tuple(direct)}, f"{len(answers)} different answers in 100 calls; optimistix: {direct}"
+
+
 def test_every_estimation_entry_point_returns_a_solution():
     """One result type: the identifications' results are `fj.Solution`s with their own fields added."""
     for result_type in (
@@ -290,11 +310,9 @@ def test_levenberg_marquardt_on_the_host_equals_its_traced_step():
     for steps in (2, 5, 8):
         ours = fj.least_squares(residuals, y0, args=target, solver=fj.LevenbergMarquardt(), steps=steps)
         theirs = fj.least_squares(residuals, y0, args=target, solver=optimistix, steps=steps)
-        if not np.allclose(ours.model, theirs.model, rtol=1e-12, atol=1e-14):  # seen once in a whole fast tier
-            direct = optx.least_squares(residuals, optimistix, y0, args=target, max_steps=steps, throw=False).value
-            runs = {"ours": ours, "optimistix through fj": theirs}
-            done = {name: (run.model, run.code, run.evaluations, run.message) for name, run in runs.items()}
-            raise AssertionError(f"{steps} steps: {done}; optimistix called directly: {direct}")
+        # (failed twice in whole fast tiers before fricjax turned XLA:CPU's concurrency-optimized scheduler off:
+        # optimistix's side then returned another iterate in a few % of its calls; the test above)
+        np.testing.assert_allclose(ours.model, theirs.model, rtol=1e-12, atol=1e-14, err_msg=f"{steps} steps")
     theirs = fj.least_squares(residuals, y0, args=target, solver=optimistix, steps=60)
     np.testing.assert_allclose(host.train_loss, theirs.train_loss, rtol=1e-9)
 

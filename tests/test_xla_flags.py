@@ -15,6 +15,7 @@ import pytest
 import fricjax  # noqa: F401  (imported before any computation, as conftest does: the setting applies here)
 
 KEY = "xla_cpu_small_while_loop_byte_threshold"
+SCHEDULER = "xla_cpu_enable_concurrency_optimized_scheduler"
 
 # run in a fresh interpreter: XLA reads XLA_FLAGS once, when JAX starts its backends. The scan carries 64 values:
 # a loop body touching more than 1 024 bytes, which XLA by default runs op by op
@@ -67,6 +68,7 @@ def _hlo_of_a_scan_stacking_its_states() -> str:
 
 def test_this_process_compiles_a_scan_with_stacked_states_into_one_function():
     assert KEY in os.environ["XLA_FLAGS"]
+    assert f"--{SCHEDULER}=false" in os.environ["XLA_FLAGS"].split()  # tests/test_solvers.py: one answer per call
     assert "xla_cpu_small_call" in _hlo_of_a_scan_stacking_its_states()
 
 
@@ -74,6 +76,7 @@ def test_this_process_compiles_a_scan_with_stacked_states_into_one_function():
 def test_the_users_flags_are_kept_and_extra_options_merged():
     out = _probe("--xla_backend_extra_options=xla_cpu_disable_loop_unrolling --xla_force_host_platform_device_count=2")
     assert f"--xla_backend_extra_options=xla_cpu_disable_loop_unrolling,{KEY}=" in out["flags"]
+    assert out["flags"].split().count(f"--{SCHEDULER}=false") == 1
     assert out["flags"].count("--xla_backend_extra_options") == 1
     assert out["devices"] == 2 and out["one_function"] and out["warnings"] == []
 
@@ -83,8 +86,8 @@ def test_opting_out_leaves_xla_flags_alone_and_xla_its_default():
     out = _probe("--xla_force_host_platform_device_count=2", keep=True)
     assert out["flags"] == "--xla_force_host_platform_device_count=2"
     assert not out["one_function"]  # XLA's own default threshold: the scan runs op by op
-    own = _probe(f"--xla_backend_extra_options={KEY}=1024", host_devices="1")  # the user's own value wins
-    assert own["flags"] == f"--xla_backend_extra_options={KEY}=1024" and not own["one_function"]
+    own = _probe(f"--xla_backend_extra_options={KEY}=1024 --{SCHEDULER}=true", host_devices="1")  # the user's own
+    assert own["flags"] == f"--xla_backend_extra_options={KEY}=1024 --{SCHEDULER}=true" and not own["one_function"]
 
 
 @pytest.mark.slow  # three subprocesses (~2 s each)

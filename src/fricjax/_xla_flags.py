@@ -1,6 +1,7 @@
-"""The two XLA settings fricjax makes: XLA:CPU compiles every small `lax.scan` (up to 64 KiB per step) into one
-function, and the host CPU is seen as one JAX device per core, so that batched work (sweeps, multi-starts) is spread
-over every core.
+"""The three XLA settings fricjax makes: XLA:CPU compiles every small `lax.scan` (up to 64 KiB per step) into one
+function, the host CPU is seen as one JAX device per core, so that batched work (sweeps, multi-starts) is spread
+over every core, and XLA:CPU schedules a program's operations without its concurrency-optimized scheduler, which
+gave wrong results at random (below).
 
 XLA:CPU runs a while loop (a `lax.scan`) either op by op, each fused kernel of every iteration dispatched by its
 runtime, or, when XLA's cost analysis finds that the loop body accesses fewer than
@@ -26,6 +27,18 @@ at least `MIN_ROWS_PER_DEVICE` rows per device over them (`_estimation/_sharding
 the first device as before. On the 2-core CPU of benchmarks/README.md: a vmap over 1024 LuGre models 5.4x a numba
 trajectory's throughput sharded over two devices against 2.5x on one; the default `fricjax compare` 38 s against 40 s.
 Left alone when `XLA_FLAGS` already sets the device count, or with `FRICJAX_KEEP_XLA_FLAGS`.
+
+**Same program, same inputs, different results.** XLA:CPU (jaxlib 0.10.2) runs the independent operations of a
+program at once on its thread pool, in the order its scheduler chose; with the default, concurrency-optimized
+scheduler, a program stepping optimistix's Levenberg-Marquardt or Dogleg (a QR factorisation through LAPACK in a
+while loop, the solver state returned) gave a different answer in 3-30 % of the calls of one compiled executable on
+2 cores (8 steps of a three-parameter exponential fit: 2.0010 / 3.0134 / 0.5025 in most calls, 2.0063 / 2.8594 /
+0.4733 or one of some 20 other iterates in the rest; a fast-tier test failed twice that way). It is a race between
+operations run at once: on one core, or with `--xla_cpu_enable_concurrency_optimized_scheduler=false`, 300-1 500
+calls of each program gave one answer. `import fricjax` therefore adds that flag (`SCHEDULER_FLAG`) unless
+`XLA_FLAGS` names the option already or `FRICJAX_KEEP_XLA_FLAGS` is set. Its price on the 2-core CPU: the ten-record
+fit of `benchmarks/records.py` and the loop of single fits 0.8-1.0 s and 2.4-2.5 s warm with XLA's scheduler against
+0.8-0.9 s and 2.6-3.0 s without it (the concatenated record 0.9-1.0 s against 1.1-1.2 s).
 """
 
 from __future__ import annotations
@@ -48,6 +61,9 @@ HOST_DEVICES_FLAG = "--xla_force_host_platform_device_count"
 MAX_HOST_DEVICES = 8
 # where the cgroup CPU quota is read (`FRICJAX_CGROUP_ROOT` for another mount point)
 CGROUP_ROOT = "/sys/fs/cgroup"
+# XLA:CPU's concurrency-optimized scheduler off: operations run at once in its order raced (module docstring)
+SCHEDULER_KEY = "xla_cpu_enable_concurrency_optimized_scheduler"
+SCHEDULER_FLAG = f"--{SCHEDULER_KEY}=false"
 
 
 def host_device_count(environ: MutableMapping[str, str]) -> int:
@@ -128,10 +144,23 @@ def add_small_while_loop_flag(environ: MutableMapping[str, str]) -> bool:
     return True
 
 
+def add_scheduler_flag(environ: MutableMapping[str, str]) -> bool:
+    """Add `SCHEDULER_FLAG` to `environ["XLA_FLAGS"]` unless the option is there. Returns whether `environ` was
+    changed."""
+    if environ.get("FRICJAX_KEEP_XLA_FLAGS"):
+        return False
+    flags = environ.get("XLA_FLAGS", "")
+    if SCHEDULER_KEY in flags:  # the user's own choice
+        return False
+    environ["XLA_FLAGS"] = " ".join([*flags.split(), SCHEDULER_FLAG])
+    return True
+
+
 def configure() -> None:
     """Called once by `import fricjax`: set the flags, and warn when JAX's backends already started without them."""
     add_host_devices_flag(os.environ)  # without effect, and without a warning, once JAX's backends have started
-    if not add_small_while_loop_flag(os.environ):
+    changed = [add_small_while_loop_flag(os.environ), add_scheduler_flag(os.environ)]
+    if not any(changed):
         return
     if "jax" not in sys.modules:  # JAX not imported yet: its backends cannot have started (and importing it is slow)
         return
@@ -143,10 +172,12 @@ def configure() -> None:
         return
     if started:
         warnings.warn(
-            "fricjax was imported after JAX started its backends, so its XLA:CPU setting "
-            f"(--xla_backend_extra_options={SMALL_WHILE_LOOP_KEY}=...) does not apply in this process: gradients "
-            "of long simulations run up to 20x slower on CPU (benchmarks/README.md). Import fricjax before the "
-            "first JAX computation, or set FRICJAX_KEEP_XLA_FLAGS=1 to silence this.",
+            "fricjax was imported after JAX started its backends, so its XLA:CPU settings "
+            f"(--xla_backend_extra_options={SMALL_WHILE_LOOP_KEY}=..., {SCHEDULER_FLAG}) do not apply in this "
+            "process: gradients of long simulations run up to 20x slower on CPU, and programs that factorise "
+            "matrices in a loop (optimistix's trust-region solvers) can give different results from run to run "
+            "(fricjax/_xla_flags.py). Import fricjax before the first JAX computation, or set "
+            "FRICJAX_KEEP_XLA_FLAGS=1 to silence this.",
             stacklevel=3,
         )
 
