@@ -88,6 +88,7 @@ def test_lugre_batch_equals_each_model_and_writes_rows_directly():
     assert all(T not in shape for shape in transposed_shapes(jaxpr.jaxpr))
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): the batch-minor rule is checked fast
 def test_partly_batched_parameters_motions_and_dt():
     """Only the offset, or only the stiffnesses, batched (the other parameters shared); one model over a batch
     of motions with different sampling times; both batched at once."""
@@ -112,6 +113,7 @@ def test_partly_batched_parameters_motions_and_dt():
     np.testing.assert_allclose(out, simulate_each(models, motions), rtol=0, atol=ATOL)
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): the batch-minor rule is checked fast
 def test_nested_vmap_and_fir_force_maps_with_history():
     """A 2 x 3 grid (models x motions) by nested vmaps; DNLRX (FIR bands on the deflections and the
     displacement: a history in the state), which keeps vmap's own batching, batched over its coefficients."""

@@ -118,7 +118,7 @@ def test_gradients_match_finite_differences_smooth(name):
     _relative_fd_check(name, smooth(name, MODELS[name]))
 
 
-@pytest.mark.parametrize("name", ["lugre", "maxwell_nlr", "coulomb_viscous_asym", "dahl"])
+@pytest.mark.parametrize("name", tiered(["lugre", "maxwell_nlr", "coulomb_viscous_asym", "dahl"]))
 def test_gradients_match_finite_differences_exact(name):
     _relative_fd_check(name, MODELS[name])
 
@@ -142,7 +142,7 @@ def test_no_recompilation_for_new_parameter_values():
     assert after_first - before <= 1  # only the first smooth Coulomb call compiles
 
 
-@pytest.mark.parametrize("name", ["lugre", "gms", "maxwell_nlr", "bo_pavelescu_asym", "dahl"])
+@pytest.mark.parametrize("name", tiered(["lugre", "gms", "maxwell_nlr", "bo_pavelescu_asym", "dahl"]))
 def test_sample_then_fit_smoke(name):
     """Data sampled from the model; a perturbed copy fitted by Adam for a few steps gets strictly closer."""
     true_model = smooth(name, MODELS[name])

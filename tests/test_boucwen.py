@@ -123,6 +123,7 @@ def test_boucwen_errors_and_serialise(tmp_path):
     np.testing.assert_allclose(simulate(again, boucwen_inputs(u)), simulate(model, boucwen_inputs(u)))
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): jit and vmap of every model run fast in test_battery.py
 def test_boucwen_jit_and_vmap():
     u = jnp.asarray(np.sin(np.linspace(0, 20, 80)) * 30)
     model = BoucWen(**PUBLISHED, substeps=2)

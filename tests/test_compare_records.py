@@ -64,6 +64,7 @@ def test_several_records_from_a_glob_per_record_offsets_in_table_and_report(reco
     assert "initial state" in report["settings"]["scoring"]
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): error messages of the many-records CLI
 def test_records_that_do_not_go_together_are_refused_in_one_line(records, tmp_path, capsys):
     folder, test = records
     other_dt = _write(tmp_path / "slow.csv", 1e-3, 1.0, 600, 0.0, 3, dt=2e-3)

@@ -82,6 +82,7 @@ def test_zero_residual_is_the_physics_plant_in_closed_loop_and_score(record):
     assert fj.score_emps_open_loop(plant, record) == fj.score_emps_open_loop(TRUTH, record)
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): the hybrid law is checked fast
 def test_residual_reads_its_inputs(record):
     plant = hybrid_plant(record, scale_d=1.0)
     h = plant.friction
@@ -189,6 +190,7 @@ def test_fit_argument_errors(record):
 # --- ensembles ----------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): the hybrid's gradients are checked fast
 def test_ensembles_of_positions_fit_on_training_data_only(record):
     plants = [
         EMPSPlant(95.0, CoulombViscous(Fc=21.0, Fv=200.0, offset=-3.0)),

@@ -106,6 +106,7 @@ def test_gradients_are_finite(record):
     assert leaves and all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in leaves)
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): a dtype check
 def test_float32_follows_the_record():
     rec = synthetic_record(n=1500, dtype=np.float32)
     residuals = EMPSOpenLoopLoss().residuals(TRUTH, None, rec)

@@ -122,6 +122,7 @@ def test_weighted_fit_collinear_members_share_the_weight(setup):
     np.testing.assert_allclose(fitted.intercept, 0.2, atol=1e-9)
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): the ensemble fit is checked fast
 def test_fitted_ensemble_no_worse_than_best_member(setup):
     motion, data, members, predictions = setup
     validation, test = data.split(0.5)
@@ -182,6 +183,7 @@ def test_select_forward_picks_informative_members_and_skips_useless_ones(setup):
     assert selection.ensemble.members == (members[0], members[2])
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): forward selection is checked fast
 def test_select_forward_press_equals_leave_one_out_refits(setup):
     _, _, members, predictions = setup
     n = 120  # the oracle refits n times
@@ -254,6 +256,7 @@ def test_exact_and_smoothing_reach_members(setup):
     assert all(m.smoothing == fj.Smooth(1e-3) for m in smooth.members if hasattr(m, "smoothing"))
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): a dtype check
 def test_float32_follows_dtype():
     motion = fj.Motion.from_position(np.float32(1e-3) * np.sin(np.linspace(0, 12, 300, dtype=np.float32)), dt=DT)
     members = [fj.Coulomb(Fc=np.float32(1.0)), fj.CoulombViscous(Fc=np.float32(0.5), Fv=np.float32(20.0))]

@@ -74,6 +74,7 @@ def test_every_family_gets_a_start_that_runs(family, motion):
     assert _within(float(np.percentile(np.abs(force - 0.3), 95)), float(np.percentile(np.abs(data.force - 0.3), 95)), 3)
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): the guesses are checked fast
 def test_structure_of_an_instance_is_kept(motion):
     data = _record(TRUTHS["gms"][0], motion)
     template = fj.GMS(fj.ExponentialStribeck(**STRIBECK), [1.0] * 6, [1 / 6] * 6, 1.0, smoothing=fj.Smooth(1e-7))
@@ -120,6 +121,7 @@ def _gms_with_breakaways(breakaways_um: list[float], alphas: list[float]) -> fj.
     return fj.exact(fj.GMS(fj.ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3), k, alpha, 20.0, 10.0))
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): the element guesses are checked fast
 def test_element_count_reads_the_true_number_of_elements_off_a_record():
     """`fj.element_count` on mixed tribometer records of GMS models with 4 and 6 elements (breakaway displacements
     spread from 0.25 or 1 um to 10 um): 4 and 6, and `initial_guess(..., elements="auto")` builds that many; a list

@@ -26,6 +26,7 @@ def narx(signals):
     return fj.MLPNARX.init(regressors, 5, key=jax.random.PRNGKey(1), linear=True)
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): its gradients test runs the same wrapper fast
 def test_runs_the_model_on_the_signal_as_its_displacement(narx, signals):
     u, y = signals
     system = fj.InputOutputModel(narx, "force_in")

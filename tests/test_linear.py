@@ -405,6 +405,7 @@ def _old_orthogonal_forward(forces: np.ndarray, target: np.ndarray, max_members:
     return chosen, history
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): a regression check against an older code path
 def test_select_terms_equals_the_old_ensemble_selection():
     rng = np.random.default_rng(12)
     n = 150

@@ -265,6 +265,7 @@ def test_step_loop_and_vmap(record, feedback_model):
     assert fj.compare.count_parameters(model) == 0  # nothing to train: the training set is fixed
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): test_serialise.py round-trips every family in the fast tier
 def test_model_files_round_trip(tmp_path, record, feedback_model, drift_result, periodic):
     """A local model with fed-back forces, and an identified one wrapped in its sensor drift."""
     for i, (model, motion) in enumerate([(feedback_model, record.motion), (drift_result.model, periodic.motion)]):

@@ -327,7 +327,7 @@ def _gms_motion(T, dt):
     [
         (40.0, ("exp", 1.0, 1.5, 1e-3, 1.0)),  # slow frictional memory: rate C/s * dt ~ 0.03
         (2e4, ("exp", 1.0, 1.5, 1e-3, 2.0)),  # fast slip dynamics: rate * dt ~ 15 (stiff)
-        (300.0, ("rat", 0.8, 1.6, 5e-4, 1.5)),
+        pytest.param(300.0, ("rat", 0.8, 1.6, 5e-4, 1.5), marks=pytest.mark.slow),  # 2-core Xeon, 2026-11-27
     ],
 )
 def test_gms_matches_stick_slip_reference(C, stribeck):

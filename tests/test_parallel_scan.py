@@ -98,6 +98,7 @@ def test_parallel_on_records_of_every_length_and_in_forward_mode():
     assert _relative(parallel, sequential) < 1e-10
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): a dtype edge; gradients equal the sequential ones fast
 def test_parallel_gradients_of_a_float32_model_from_a_python_float_state():
     """A weakly typed initial state (a Python float) takes the float32 model's dtype: so must its tangent."""
     motion = fj.Motion.from_position(np.asarray(_motion(300, seed=7).x, np.float32), dt=1e-3)
@@ -114,6 +115,7 @@ def test_parallel_gradients_of_a_float32_model_from_a_python_float_state():
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-3, atol=1e-6)
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): an edge of the gradients checked fast
 def test_parallel_gradients_with_respect_to_the_initial_state_batched():
     """Reverse mode through the parallel form's custom derivative (the tangent scan, transposed): with respect to
     the initial state alone (the maps constant), and a batch of gradients under vmap."""

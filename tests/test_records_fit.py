@@ -171,6 +171,7 @@ def test_host_signals_are_the_samples_signals_in_numpy():
         assert host[3] is None
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): a compile-count property; the fit itself is checked fast
 def test_a_fit_to_several_records_compiles_a_few_programs_however_many_records():
     """Padding and stacking run on the host and every per-record step inside compiled programs: the first fit over
     five records of five lengths compiles the start (one run of every record), the solver's evaluation and the

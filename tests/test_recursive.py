@@ -109,6 +109,7 @@ def test_ud_stays_positive_definite_where_plain_rls_diverges():
     assert np.max(np.abs(outputs["ud"][-1000:] - y[-1000:])) < 1e-5 * np.max(np.abs(y))
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): the recursive fit is checked fast
 def test_vmap_over_forgetting_factors_and_errors():
     Phi, y, _ = regression(T=100)
     data = fj.RegressionData(Phi, y)

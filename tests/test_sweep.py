@@ -120,6 +120,7 @@ def test_sweep_keeps_finite_parameters_when_a_configuration_diverges():
     assert result.best == 0
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): an error message
 def test_stack_models_names_the_difference():
     data = neural_record(SAMPLES)
     a = fj.MLPNARX.init(regressors(data), 4, key=jax.random.PRNGKey(0))
@@ -133,6 +134,7 @@ def test_stack_models_names_the_difference():
         fj.sweep([a, a], data, learning_rate=[1e-2, -1.0], steps=2)
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): a compile-count property
 def test_a_second_sweep_of_the_same_shapes_does_not_recompile():
     """Issue 12: the sweep's jitted pieces take the loss, the data and the optimiser as arguments, so a second
     sweep with new weights, learning rates and data of the same shapes compiles nothing."""

@@ -48,6 +48,7 @@ def _slipping(model: fj.GMS, motion: fj.Motion) -> np.ndarray:
 # determinism, sizes, card
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): a seeding property
 def test_deterministic_for_a_seed(datasets):
     again = make_tribometer("mixed", seed=0)
     first = datasets["mixed"]
@@ -134,6 +135,7 @@ def test_regimes_hold_for_other_seeds():
         assert cards["presliding"]["gross_sliding_fraction"] == 0.0
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): the tribometer is checked fast on its default model
 def test_other_true_models():
     lugre = fj.LuGre(fj.ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3), sigma0=1e5, sigma1=300.0, sigma2=10.0)
     data = make_tribometer("mixed", model=lugre, duration=1.0)

@@ -136,6 +136,7 @@ def test_units_change_the_output(record):
     assert float(fj.nmse(clean, linear)) > 1.0
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): the same check runs fast for polynomial NARX
 def test_regressor_matrix_is_the_one_step_regression(record):
     """The exposed columns: `regressor_matrix` (teacher forcing) holds `(x - r) P` and every unit along the
     record, and the one-step prediction of `fj.simulate` is linear in them."""
@@ -315,6 +316,7 @@ def test_jit_equals_no_jit(record):
     np.testing.assert_allclose(jitted, plain, rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow  # fast tier trimmed (2026-11-27): vmap over models is checked fast in test_battery.py
 def test_vmap_over_parameters_equals_loop(record):
     _, motion, _, _ = record
     models = [true_model(a=parameters(1 + 0.2 * i)["a"], b=parameters()["b"] * (1 + 0.1 * i)) for i in range(3)]
