@@ -78,8 +78,9 @@ def test_zero_residual_is_the_physics_plant_in_closed_loop_and_score(record):
     plant = hybrid_plant(record)
     c = simulate_closed_loop(TRUTH, record.qg, GTAU, 160.18, 243.45, DT, q0=0.01)
     d = simulate_closed_loop(plant, record.qg, GTAU, 160.18, 243.45, DT, q0=0.01)
-    np.testing.assert_array_equal(np.asarray(c.q), np.asarray(d.q))
-    assert fj.score_emps_open_loop(plant, record) == fj.score_emps_open_loop(TRUTH, record)
+    # equal to round-off, as in open loop (two programs fused differently); the loop keeps the differences bounded
+    np.testing.assert_allclose(np.asarray(c.q), np.asarray(d.q), rtol=1e-13, atol=0)
+    assert fj.score_emps_open_loop(plant, record) == pytest.approx(fj.score_emps_open_loop(TRUTH, record), rel=1e-12)
 
 
 @pytest.mark.slow  # fast tier trimmed (2026-11-27): the hybrid law is checked fast

@@ -36,9 +36,10 @@ while loop, the solver state returned) gave a different answer in 3-30 % of the 
 0.4733 or one of some 20 other iterates in the rest; a fast-tier test failed twice that way). It is a race between
 operations run at once: on one core, or with `--xla_cpu_enable_concurrency_optimized_scheduler=false`, 300-1 500
 calls of each program gave one answer. `import fricjax` therefore adds that flag (`SCHEDULER_FLAG`) unless
-`XLA_FLAGS` names the option already or `FRICJAX_KEEP_XLA_FLAGS` is set. Its price on the 2-core CPU: the ten-record
-fit of `benchmarks/records.py` and the loop of single fits 0.8-1.0 s and 2.4-2.5 s warm with XLA's scheduler against
-0.8-0.9 s and 2.6-3.0 s without it (the concatenated record 0.9-1.0 s against 1.1-1.2 s).
+`XLA_FLAGS` names the option already or `FRICJAX_KEEP_XLA_FLAGS` is set. Its price on the 2-core CPU
+(`benchmarks/records.py`, warm; benchmarks/README.md): the ten-record fit 0.78-0.82 s with XLA's scheduler against
+0.76-1.03 s with the flag, the loop of ten single fits 2.40-2.59 against 2.73-2.86 s, the concatenated record
+0.87-0.89 against 1.05-1.11 s: up to about 20 %.
 """
 
 from __future__ import annotations
@@ -47,7 +48,6 @@ import os
 import sys
 import warnings
 from collections.abc import MutableMapping
-from pathlib import Path
 
 SMALL_WHILE_LOOP_KEY = "xla_cpu_small_while_loop_byte_threshold"
 # 64 KiB per iteration: every friction model's loop and its reverse pass (16 KiB suffice for LuGre, GMS and
@@ -97,15 +97,22 @@ def cpu_quota(root: str) -> int | None:
     cgroup is mounted there). Never raises: `import fricjax` reads it."""
     try:
         try:
-            fields = Path(root, "cpu.max").read_text().split()
+            fields = _read(root, "cpu.max").split()
         except FileNotFoundError:
-            quota = int(Path(root, "cpu", "cpu.cfs_quota_us").read_text())
-            period = int(Path(root, "cpu", "cpu.cfs_period_us").read_text())
+            quota = int(_read(root, "cpu", "cpu.cfs_quota_us"))
+            period = int(_read(root, "cpu", "cpu.cfs_period_us"))
         else:
             quota, period = (-1, 1) if fields[0] == "max" else (int(fields[0]), int(fields[1]))
     except (OSError, ValueError, IndexError):  # unreadable, not UTF-8, not numbers
         return None
     return max(1, -(-quota // period)) if quota > 0 and period > 0 else None
+
+
+def _read(*parts: str) -> str:
+    """A text file's contents (`os.path`, not `pathlib`: this runs at the `fricjax` program's start, where importing
+    pathlib took 9 ms of the ~30 ms before the program's signal handlers are set)."""
+    with open(os.path.join(*parts), encoding="utf-8") as file:
+        return file.read()
 
 
 def add_host_devices_flag(environ: MutableMapping[str, str]) -> bool:
