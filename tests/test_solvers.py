@@ -228,16 +228,21 @@ def test_strategy_arguments_are_checked():
         fj.EarlyStopping(-1)
 
 
-@pytest.mark.slow  # moved from the fast tier (under 5 minutes cold on 2 cores; 2026-11-27: 291 s, clean clone)
-def test_least_squares_steps_optimistix_as_optimistix_does():
-    """fj.least_squares runs an optimistix solver in the one loop: the same iterate as optx.least_squares."""
+def exponential_fit(ripple: float) -> tuple:
+    """`(residuals, start, target)` of a three-parameter exponential fit on 80 samples; with `ripple` > 0 the target
+    is not exactly representable, so a residual remains."""
     t = jnp.linspace(0.0, 1.0, 80)
 
     def residuals(p, args):
         return p[0] * jnp.exp(-p[1] * t) + p[2] - args
 
-    target = 2.0 * jnp.exp(-3.0 * t) + 0.5
-    y0 = jnp.array([1.0, 1.0, 0.0])
+    return residuals, jnp.array([1.0, 1.0, 0.0]), 2.0 * jnp.exp(-3.0 * t) + 0.5 + ripple * jnp.sin(40 * t)
+
+
+@pytest.mark.slow  # moved from the fast tier (under 5 minutes cold on 2 cores; 2026-11-27: 291 s, clean clone)
+def test_least_squares_steps_optimistix_as_optimistix_does():
+    """fj.least_squares runs an optimistix solver in the one loop: the same iterate as optx.least_squares."""
+    residuals, y0, target = exponential_fit(0.0)
     solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
     ours = fj.least_squares(residuals, y0, args=target, solver=solver, steps=50)
     theirs = optx.least_squares(residuals, solver, y0, args=target, max_steps=50)
@@ -254,13 +259,7 @@ def test_an_optimistix_trust_region_solver_gives_one_answer_on_every_call():
     """One compiled program, one answer: XLA:CPU's concurrency-optimized scheduler made this program (optimistix's
     Dogleg, a LAPACK QR in the loop) return another iterate in about 30 % of its calls on 2 cores; `import fricjax`
     turns that scheduler off (src/fricjax/_xla_flags.py)."""
-    t = jnp.linspace(0.0, 1.0, 80)
-    target = 2.0 * jnp.exp(-3.0 * t) + 0.5 + 0.01 * jnp.sin(40 * t)
-
-    def residuals(p, args):
-        return p[0] * jnp.exp(-p[1] * t) + p[2] - args
-
-    y0 = jnp.array([1.0, 1.0, 0.0])
+    residuals, y0, target = exponential_fit(0.01)
     solver = optx.Dogleg(1e-10, 1e-12)
     direct = np.asarray(optx.least_squares(residuals, solver, y0, args=target, max_steps=8, throw=False).value)
     answers = {
@@ -293,13 +292,7 @@ def test_levenberg_marquardt_on_the_host_equals_its_traced_step():
     """The host-driven steps (NumPy algebra between calls of one compiled evaluation) take the iterates of the
     same algorithm written in jax.numpy and compiled into the loop, and those of optimistix's Levenberg-Marquardt
     (the same algorithm) until it converges."""
-    t = jnp.linspace(0.0, 1.0, 80)
-    target = 2.0 * jnp.exp(-3.0 * t) + 0.5 + 0.01 * jnp.sin(40 * t)  # not exactly representable: a residual remains
-
-    def residuals(p, args):
-        return p[0] * jnp.exp(-p[1] * t) + p[2] - args
-
-    y0 = jnp.array([1.0, 1.0, 0.0])
+    residuals, y0, target = exponential_fit(0.01)
     host = fj.least_squares(residuals, y0, args=target, solver=fj.LevenbergMarquardt(), steps=60)
     traced = fj.least_squares(residuals, y0, args=target, solver=TracedLevenbergMarquardt(), steps=60)
     assert host.code == traced.code == "successful" and host.evaluations == traced.evaluations, (host, traced)

@@ -47,7 +47,7 @@ from __future__ import annotations
 import os
 import sys
 import warnings
-from collections.abc import MutableMapping
+from collections.abc import Mapping, MutableMapping
 
 SMALL_WHILE_LOOP_KEY = "xla_cpu_small_while_loop_byte_threshold"
 # 64 KiB per iteration: every friction model's loop and its reverse pass (16 KiB suffice for LuGre, GMS and
@@ -115,13 +115,21 @@ def _read(*parts: str) -> str:
         return file.read()
 
 
+def _flags_open_to(environ: Mapping[str, str], key: str) -> str | None:
+    """`environ["XLA_FLAGS"]` ("" when unset) if fricjax may add `key` to it, else None: the user opted out
+    (`FRICJAX_KEEP_XLA_FLAGS`) or the flags name `key` already (the user's own value, or a parent process's
+    inherited with XLA_FLAGS, wins)."""
+    if environ.get("FRICJAX_KEEP_XLA_FLAGS"):
+        return None
+    flags = environ.get("XLA_FLAGS", "")
+    return None if key in flags else flags
+
+
 def add_host_devices_flag(environ: MutableMapping[str, str]) -> bool:
     """Add `--xla_force_host_platform_device_count=N` (`host_device_count`) to `environ["XLA_FLAGS"]` unless it
     is there or N is 1. Returns whether `environ` was changed."""
-    if environ.get("FRICJAX_KEEP_XLA_FLAGS"):
-        return False
-    flags = environ.get("XLA_FLAGS", "")
-    if HOST_DEVICES_FLAG in flags:  # the user's own count (or a parent process's, inherited with XLA_FLAGS) wins
+    flags = _flags_open_to(environ, HOST_DEVICES_FLAG)
+    if flags is None:
         return False
     count = host_device_count(environ)
     if count == 1:
@@ -133,10 +141,8 @@ def add_host_devices_flag(environ: MutableMapping[str, str]) -> bool:
 def add_small_while_loop_flag(environ: MutableMapping[str, str]) -> bool:
     """Add the small-while-loop threshold to `environ["XLA_FLAGS"]` (merged into an existing
     `--xla_backend_extra_options=` list). Returns whether `environ` was changed."""
-    if environ.get("FRICJAX_KEEP_XLA_FLAGS"):
-        return False
-    flags = environ.get("XLA_FLAGS", "")
-    if SMALL_WHILE_LOOP_KEY in flags:
+    flags = _flags_open_to(environ, SMALL_WHILE_LOOP_KEY)
+    if flags is None:
         return False
     option = f"{SMALL_WHILE_LOOP_KEY}={SMALL_WHILE_LOOP_BYTES}"
     tokens = flags.split()
@@ -154,10 +160,8 @@ def add_small_while_loop_flag(environ: MutableMapping[str, str]) -> bool:
 def add_scheduler_flag(environ: MutableMapping[str, str]) -> bool:
     """Add `SCHEDULER_FLAG` to `environ["XLA_FLAGS"]` unless the option is there. Returns whether `environ` was
     changed."""
-    if environ.get("FRICJAX_KEEP_XLA_FLAGS"):
-        return False
-    flags = environ.get("XLA_FLAGS", "")
-    if SCHEDULER_KEY in flags:  # the user's own choice
+    flags = _flags_open_to(environ, SCHEDULER_KEY)
+    if flags is None:
         return False
     environ["XLA_FLAGS"] = " ".join([*flags.split(), SCHEDULER_FLAG])
     return True
