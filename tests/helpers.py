@@ -43,6 +43,15 @@ def model_table() -> dict[str, fj.AbstractFrictionModel]:
         "lugre_rational": fj.LuGre(
             fj.RationalStribeck(Fc=1.0, Fs=1.5, vs=1e-3, mu=2.0), sigma0=1e5, sigma1=300.0, sigma2=40.0
         ),
+        "lugre_backlash": fj.LuGreBacklash(
+            fj.ExponentialStribeck(Fc=(1.0, 0.8), Fs=(1.5, 1.2), vs=1e-3, delta=2.0),
+            sigma0=1e5,
+            sigma1=300.0,
+            sigma2=40.0,
+            gap=2e-4,
+            offset=0.05,
+            play0=0.3,
+        ),
         "gms": fj.GMS(stribeck(), k=[4e4, 2e4, 1e4, 5e3], alpha=[0.4, 0.3, 0.2, 0.1], C=20.0, sigma2=40.0),
         "maxwell_nlr": fj.MaxwellSlip.nlr(k=[2e5, 1e5, 5e4], thresholds=[2e-6, 6e-6, 2e-5], offset=0.1),
         "maxwell_lr": fj.MaxwellSlip.lr(k=[2e5, 1e5, 5e4], max_deflection=2e-5),
@@ -64,6 +73,7 @@ SMOOTH_EPS = {
     "dahl_alpha": 1e-4,
     "lugre": 1e-4,
     "lugre_rational": 1e-4,
+    "lugre_backlash": 1e-4,
     "gms": 1e-7,
     "maxwell_nlr": 1e-2,
     "maxwell_lr": 1e-2,

@@ -273,6 +273,7 @@ PARAMETER_UNITS = {
     "M": "kg",
     "F0": "N",
     "gap": "m",
+    "play0": "-",
     "mu": "-",
     "reference": "N",
 }

@@ -145,6 +145,8 @@ from ._models.physics._gms import GMS as GMS
 from ._models.physics._gms import GMSState as GMSState
 from ._models.physics._lugre import LuGre as LuGre
 from ._models.physics._lugre import LuGreState as LuGreState
+from ._models.physics._lugre_backlash import LuGreBacklash as LuGreBacklash
+from ._models.physics._lugre_backlash import LuGreBacklashState as LuGreBacklashState
 from ._models.physics._maxwell_slip import AbstractForceMap as AbstractForceMap
 from ._models.physics._maxwell_slip import FIRForces as FIRForces
 from ._models.physics._maxwell_slip import MaxwellSlip as MaxwellSlip

@@ -1,0 +1,160 @@
+"""LuGre behind a linkage with backlash: a play in series with the bristles, in the load path (a friction damper's
+linkage; LuGre: Canudas de Wit et al. 1995, worden2007 §3.2 eqs. 3-5; the device: Downey et al., Eng. Struct.
+113:287-298, 2016, `shared/data/README.md` §3)."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from ..._constraints import Parameter, ParamLike, model_dtype, positive, real, unwrap
+from ..._inputs import MotionSample
+from ..._smoothing import AbstractSmoothing, Exact
+from .._base import AbstractFrictionModel
+from ._lugre import _nonnegative
+from ._stribeck import AbstractStribeck
+
+
+class LuGreBacklashState(eqx.Module):
+    """The bristles' elastic deflection `z` [m] and the position in the gap `play` in [-1, 1] (dimensionless: the
+    linkage's slack over `gap / 2`; +-1 engaged, pushing the friction element in that direction)."""
+
+    z: Array
+    play: Array
+
+
+class LuGreBacklash(AbstractFrictionModel):
+    """LuGre driven through a linkage with backlash: a play of total width `gap` [m] in series with the bristles.
+
+    The measured displacement `x` drives the linkage; the linkage pushes the bristles only while it is engaged. With
+    the total deflection `w` (the slack crossed plus the bristles' elastic deflection `z`) and the dead zone
+    `z = sign(w) max(|w| - gap / 2, 0)` the model is LuGre's bristle law on `w`,
+
+    `dw/dt = v - sigma0 |v| z / s(v)`,  `F = sigma0 z + sigma1 dz/dt + sigma2 v + offset`,
+
+    so after a reversal from sliding the force falls along the bristles' unloading curve to 0 (the contact opens),
+    stays at 0 while `x` crosses the gap (no force can be held across an open linkage), then builds up in the other
+    direction: the loops of a friction damper with a worn linkage (the damper records of `shared/data`). In steady
+    sliding the force is LuGre's `s(v) + sigma2 v`. `fj.Backlash(fj.LuGre(...), gap)` puts the play in the *motion*
+    path instead: there the friction element holds its force while the gap is crossed. As `gap -> 0` the model is
+    LuGre.
+
+    Each sample is advanced exactly for the velocity `dx / dt` held over the step, in up to three phases: the bristles
+    unload to 0 (LuGre's exponential approach, in displacement), the slack is crossed, the bristles load again. The
+    force is continuous in the input and in the parameters; its stiffness changes where the contact opens and
+    closes. Smooth mode (`Smooth(eps)`, eps in m/s) chooses the Stribeck branch of an asymmetric curve by the
+    smoothing's step, as LuGre does; the phases need no smoothing.
+
+    **Arguments:**
+
+    - `stribeck`: the Stribeck curve s(v) [N] (pairs of coefficients: asymmetric friction).
+    - `sigma0`: bristle stiffness [N/m] (> 0); `sigma1`: bristle damping [N·s/m] (>= 0, on `dz/dt`, 0 in the gap);
+      `sigma2`: viscous coefficient [N·s/m] (>= 0).
+    - `gap`: the linkage's total play [m] (> 0; the displacement crossed at zero force after each reversal).
+    - `offset`: constant force offset [N].
+    - `z0`: the bristles' elastic deflection at the first sample [m]; `play0`: the position in the gap there
+      (-1..1; 0: centred). Both only set the state at rest (a fit to several records estimates each record's).
+    - `smoothing`: `Exact()` or `Smooth(eps)`.
+
+    ```python
+    >>> import numpy as np, fricjax as fj
+    >>> model = fj.LuGreBacklash(fj.ExponentialStribeck(Fc=1.0, Fs=1.0, vs=1e-3), 1e4, 0.0, 0.0, gap=2e-3)
+    >>> x = np.concatenate([np.linspace(0.0, 4e-3, 41), np.linspace(4e-3, 0.0, 41)[1:]])
+    >>> force = np.asarray(fj.simulate(model, fj.Motion.from_position(x, dt=1e-3)))
+    >>> np.round(force[[40, 41, 55, 61, 63]], 3).tolist()  # sliding; opened; in the gap; loading the other way
+    [1.0, 0.0, 0.0, -0.264, -0.9]
+    ```
+    """
+
+    stribeck: AbstractStribeck
+    sigma0: Parameter
+    sigma1: Parameter
+    sigma2: Parameter
+    gap: Parameter
+    offset: Parameter
+    z0: Parameter
+    play0: Parameter
+    smoothing: AbstractSmoothing
+
+    requires: ClassVar[frozenset[str]] = frozenset({"v", "dt"})
+    initial_state_fields: ClassVar[frozenset[str]] = frozenset({"z0", "play0"})
+    nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"sigma1", "sigma2"})
+
+    def __init__(
+        self,
+        stribeck: AbstractStribeck,
+        sigma0: ParamLike,
+        sigma1: ParamLike,
+        sigma2: ParamLike,
+        gap: ParamLike,
+        *,
+        offset: ParamLike = 0.0,
+        z0: ParamLike = 0.0,
+        play0: ParamLike = 0.0,
+        smoothing: AbstractSmoothing = Exact(),
+    ):
+        dtype = model_dtype(*jax.tree_util.tree_leaves(stribeck), sigma0, sigma1, sigma2, gap, offset, z0, play0)
+        if not isinstance(stribeck, AbstractStribeck):
+            raise TypeError(
+                f"LuGreBacklash: `stribeck` must be a Stribeck curve (fj.ExponentialStribeck / fj.RationalStribeck), "
+                f"got {type(stribeck).__name__}."
+            )
+        self.stribeck = stribeck
+        self.sigma0 = positive(sigma0, "sigma0", dtype, scalar=True)
+        self.sigma1 = _nonnegative(sigma1, "sigma1", dtype)
+        self.sigma2 = _nonnegative(sigma2, "sigma2", dtype)
+        self.gap = positive(gap, "gap", dtype, scalar=True)
+        self.offset = real(offset, "offset", dtype, scalar=True)
+        self.z0 = real(z0, "z0", dtype, scalar=True)
+        self.play0 = real(play0, "play0", dtype, scalar=True)
+        self.smoothing = smoothing
+
+    def parameter_ranges(self) -> dict[str, float]:
+        p = unwrap(self)
+        level = float(np.max(np.abs(np.asarray(p.stribeck.Fc))))
+        return {"offset": level, "z0": level / float(np.max(np.asarray(p.sigma0))), "play0": 1.0}  # N, m, -
+
+    def init_state(self) -> LuGreBacklashState:
+        p = unwrap(self)
+        return LuGreBacklashState(z=jnp.asarray(p.z0), play=jnp.asarray(p.play0))
+
+    def step(self, state: LuGreBacklashState, sample: MotionSample) -> tuple[LuGreBacklashState, Array]:
+        p = unwrap(self)
+        v_step = sample.dx / sample.dt  # the velocity held over (t_{k-1}, t_k]
+        s = p.stribeck(v_step, p.smoothing.step(v_step))  # the branch of the direction of motion [N]
+        length = s / p.sigma0  # the bristles' relaxation length [m]: z approaches +-length in sliding
+        half = 0.5 * p.gap
+        direction = jnp.sign(sample.dx)
+        travel = jnp.abs(sample.dx)
+        load = direction * state.z  # the bristles' deflection along the motion: < 0 while they unload
+        play = direction * jnp.clip(state.play, -1.0, 1.0)  # the slack along the motion: 1 engaged, pushing
+        # 1. unloading: the deflection decays towards +length along the motion and reaches 0 after `to_zero`
+        unloading = load < 0
+        to_zero = length * jnp.log1p(jnp.maximum(-load, 0.0) / length)
+        opens = unloading & (travel >= to_zero)
+        first = jnp.where(unloading, jnp.minimum(travel, to_zero), 0.0)
+        load = jnp.where(opens, 0.0, jnp.where(unloading, _approach(load, length, first), load))
+        rest = travel - first
+        # 2. the slack, crossed at zero force (only once the bristles are unloaded and the linkage is open)
+        crossing = (load <= 0.0) & (play < 1.0)
+        slack = jnp.where(crossing, jnp.minimum(rest, half * (1.0 - play)), 0.0)
+        play = jnp.where(crossing, play + slack / half, jnp.where(load > 0.0, 1.0, play))
+        rest = rest - slack
+        # 3. loading: the linkage engaged, the bristles follow LuGre's law along the motion
+        load = jnp.where(rest > 0.0, _approach(jnp.maximum(load, 0.0), length, rest), load)
+        moved = travel > 0
+        z = jnp.where(moved, direction * load, state.z)
+        new_play = jnp.where(moved, direction * play, state.play)
+        dz = jnp.where(moved & (z != 0.0), v_step - jnp.abs(v_step) * z / length, 0.0)
+        force = p.sigma0 * z + p.sigma1 * dz + p.sigma2 * sample.v + p.offset
+        return LuGreBacklashState(z=z, play=new_play), force
+
+
+def _approach(load: Array, length: Array, travel: Array) -> Array:
+    """LuGre's bristle law along the motion over `travel` [m]: `d load / d travel = 1 - load / length`, exactly."""
+    return length + (load - length) * jnp.exp(-travel / length)
