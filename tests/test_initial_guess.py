@@ -62,7 +62,18 @@ def test_scales_read_off_known_models(name, motion):
 
 
 @pytest.mark.parametrize(
-    "family", [fj.Coulomb, fj.CoulombViscous, fj.Tustin, fj.BoPavelescu, fj.LuGre, fj.GMS, fj.MaxwellSlip, fj.Dahl]
+    "family",
+    [
+        fj.Coulomb,
+        fj.CoulombViscous,
+        fj.Tustin,
+        fj.BoPavelescu,
+        fj.LuGre,
+        fj.LuGreBacklash,
+        fj.GMS,
+        fj.MaxwellSlip,
+        fj.Dahl,
+    ],
 )
 def test_every_family_gets_a_start_that_runs(family, motion):
     data = _record(TRUTHS["lugre"][0], motion)
@@ -72,6 +83,17 @@ def test_every_family_gets_a_start_that_runs(family, motion):
     assert np.all(np.isfinite(force))
     # a start of the right size: its sliding force within a factor 3 of the record's
     assert _within(float(np.percentile(np.abs(force - 0.3), 95)), float(np.percentile(np.abs(data.force - 0.3), 95)), 3)
+
+
+@pytest.mark.parametrize("asymmetric", [False, True])
+def test_a_linkage_gap_and_the_stiffness_behind_it_are_read_off_the_reversals(asymmetric, motion):
+    """The zero-force plateau after each reversal: the gap and sigma0 within 20 % of the truth, whatever the offset
+    and the asymmetry of the two sliding levels (the reading uses force differences only)."""
+    Fc, Fs = ((1.0, 0.7), (1.5, 1.0)) if asymmetric else (1.0, 1.5)
+    stribeck = fj.ExponentialStribeck(Fc=Fc, Fs=Fs, vs=2e-3)
+    truth = fj.LuGreBacklash(stribeck, 3e4, 0.0, 40.0, gap=4e-4, offset=0.3)
+    start = fj.unwrap(fj.initial_guess(fj.LuGreBacklash, _record(truth, motion)))
+    assert _within(float(start.gap), 4e-4, 1.2) and _within(float(start.sigma0), 3e4, 1.2)
 
 
 @pytest.mark.slow  # fast tier trimmed (2026-11-27): the guesses are checked fast

@@ -23,6 +23,7 @@ from .._data._record import FrictionData
 from .._models.physics._dahl import Dahl
 from .._models.physics._gms import GMS
 from .._models.physics._lugre import LuGre
+from .._models.physics._lugre_backlash import LuGreBacklash
 from .._models.physics._maxwell_slip import MaxwellSlip, SpringForces
 from .._models.physics._static import BoPavelescu, Coulomb, CoulombViscous, Tustin
 from .._models.physics._stribeck import ExponentialStribeck
@@ -132,6 +133,38 @@ def _reversal_secants(x: np.ndarray, force: np.ndarray, target: float) -> list[t
     return found
 
 
+def _linkage_gap(data: FrictionData, s: RecordScales) -> tuple[float, float]:
+    """A linkage's gap [m] and the bristle stiffness behind it [N/m] (`fj.LuGreBacklash`'s start), read off the
+    reversals from sliding to sliding (those whose force swing is at least 80 % of the largest) by LuGre's bristle law
+    (relaxation length `L = W / (2 sigma0)`, `W` the reversal's swing `2 Fc`): the first 20 % of the swing (unloading
+    from `-L` to `-0.6 L`, a travel of `0.223 L`) gives `sigma0`; the travel from 20 % to 80 % of it is the gap plus
+    `1.39 L` (unloading to 0, then loading to `0.6 L`). Force differences only, so the record's offset and an
+    asymmetry of the two sliding levels hardly enter. Medians over the reversals; without such reversals the
+    record's stiffness and 5 % of its breakaway displacement, which is also the least gap returned."""
+    samples = data.motion.samples()
+    x, force = np.asarray(samples.x, float), np.asarray(data.force, float)
+    step = np.diff(x)
+    direction = np.sign(step)
+    moving = np.flatnonzero(direction != 0)
+    turns = moving[1:][direction[moving[1:]] != direction[moving[:-1]]] if moving.size > 1 else moving[:0]
+    found = []  # (swing W [N], travel to 20 % of it, travel from 20 % to 80 % [m]) per reversal
+    for start, end in zip(turns, [*turns[1:], len(step)], strict=True):
+        swing = direction[start] * (force[start : end + 1] - force[start])  # rises from 0 after the reversal
+        travelled = np.abs(x[start : end + 1] - x[start])
+        full = float(swing.max())
+        early, late = np.flatnonzero(swing >= 0.2 * full), np.flatnonzero(swing >= 0.8 * full)
+        if full > 0 and travelled[early[0]] > 0:
+            found.append((full, travelled[early[0]], travelled[late[0]] - travelled[early[0]]))
+    largest = max((w for w, _, _ in found), default=0.0)
+    found = [row for row in found if row[0] >= 0.8 * largest]
+    if not found:
+        return 0.05 * s.breakaway, s.stiffness
+    swing, unloading, crossing = (np.median([row[i] for row in found]) for i in range(3))
+    length = float(unloading) / 0.223
+    sigma0 = 0.5 * float(swing) / length
+    return max(float(crossing) - 1.39 * length, 0.05 * s.breakaway), sigma0
+
+
 def _sliding_line(force: np.ndarray, v: np.ndarray) -> tuple[float, float, float]:
     """Least squares of `force ~ offset + Fc sign(v) + Fv v` with `Fv >= 0`: `(Fc, Fv, offset)`."""
     offset, Fc, Fv = _with_viscous_slope(np.stack([np.ones_like(v), np.sign(v)], axis=1), v, force)
@@ -147,7 +180,7 @@ def _with_viscous_slope(columns: np.ndarray, v: np.ndarray, y: np.ndarray) -> np
     return coef
 
 
-GUESSABLE = (Coulomb, CoulombViscous, Tustin, BoPavelescu, LuGre, GMS, MaxwellSlip, Dahl)
+GUESSABLE = (Coulomb, CoulombViscous, Tustin, BoPavelescu, LuGre, LuGreBacklash, GMS, MaxwellSlip, Dahl)
 
 
 def initial_guess(
@@ -161,9 +194,9 @@ def initial_guess(
 
     **Arguments:**
 
-    - `model`: a class (`fj.LuGre`, `fj.GMS`, `fj.MaxwellSlip` (an NLR model), `fj.Dahl`, `fj.Coulomb`,
-      `fj.CoulombViscous`, `fj.Tustin`, `fj.BoPavelescu`) or an instance, whose structure (element count,
-      smoothing) is kept.
+    - `model`: a class (`fj.LuGre`, `fj.LuGreBacklash` (its gap and stiffness from the reversals), `fj.GMS`,
+      `fj.MaxwellSlip` (an NLR model), `fj.Dahl`, `fj.Coulomb`, `fj.CoulombViscous`, `fj.Tustin`, `fj.BoPavelescu`)
+      or an instance, whose structure (element count, smoothing) is kept.
     - `data`: the training record (`fj.FrictionData`).
     - `elements`: element count of GMS / Maxwell-slip (default: the instance's, else 4); `"auto"`: read off the
       record (`fj.element_count`).
@@ -211,6 +244,11 @@ def initial_guess(
     stribeck = ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0)
     if cls is LuGre:
         return LuGre(stribeck, sigma0=s.stiffness, sigma1=0.0, sigma2=s.Fv, offset=s.offset, smoothing=smoothing)
+    if cls is LuGreBacklash:
+        gap, sigma0 = _linkage_gap(data, s)
+        return LuGreBacklash(
+            stribeck, sigma0=sigma0, sigma1=0.0, sigma2=s.Fv, gap=gap, offset=s.offset, smoothing=smoothing
+        )
     if cls is GMS:
         found = maxwell_slip_elements(data, s, elements, viscous=True)
         if found is not None:  # the elements of a Maxwell-slip model of the record: stiffness and force shares

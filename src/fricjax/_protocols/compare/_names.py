@@ -1,6 +1,6 @@
 """The names of the models `compare` can fit (no imports: the command line reads them before it loads JAX)."""
 
-PHYSICS_MODELS = ("stribeck", "lugre", "gms", "nlr", "dnlrx")
+PHYSICS_MODELS = ("stribeck", "lugre", "lugre-backlash", "gms", "nlr", "dnlrx")
 NEURAL_MODELS = ("mlp", "gsnn", "rnn", "avd")
 LINEAR_MODELS = ("narx", "kernel", "knn", "wavelet")
 MODEL_NAMES = PHYSICS_MODELS + NEURAL_MODELS + LINEAR_MODELS

@@ -1,9 +1,9 @@
-"""The physics models of `compare` (`physics_models`): a static Stribeck curve, LuGre, GMS and the Maxwell-slip
-NLR / DNLRX models, each started from the training record's scales (`DataScales`: force levels, pre-sliding
-stiffness, breakaway displacement; the Maxwell-slip elements from `fj.initial_guess`'s regression or spread up to the
-breakaway displacement, the validation part choosing; GMS from `fj.initial_guess` with screened starts) and fitted by
-Levenberg-Marquardt, with the linear parameters solved by least squares where the model allows (static curve,
-LuGre, Maxwell-slip)."""
+"""The physics models of `compare` (`physics_models`): a static Stribeck curve, LuGre, LuGre behind a linkage with
+backlash, GMS and the Maxwell-slip NLR / DNLRX models, each started from the training record's scales (`DataScales`:
+force levels, pre-sliding stiffness, breakaway displacement; the linkage's gap from `fj.initial_guess`; the
+Maxwell-slip elements from `fj.initial_guess`'s regression or spread up to the breakaway displacement, the validation
+part choosing; GMS from `fj.initial_guess` with screened starts) and fitted by Levenberg-Marquardt, with the linear
+parameters solved by least squares where the model allows (static curve, LuGre, Maxwell-slip)."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ from ..._estimation._solution import FitResult
 from ..._estimation._strategies import MultiStart, ParameterScaling
 from ..._models.physics._gms import GMS
 from ..._models.physics._lugre import LuGre
+from ..._models.physics._lugre_backlash import LuGreBacklash
 from ..._models.physics._maxwell_slip import MaxwellSlip
 from ..._models.physics._static import BoPavelescu
 from ..._models.physics._stribeck import ExponentialStribeck
@@ -80,6 +81,11 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
             lambda s: LuGre(
                 _stribeck(s), sigma0=s.stiffness, sigma1=0.0, sigma2=0.0, smoothing=Smooth(max(1e-3 * s.vs, 1e-9))
             ),
+            lm_recipe(("sigma1", "sigma2", "offset"), settings.starts, settings),
+        ),
+        "lugre-backlash": ModelSpec(
+            "LuGre with backlash",
+            lambda s: _lugre_backlash(s, Smooth(max(1e-3 * s.vs, 1e-9))),
             lm_recipe(("sigma1", "sigma2", "offset"), settings.starts, settings),
         ),
         "gms": ModelSpec("GMS (N={elements})", gms_structure, _gms_fit(settings)),
@@ -195,6 +201,17 @@ SIGNIFICANT_GAIN = 0.05  # the least relative drop of the validation error for m
 def _stribeck(s: DataScales) -> ExponentialStribeck:
     """The Stribeck curve of the starts: the record's levels and Stribeck velocity, a Gaussian shape."""
     return ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0)
+
+
+def _lugre_backlash(s: DataScales, smoothing: Smooth) -> LuGreBacklash:
+    """LuGre behind a linkage with backlash, its gap and bristle stiffness read off the training record's reversals
+    (`fj.initial_guess`); without a record, the record's scales and a gap of a tenth of the breakaway displacement."""
+    if s.train is not None:
+        guess = unwrap(initial_guess(LuGreBacklash, s.train, smoothing=smoothing))
+        gap, sigma0 = float(guess.gap), float(guess.sigma0)
+    else:
+        gap, sigma0 = 0.1 * s.breakaway, s.stiffness
+    return LuGreBacklash(_stribeck(s), sigma0=sigma0, sigma1=0.0, sigma2=0.0, gap=gap, smoothing=smoothing)
 
 
 def _gms_structure(s: DataScales, elements: int) -> GMS:
