@@ -44,7 +44,8 @@ class Backlash(AbstractFrictionModel):
     sample times the transmitted fraction `dx_y / dx_x` of the step's displacement: the measured `v_k` once
     engaged, 0 inside the gap (where the friction element rests and a dynamic model keeps its state). A model of
     the transmitted force (friction of the element) then gives 0 force change inside the gap: a static law gives 0,
-    a bristle / spring model holds its pre-sliding force.
+    a bristle / spring model holds its pre-sliding force. A play in the *load* path (a linkage that transmits no
+    force while its gap is open, the force falling to 0 after each reversal) is `fj.LuGreBacklash`.
 
     The slack needs no absolute position: the record's zero of `x` is arbitrary. A record starts centred in the
     gap (`p = 0`) unless a state is given (`fj.simulate(..., state0=...)`, `BacklashState(inner, play)`).
