@@ -45,8 +45,11 @@ PROTOCOLS = {
 def run(protocol: str, models: list[str] | None) -> dict:
     folder = fj.data_folder("damper") / "dataset-3" / "characterization_tests"
     train, test = PROTOCOLS[protocol]
-    paths = [str(folder / RECORD.format(*pair)) for pair in train]
-    tests = [str(folder / RECORD.format(*pair)) for pair in test]
+    # in file-name order, as a shell glob (`'char/0.25Hz*.npz'`) passes them: the joined training record that the
+    # starts are read from follows the order, and the fits with it (NLR on the 1 Hz 1 in test: 6.00 % in this
+    # order, 4.83 % with the records by frequency and amplitude)
+    paths = sorted(str(folder / RECORD.format(*pair)) for pair in train)
+    tests = sorted(str(folder / RECORD.format(*pair)) for pair in test)
     with tempfile.TemporaryDirectory() as scratch:
         out = pathlib.Path(scratch) / "compare"
         command = [sys.executable, "-m", "fricjax", "compare", "--data", *paths, "--test", *tests]

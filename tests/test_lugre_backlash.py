@@ -3,7 +3,10 @@ integration, the zero-force plateau of width `gap` after a reversal, steady slid
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
+import jax.flatten_util
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -77,6 +80,30 @@ def test_a_vanishing_gap_is_lugre():
     lugre = fj.LuGre(stribeck, sigma0=1e5, sigma1=300.0, sigma2=40.0, offset=0.05, z0=2e-6)
     backlash = fj.LuGreBacklash(stribeck, 1e5, 300.0, 40.0, gap=1e-13, offset=0.05, z0=2e-6, play0=1.0)
     np.testing.assert_allclose(fj.simulate(backlash, motion), fj.simulate(lugre, motion), atol=1e-7)
+
+
+@pytest.mark.parametrize("smoothing", [fj.Exact(), fj.Smooth(1e-4)])
+def test_gradients_equal_central_differences(smoothing):
+    """Every parameter, asymmetric levels, a start inside the gap with the bristles loaded (a state a fit's
+    initial-state nuisances can make), a record with reversals inside and beyond the gap; steps of 1e-7 of each
+    parameter's magnitude."""
+    jax.config.update("jax_enable_x64", True)
+    t = np.arange(300) * DT
+    x = np.r_[np.zeros(10), 6e-4 * np.sin(2 * np.pi * 5 * t) * (t / t[-1]) + 2e-5 * np.sin(2 * np.pi * 40 * t)]
+    motion = fj.Motion.from_position(x, dt=DT)
+    stribeck = fj.ExponentialStribeck(Fc=(1.0, 0.8), Fs=(1.5, 1.2), vs=1e-3, delta=2.0)
+    model = fj.LuGreBacklash(stribeck, 1e5, 300.0, 40.0, gap=2e-4, offset=0.05, z0=3e-6, play0=0.3, smoothing=smoothing)
+    target = fj.simulate(model, motion) * 1.05 + 0.01
+    params, static = eqx.partition(model, fj.trainable_filter(model))
+    flat, unravel = jax.flatten_util.ravel_pytree(params)
+    loss = jax.jit(lambda f: jnp.mean((fj.simulate(eqx.combine(unravel(f), static), motion) - target) ** 2))
+    grad = np.asarray(jax.grad(loss)(flat))
+    assert np.all(np.isfinite(grad))
+    for i, value in enumerate(np.asarray(flat)):
+        h = 1e-7 * max(abs(value), 1e-5)
+        step = jnp.zeros_like(flat).at[i].set(h)
+        central = (float(loss(flat + step)) - float(loss(flat - step))) / (2 * h)
+        assert grad[i] == pytest.approx(central, rel=1e-5, abs=1e-12 * float(loss(flat)) / h), (i, grad[i], central)
 
 
 def test_fit_recovers_the_gap_and_the_friction_levels():

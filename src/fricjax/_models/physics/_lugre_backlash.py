@@ -129,10 +129,14 @@ class LuGreBacklash(AbstractFrictionModel):
         s = p.stribeck(v_step, p.smoothing.step(v_step))  # the branch of the direction of motion [N]
         length = s / p.sigma0  # the bristles' relaxation length [m]: z approaches +-length in sliding
         half = 0.5 * p.gap
+        # the total deflection (slack crossed + bristles): any (z, play) pair, also one a fit's initial-state
+        # nuisances make inconsistent (z != 0 inside the gap), is read as one point of the dead zone
+        total = half * jnp.clip(state.play, -1.0, 1.0) + state.z
         direction = jnp.sign(sample.dx)
         travel = jnp.abs(sample.dx)
-        load = direction * state.z  # the bristles' deflection along the motion: < 0 while they unload
-        play = direction * jnp.clip(state.play, -1.0, 1.0)  # the slack along the motion: 1 engaged, pushing
+        along = direction * total
+        load = _dead_zone(along, half)  # the bristles' deflection along the motion: < 0 while they unload
+        play = jnp.clip(along / half, -1.0, 1.0)  # the slack along the motion: 1 engaged, pushing
         # 1. unloading: the deflection decays towards +length along the motion and reaches 0 after `to_zero`
         unloading = load < 0
         to_zero = length * jnp.log1p(jnp.maximum(-load, 0.0) / length)
@@ -148,11 +152,16 @@ class LuGreBacklash(AbstractFrictionModel):
         # 3. loading: the linkage engaged, the bristles follow LuGre's law along the motion
         load = jnp.where(rest > 0.0, _approach(jnp.maximum(load, 0.0), length, rest), load)
         moved = travel > 0
-        z = jnp.where(moved, direction * load, state.z)
-        new_play = jnp.where(moved, direction * play, state.play)
+        z = jnp.where(moved, direction * load, _dead_zone(total, half))
+        new_play = jnp.where(moved, direction * play, jnp.clip(total / half, -1.0, 1.0))
         dz = jnp.where(moved & (z != 0.0), v_step - jnp.abs(v_step) * z / length, 0.0)
         force = p.sigma0 * z + p.sigma1 * dz + p.sigma2 * sample.v + p.offset
         return LuGreBacklashState(z=z, play=new_play), force
+
+
+def _dead_zone(total: Array, half: Array) -> Array:
+    """The bristles' deflection [m] of a total deflection `total` [m] behind a play of half-width `half` [m]."""
+    return jnp.sign(total) * jnp.maximum(jnp.abs(total) - half, 0.0)
 
 
 def _approach(load: Array, length: Array, travel: Array) -> Array:
