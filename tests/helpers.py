@@ -50,8 +50,7 @@ def model_table() -> dict[str, fj.AbstractFrictionModel]:
             sigma2=40.0,
             gap=2e-4,
             offset=0.05,
-            z0=1e-6,
-            play0=1.0,
+            w0=1.01e-4,  # engaged (gap / 2 = 1e-4 m), the bristles deflected by 1 um
         ),
         "gms": fj.GMS(stribeck(), k=[4e4, 2e4, 1e4, 5e3], alpha=[0.4, 0.3, 0.2, 0.1], C=20.0, sigma2=40.0),
         "maxwell_nlr": fj.MaxwellSlip.nlr(k=[2e5, 1e5, 5e4], thresholds=[2e-6, 6e-6, 2e-5], offset=0.1),

@@ -113,7 +113,7 @@ def _relative_fd_check(name, model):
         assert abs(float(grad[i]) - float(fd)) <= 1e-4 * scale + 1e-9, (name, i, float(grad[i]), float(fd))
 
 
-# LuGreBacklash's z0 moves where its linkage engages: the loss curves on the scale of the bristles' relaxation length
+# LuGreBacklash's w0 moves where its linkage engages: the loss curves on the scale of the bristles' relaxation length
 # (10 um here), so this check's 1e-6 step is too coarse for it (central differences reach its gradient to 1e-7 with a
 # 1e-9 step); tests/test_lugre_backlash.py checks its gradients with steps relative to each parameter
 @pytest.mark.parametrize("name", tiered([name for name in NAMES if name != "lugre_backlash"]))

@@ -96,6 +96,24 @@ def test_a_linkage_gap_and_the_stiffness_behind_it_are_read_off_the_reversals(as
     assert _within(float(start.gap), 4e-4, 1.2) and _within(float(start.sigma0), 3e4, 1.2)
 
 
+def test_a_record_that_never_reverses_gets_a_start_and_noise_on_x_makes_no_reversals(motion):
+    """A monotonic record: every family gets a start (no reversal to read); the gap's reading with 1 um of noise on
+    the displacement (sign changes of dx at every other sample) as without it."""
+    t = np.arange(1000) * 1e-3
+    ramp = fj.Motion.from_position(1e-3 * t, dt=1e-3)
+    data = fj.FrictionData(ramp, fj.simulate(TRUTHS["lugre"][0], ramp))
+    for family in (fj.LuGreBacklash, fj.LuGre, fj.GMS, fj.Dahl):
+        assert np.isfinite(np.asarray(fj.simulate(fj.initial_guess(family, data), ramp))).all()
+    truth = fj.LuGreBacklash(fj.ExponentialStribeck(**STRIBECK), 3e4, 0.0, 0.0, gap=4e-4)
+    record = _record(truth, motion)
+    noisy = fj.Motion.from_position(
+        np.asarray(motion.x) + 1e-6 * np.random.default_rng(1).normal(size=record.length), dt=1e-3
+    )
+    clean = fj.unwrap(fj.initial_guess(fj.LuGreBacklash, record))
+    rough = fj.unwrap(fj.initial_guess(fj.LuGreBacklash, fj.FrictionData(noisy, record.force)))
+    assert _within(float(rough.gap), float(clean.gap), 1.1) and _within(float(clean.gap), 4e-4, 1.2)
+
+
 @pytest.mark.slow  # fast tier trimmed (2026-11-27): the guesses are checked fast
 def test_structure_of_an_instance_is_kept(motion):
     data = _record(TRUTHS["gms"][0], motion)

@@ -78,21 +78,20 @@ def test_a_vanishing_gap_is_lugre():
     motion = fj.Motion.from_position(2e-4 * np.sin(2 * np.pi * 4 * t) * (t / t[-1]), dt=DT)
     stribeck = fj.ExponentialStribeck(Fc=(1.0, 0.8), Fs=(1.5, 1.1), vs=1e-3, delta=2.0)
     lugre = fj.LuGre(stribeck, sigma0=1e5, sigma1=300.0, sigma2=40.0, offset=0.05, z0=2e-6)
-    backlash = fj.LuGreBacklash(stribeck, 1e5, 300.0, 40.0, gap=1e-13, offset=0.05, z0=2e-6, play0=1.0)
+    backlash = fj.LuGreBacklash(stribeck, 1e5, 300.0, 40.0, gap=1e-13, offset=0.05, w0=2e-6 + 5e-14)
     np.testing.assert_allclose(fj.simulate(backlash, motion), fj.simulate(lugre, motion), atol=1e-7)
 
 
 @pytest.mark.parametrize("smoothing", [fj.Exact(), fj.Smooth(1e-4)])
 def test_gradients_equal_central_differences(smoothing):
-    """Every parameter, asymmetric levels, a start inside the gap with the bristles loaded (a state a fit's
-    initial-state nuisances can make), a record with reversals inside and beyond the gap; steps of 1e-7 of each
-    parameter's magnitude."""
+    """Every parameter, asymmetric levels, a start engaged with the bristles loaded, a record with reversals inside
+    and beyond the gap; steps of 1e-7 of each parameter's magnitude."""
     jax.config.update("jax_enable_x64", True)
     t = np.arange(300) * DT
     x = np.r_[np.zeros(10), 6e-4 * np.sin(2 * np.pi * 5 * t) * (t / t[-1]) + 2e-5 * np.sin(2 * np.pi * 40 * t)]
     motion = fj.Motion.from_position(x, dt=DT)
     stribeck = fj.ExponentialStribeck(Fc=(1.0, 0.8), Fs=(1.5, 1.2), vs=1e-3, delta=2.0)
-    model = fj.LuGreBacklash(stribeck, 1e5, 300.0, 40.0, gap=2e-4, offset=0.05, z0=3e-6, play0=0.3, smoothing=smoothing)
+    model = fj.LuGreBacklash(stribeck, 1e5, 300.0, 40.0, gap=2e-4, offset=0.05, w0=1.03e-4, smoothing=smoothing)
     target = fj.simulate(model, motion) * 1.05 + 0.01
     params, static = eqx.partition(model, fj.trainable_filter(model))
     flat, unravel = jax.flatten_util.ravel_pytree(params)
@@ -104,6 +103,25 @@ def test_gradients_equal_central_differences(smoothing):
         step = jnp.zeros_like(flat).at[i].set(h)
         central = (float(loss(flat + step)) - float(loss(flat - step))) / (2 * h)
         assert grad[i] == pytest.approx(central, rel=1e-5, abs=1e-12 * float(loss(flat)) / h), (i, grad[i], central)
+
+
+@pytest.mark.parametrize("w0", [1e-4, -1e-4])
+def test_at_the_edge_of_the_gap_the_gradient_is_one_sides_derivative(w0):
+    """A start engaged with the bristles unloaded (`w0 = +-gap / 2`, a natural start) is a kink of the loss in `w0`:
+    its gradient is one side's derivative there, not the mean of the two (as a `clip` / `maximum` tie would give)."""
+    jax.config.update("jax_enable_x64", True)
+    t = np.arange(300) * DT
+    motion = fj.Motion.from_position(np.r_[np.zeros(5), 6e-4 * np.sin(2 * np.pi * 5 * t) * (t / t[-1])], dt=DT)
+    model = fj.LuGreBacklash(_stribeck(vs=1e-3), 1e5, 0.0, 40.0, gap=2e-4)
+    target = fj.simulate(model, motion) * 1.05 + 0.01
+
+    def loss(w):
+        return jnp.mean((fj.simulate(eqx.tree_at(lambda m: m.w0, model, w), motion) - target) ** 2)
+
+    grad, h = float(jax.grad(loss)(jnp.asarray(w0))), 1e-10
+    sides = ((float(loss(w0 + h)) - float(loss(w0))) / h, (float(loss(w0)) - float(loss(w0 - h))) / h)
+    assert abs(sides[0] - sides[1]) > 1e-2 * abs(grad)  # a kink indeed
+    assert min(abs(grad - side) for side in sides) < 1e-4 * abs(grad), (grad, sides)
 
 
 def test_fit_recovers_the_gap_and_the_friction_levels():
@@ -129,7 +147,7 @@ def test_fit_recovers_the_gap_and_the_friction_levels():
         solver=fj.levenberg_marquardt(),
         steps=60,
         scaling=fj.ParameterScaling(),
-        freeze=("z0", "play0", "sigma1", "stribeck.vs", "stribeck.delta"),
+        freeze=("w0", "sigma1", "stribeck.vs", "stribeck.delta"),
         progress=False,
     )
     fitted = fj.unwrap(solution.model)

@@ -273,7 +273,7 @@ PARAMETER_UNITS = {
     "M": "kg",
     "F0": "N",
     "gap": "m",
-    "play0": "-",
+    "w0": "m",
     "mu": "-",
     "reference": "N",
 }

@@ -122,6 +122,8 @@ def _reversal_secants(x: np.ndarray, force: np.ndarray, target: float) -> list[t
     if moving.size < 2:
         return []
     turns = moving[1:][direction[moving[1:]] != direction[moving[:-1]]]  # first step of each new direction
+    if not turns.size:  # a record that never reverses
+        return []
     found = []
     bounds = [*turns[1:], len(step)]
     for start, end in zip(turns, bounds, strict=True):
@@ -137,32 +139,63 @@ def _linkage_gap(data: FrictionData, s: RecordScales) -> tuple[float, float]:
     """A linkage's gap [m] and the bristle stiffness behind it [N/m] (`fj.LuGreBacklash`'s start), read off the
     reversals from sliding to sliding (those whose force swing is at least 80 % of the largest) by LuGre's bristle law
     (relaxation length `L = W / (2 sigma0)`, `W` the reversal's swing `2 Fc`): the first 20 % of the swing (unloading
-    from `-L` to `-0.6 L`, a travel of `0.223 L`) gives `sigma0`; the travel from 20 % to 80 % of it is the gap plus
-    `1.39 L` (unloading to 0, then loading to `0.6 L`). Force differences only, so the record's offset and an
-    asymmetry of the two sliding levels hardly enter. Medians over the reversals; without such reversals the
+    from `-L` to `-0.6 L`, a travel of `ln(1.25) L = 0.223 L`) gives `sigma0`; the travel from 20 % to 80 % of it is
+    the gap plus `ln(4) L = 1.39 L` (unloading to 0, then loading to `0.6 L`). Force differences only, so the record's
+    offset and an asymmetry of the two sliding levels hardly enter (a viscous term does: it adds `2 sigma2 |v|` to the
+    swing). Reversals are the turning points of the displacement beyond 1 % of its range (sensor noise makes no
+    reversal), the crossings interpolated between samples. Medians over the reversals; without such reversals the
     record's stiffness and 5 % of its breakaway displacement, which is also the least gap returned."""
     samples = data.motion.samples()
     x, force = np.asarray(samples.x, float), np.asarray(data.force, float)
-    step = np.diff(x)
-    direction = np.sign(step)
-    moving = np.flatnonzero(direction != 0)
-    turns = moving[1:][direction[moving[1:]] != direction[moving[:-1]]] if moving.size > 1 else moving[:0]
+    turns = _turning_points(x, 0.01 * float(np.ptp(x)) if x.size else 0.0)
+    if not turns:  # a record that never reverses
+        return 0.05 * s.breakaway, s.stiffness
     found = []  # (swing W [N], travel to 20 % of it, travel from 20 % to 80 % [m]) per reversal
-    for start, end in zip(turns, [*turns[1:], len(step)], strict=True):
-        swing = direction[start] * (force[start : end + 1] - force[start])  # rises from 0 after the reversal
+    for start, end in zip(turns, [*turns[1:], len(x) - 1], strict=True):
+        direction = np.sign(x[end] - x[start])
+        swing = direction * (force[start : end + 1] - force[start])  # rises from 0 after the reversal
         travelled = np.abs(x[start : end + 1] - x[start])
         full = float(swing.max())
-        early, late = np.flatnonzero(swing >= 0.2 * full), np.flatnonzero(swing >= 0.8 * full)
-        if full > 0 and travelled[early[0]] > 0:
-            found.append((full, travelled[early[0]], travelled[late[0]] - travelled[early[0]]))
+        if not full > 0:
+            continue
+        early, late = (_crossing(travelled, swing, share * full) for share in (0.2, 0.8))
+        if early > 0:
+            found.append((full, early, late - early))
     largest = max((w for w, _, _ in found), default=0.0)
     found = [row for row in found if row[0] >= 0.8 * largest]
     if not found:
         return 0.05 * s.breakaway, s.stiffness
     swing, unloading, crossing = (np.median([row[i] for row in found]) for i in range(3))
-    length = float(unloading) / 0.223
+    length = float(unloading) / np.log(1.25)
     sigma0 = 0.5 * float(swing) / length
-    return max(float(crossing) - 1.39 * length, 0.05 * s.breakaway), sigma0
+    return max(float(crossing) - np.log(4.0) * length, 0.05 * s.breakaway), sigma0
+
+
+def _turning_points(x: np.ndarray, threshold: float) -> list[int]:
+    """The indices of the displacement's turning points: an extreme counts once `x` has moved back from it by more
+    than `threshold` [m] (so that noise on `x` makes no reversal); the last one starts the last segment."""
+    turns, extreme, direction = [], 0, 0
+    for k in range(1, len(x)):
+        if direction == 0:
+            if abs(x[k] - x[0]) > threshold:
+                direction = int(np.sign(x[k] - x[0]))
+                extreme = k
+            continue
+        if direction * (x[k] - x[extreme]) > 0:
+            extreme = k
+        elif direction * (x[extreme] - x[k]) > threshold:
+            turns.append(extreme)
+            direction, extreme = -direction, k
+    return turns
+
+
+def _crossing(travelled: np.ndarray, rising: np.ndarray, level: float) -> float:
+    """The travel [m] where `rising` first reaches `level`, interpolated linearly between the two samples."""
+    k = int(np.argmax(rising >= level))
+    if k == 0:
+        return float(travelled[0])
+    share = (level - rising[k - 1]) / (rising[k] - rising[k - 1])
+    return float(travelled[k - 1] + share * (travelled[k] - travelled[k - 1]))
 
 
 def _sliding_line(force: np.ndarray, v: np.ndarray) -> tuple[float, float, float]:

@@ -21,11 +21,11 @@ from ._stribeck import AbstractStribeck
 
 
 class LuGreBacklashState(eqx.Module):
-    """The bristles' elastic deflection `z` [m] and the position in the gap `play` in [-1, 1] (dimensionless: the
-    linkage's slack over `gap / 2`; +-1 engaged, pushing the friction element in that direction)."""
+    """The total deflection `w` [m]: the linkage's slack crossed plus the bristles' elastic deflection. The bristles'
+    deflection is `z = sign(w) max(|w| - gap / 2, 0)` (`LuGreBacklash.bristles`); `|w| <= gap / 2`: the linkage is
+    open, at `w / (gap / 2)` in the gap (-1..1)."""
 
-    z: Array
-    play: Array
+    w: Array
 
 
 class LuGreBacklash(AbstractFrictionModel):
@@ -37,28 +37,33 @@ class LuGreBacklash(AbstractFrictionModel):
 
     `dw/dt = v - sigma0 |v| z / s(v)`,  `F = sigma0 z + sigma1 dz/dt + sigma2 v + offset`,
 
-    so after a reversal from sliding the force falls along the bristles' unloading curve to 0 (the contact opens),
-    stays at 0 while `x` crosses the gap (no force can be held across an open linkage), then builds up in the other
-    direction: the loops of a friction damper with a worn linkage (the damper records of `shared/data`). In steady
-    sliding the force is LuGre's `s(v) + sigma2 v`. `fj.Backlash(fj.LuGre(...), gap)` puts the play in the *motion*
-    path instead: there the friction element holds its force while the gap is crossed. As `gap -> 0` the model is
-    LuGre.
+    so after a reversal from sliding the bristles unload to 0 (the contact opens), the friction force stays 0 while
+    `x` crosses the gap (no force can be held across an open linkage; the measured force is `sigma2 v + offset`
+    there), then builds up in the other direction: the loops of a friction damper with a worn linkage (the damper
+    records of `shared/data`). In steady sliding the force is LuGre's `s(v) + sigma2 v`. `fj.Backlash(fj.LuGre(...),
+    gap)` puts the play in the *motion* path instead: there the friction element holds its force while the gap is
+    crossed. As `gap -> 0` the model is the exact LuGre (in smooth mode LuGre also smooths `|v|`, this model does not).
 
     Each sample is advanced exactly for the velocity `dx / dt` held over the step, in up to three phases: the bristles
-    unload to 0 (LuGre's exponential approach, in displacement), the slack is crossed, the bristles load again. The
-    force is continuous in the input and in the parameters; its stiffness changes where the contact opens and
-    closes. Smooth mode (`Smooth(eps)`, eps in m/s) chooses the Stribeck branch of an asymmetric curve by the
-    smoothing's step, as LuGre does; the phases need no smoothing.
+    unload to 0 (LuGre's exponential approach, in displacement), the slack is crossed, the bristles load again.
+    `dz/dt` is evaluated at the end of the step, as in `fj.LuGre`: 0 in the gap, `v` as the contact closes, so with
+    `sigma1 > 0` the force steps by `sigma1 |v|` where the contact opens and closes (as the bristles' rate does), and
+    a fit's loss then steps with `gap` too; with `sigma1 = 0` the force is continuous in the input and in the
+    parameters, its stiffness changing where the contact opens and closes. Smooth mode (`Smooth(eps)`, eps in m/s)
+    chooses the Stribeck branch of an asymmetric curve by the smoothing's step, as LuGre does; the phases need no
+    smoothing.
 
     **Arguments:**
 
     - `stribeck`: the Stribeck curve s(v) [N] (pairs of coefficients: asymmetric friction).
     - `sigma0`: bristle stiffness [N/m] (> 0); `sigma1`: bristle damping [N·s/m] (>= 0, on `dz/dt`, 0 in the gap);
       `sigma2`: viscous coefficient [N·s/m] (>= 0).
-    - `gap`: the linkage's total play [m] (> 0; the displacement crossed at zero force after each reversal).
+    - `gap`: the linkage's total play [m] (> 0; the displacement crossed at zero friction force after each
+      reversal).
     - `offset`: constant force offset [N].
-    - `z0`: the bristles' elastic deflection at the first sample [m]; `play0`: the position in the gap there
-      (-1..1; 0: centred). Both only set the state at rest (a fit to several records estimates each record's).
+    - `w0`: the total deflection at the first sample [m] (0: centred in the gap, at rest; `gap / 2 + z`: engaged,
+      the bristles deflected by `z`). It only sets the state at rest: a fit to several records estimates each
+      record's.
     - `smoothing`: `Exact()` or `Smooth(eps)`.
 
     ```python
@@ -77,12 +82,11 @@ class LuGreBacklash(AbstractFrictionModel):
     sigma2: Parameter
     gap: Parameter
     offset: Parameter
-    z0: Parameter
-    play0: Parameter
+    w0: Parameter
     smoothing: AbstractSmoothing
 
     requires: ClassVar[frozenset[str]] = frozenset({"v", "dt"})
-    initial_state_fields: ClassVar[frozenset[str]] = frozenset({"z0", "play0"})
+    initial_state_fields: ClassVar[frozenset[str]] = frozenset({"w0"})
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"sigma1", "sigma2"})
 
     def __init__(
@@ -94,11 +98,10 @@ class LuGreBacklash(AbstractFrictionModel):
         gap: ParamLike,
         *,
         offset: ParamLike = 0.0,
-        z0: ParamLike = 0.0,
-        play0: ParamLike = 0.0,
+        w0: ParamLike = 0.0,
         smoothing: AbstractSmoothing = Exact(),
     ):
-        dtype = model_dtype(*jax.tree_util.tree_leaves(stribeck), sigma0, sigma1, sigma2, gap, offset, z0, play0)
+        dtype = model_dtype(*jax.tree_util.tree_leaves(stribeck), sigma0, sigma1, sigma2, gap, offset, w0)
         if not isinstance(stribeck, AbstractStribeck):
             raise TypeError(
                 f"LuGreBacklash: `stribeck` must be a Stribeck curve (fj.ExponentialStribeck / fj.RationalStribeck), "
@@ -110,18 +113,20 @@ class LuGreBacklash(AbstractFrictionModel):
         self.sigma2 = _nonnegative(sigma2, "sigma2", dtype)
         self.gap = positive(gap, "gap", dtype, scalar=True)
         self.offset = real(offset, "offset", dtype, scalar=True)
-        self.z0 = real(z0, "z0", dtype, scalar=True)
-        self.play0 = real(play0, "play0", dtype, scalar=True)
+        self.w0 = real(w0, "w0", dtype, scalar=True)
         self.smoothing = smoothing
 
     def parameter_ranges(self) -> dict[str, float]:
         p = unwrap(self)
         level = float(np.max(np.abs(np.asarray(p.stribeck.Fc))))
-        return {"offset": level, "z0": level / float(np.max(np.asarray(p.sigma0))), "play0": 1.0}  # N, m, -
+        return {"offset": level, "w0": float(p.gap)}  # N, m
 
     def init_state(self) -> LuGreBacklashState:
-        p = unwrap(self)
-        return LuGreBacklashState(z=jnp.asarray(p.z0), play=jnp.asarray(p.play0))
+        return LuGreBacklashState(w=jnp.asarray(unwrap(self.w0)))
+
+    def bristles(self, state: LuGreBacklashState) -> Array:
+        """The bristles' elastic deflection `z` [m] of a state (0 while the linkage is open)."""
+        return _dead_zone(state.w, 0.5 * unwrap(self.gap))
 
     def step(self, state: LuGreBacklashState, sample: MotionSample) -> tuple[LuGreBacklashState, Array]:
         p = unwrap(self)
@@ -129,20 +134,18 @@ class LuGreBacklash(AbstractFrictionModel):
         s = p.stribeck(v_step, p.smoothing.step(v_step))  # the branch of the direction of motion [N]
         length = s / p.sigma0  # the bristles' relaxation length [m]: z approaches +-length in sliding
         half = 0.5 * p.gap
-        # the total deflection (slack crossed + bristles): any (z, play) pair, also one a fit's initial-state
-        # nuisances make inconsistent (z != 0 inside the gap), is read as one point of the dead zone
-        total = half * jnp.clip(state.play, -1.0, 1.0) + state.z
         direction = jnp.sign(sample.dx)
         travel = jnp.abs(sample.dx)
-        along = direction * total
+        along = direction * state.w  # the total deflection along the motion
         load = _dead_zone(along, half)  # the bristles' deflection along the motion: < 0 while they unload
-        play = jnp.clip(along / half, -1.0, 1.0)  # the slack along the motion: 1 engaged, pushing
+        play = _clip(along / half)  # the slack along the motion: 1 engaged, pushing
         # 1. unloading: the deflection decays towards +length along the motion and reaches 0 after `to_zero`
         unloading = load < 0
         to_zero = length * jnp.log1p(jnp.maximum(-load, 0.0) / length)
         opens = unloading & (travel >= to_zero)
         first = jnp.where(unloading, jnp.minimum(travel, to_zero), 0.0)
         load = jnp.where(opens, 0.0, jnp.where(unloading, _approach(load, length, first), load))
+        play = jnp.where(opens, -1.0, play)
         rest = travel - first
         # 2. the slack, crossed at zero force (only once the bristles are unloaded and the linkage is open)
         crossing = (load <= 0.0) & (play < 1.0)
@@ -152,16 +155,22 @@ class LuGreBacklash(AbstractFrictionModel):
         # 3. loading: the linkage engaged, the bristles follow LuGre's law along the motion
         load = jnp.where(rest > 0.0, _approach(jnp.maximum(load, 0.0), length, rest), load)
         moved = travel > 0
-        z = jnp.where(moved, direction * load, _dead_zone(total, half))
-        new_play = jnp.where(moved, direction * play, jnp.clip(total / half, -1.0, 1.0))
+        z = jnp.where(moved, direction * load, _dead_zone(state.w, half))
+        w = jnp.where(moved, direction * (half * play + load), state.w)
         dz = jnp.where(moved & (z != 0.0), v_step - jnp.abs(v_step) * z / length, 0.0)
         force = p.sigma0 * z + p.sigma1 * dz + p.sigma2 * sample.v + p.offset
-        return LuGreBacklashState(z=z, play=new_play), force
+        return LuGreBacklashState(w=w), force
 
 
 def _dead_zone(total: Array, half: Array) -> Array:
-    """The bristles' deflection [m] of a total deflection `total` [m] behind a play of half-width `half` [m]."""
-    return jnp.sign(total) * jnp.maximum(jnp.abs(total) - half, 0.0)
+    """The bristles' deflection [m] of a total deflection `total` [m] behind a play of half-width `half` [m] (ties
+    resolved by `where`, so that a derivative at the edge of the gap is one side's, not the average of both)."""
+    return jnp.where(total > half, total - half, jnp.where(total < -half, total + half, 0.0))
+
+
+def _clip(value: Array) -> Array:
+    """`value` clipped to [-1, 1] (by `where`, as `_dead_zone`)."""
+    return jnp.where(value > 1.0, 1.0, jnp.where(value < -1.0, -1.0, value))
 
 
 def _approach(load: Array, length: Array, travel: Array) -> Array:
