@@ -24,7 +24,7 @@ from ..._constraints import (
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._base import AbstractFrictionModel
-from ._stribeck import AbstractStribeck
+from ._stribeck import AbstractStribeck, checked_stribeck
 
 
 class GMSState(eqx.Module):
@@ -103,8 +103,7 @@ class GMS(AbstractFrictionModel):
         smoothing: AbstractSmoothing = Exact(),
     ):
         dtype = model_dtype(*jax.tree_util.tree_leaves(stribeck), k, alpha, C, sigma2, offset)
-        if not isinstance(stribeck, AbstractStribeck):
-            raise TypeError(f"GMS: `stribeck` must be a Stribeck curve, got {type(stribeck).__name__}.")
+        checked_stribeck(stribeck, "GMS")
         k = as_float_array(k)
         if k.ndim != 1:
             raise ValueError(f"GMS: `k` must have shape (N,), one stiffness per element, got shape {k.shape}.")

@@ -15,7 +15,7 @@ from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._base import AbstractFrictionModel
 from .._state_maps import AffineMaps, shaped_like
-from ._stribeck import AbstractStribeck
+from ._stribeck import AbstractStribeck, checked_stribeck
 
 
 def phi1(h: Array) -> Array:
@@ -100,12 +100,7 @@ class LuGre(AbstractFrictionModel):
         smoothing: AbstractSmoothing = Exact(),
     ):
         dtype = model_dtype(*jax.tree_util.tree_leaves(stribeck), sigma0, sigma1, sigma2, offset, z0)
-        if not isinstance(stribeck, AbstractStribeck):
-            raise TypeError(
-                f"LuGre: `stribeck` must be a Stribeck curve (fj.ExponentialStribeck / fj.RationalStribeck), "
-                f"got {type(stribeck).__name__}."
-            )
-        self.stribeck = stribeck
+        self.stribeck = checked_stribeck(stribeck, "LuGre")
         self.sigma0 = positive(sigma0, "sigma0", dtype, scalar=True)
         self.sigma1 = _nonnegative(sigma1, "sigma1", dtype)
         self.sigma2 = _nonnegative(sigma2, "sigma2", dtype)

@@ -17,7 +17,7 @@ from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact
 from .._base import AbstractFrictionModel
 from ._lugre import _nonnegative
-from ._stribeck import AbstractStribeck
+from ._stribeck import AbstractStribeck, checked_stribeck
 
 
 class LuGreBacklashState(eqx.Module):
@@ -102,12 +102,7 @@ class LuGreBacklash(AbstractFrictionModel):
         smoothing: AbstractSmoothing = Exact(),
     ):
         dtype = model_dtype(*jax.tree_util.tree_leaves(stribeck), sigma0, sigma1, sigma2, gap, offset, w0)
-        if not isinstance(stribeck, AbstractStribeck):
-            raise TypeError(
-                f"LuGreBacklash: `stribeck` must be a Stribeck curve (fj.ExponentialStribeck / fj.RationalStribeck), "
-                f"got {type(stribeck).__name__}."
-            )
-        self.stribeck = stribeck
+        self.stribeck = checked_stribeck(stribeck, "LuGreBacklash")
         self.sigma0 = positive(sigma0, "sigma0", dtype, scalar=True)
         self.sigma1 = _nonnegative(sigma1, "sigma1", dtype)
         self.sigma2 = _nonnegative(sigma2, "sigma2", dtype)

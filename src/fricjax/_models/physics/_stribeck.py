@@ -147,3 +147,13 @@ class RationalStribeck(AbstractStribeck):
     def _curve(self, v: Array, *coefficients: Array) -> Array:
         Fc, Fs, vs, mu = coefficients
         return Fc + (Fs - Fc) / (1.0 + abs_pow(v / vs, mu))
+
+
+def checked_stribeck(stribeck: Any, owner: str) -> AbstractStribeck:
+    """`stribeck`, or a TypeError naming `owner` (the model being built) when it is not a Stribeck curve."""
+    if not isinstance(stribeck, AbstractStribeck):
+        raise TypeError(
+            f"{owner}: `stribeck` must be a Stribeck curve (fj.ExponentialStribeck / fj.RationalStribeck), "
+            f"got {type(stribeck).__name__}."
+        )
+    return stribeck
