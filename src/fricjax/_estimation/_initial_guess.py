@@ -12,6 +12,7 @@ the breakaway displacement up to it, as reversals of every size between them loa
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from collections.abc import Sequence
 from typing import Any
 
@@ -148,10 +149,8 @@ def _linkage_gap(data: FrictionData, s: RecordScales) -> tuple[float, float]:
     samples = data.motion.samples()
     x, force = np.asarray(samples.x, float), np.asarray(data.force, float)
     turns = _turning_points(x, 0.01 * float(np.ptp(x)) if x.size else 0.0)
-    if not turns:  # a record that never reverses
-        return 0.05 * s.breakaway, s.stiffness
     found = []  # (swing W [N], travel to 20 % of it, travel from 20 % to 80 % [m]) per reversal
-    for start, end in zip(turns, [*turns[1:], len(x) - 1], strict=True):
+    for start, end in itertools.pairwise([*turns, len(x) - 1]):  # none for a record that never reverses
         direction = np.sign(x[end] - x[start])
         swing = direction * (force[start : end + 1] - force[start])  # rises from 0 after the reversal
         travelled = np.abs(x[start : end + 1] - x[start])

@@ -140,7 +140,6 @@ class LuGreBacklash(AbstractFrictionModel):
         opens = unloading & (travel >= to_zero)
         first = jnp.where(unloading, jnp.minimum(travel, to_zero), 0.0)
         load = jnp.where(opens, 0.0, jnp.where(unloading, _approach(load, length, first), load))
-        play = jnp.where(opens, -1.0, play)
         rest = travel - first
         # 2. the slack, crossed at zero force (only once the bristles are unloaded and the linkage is open)
         crossing = (load <= 0.0) & (play < 1.0)
@@ -148,7 +147,7 @@ class LuGreBacklash(AbstractFrictionModel):
         play = jnp.where(crossing, play + slack / half, jnp.where(load > 0.0, 1.0, play))
         rest = rest - slack
         # 3. loading: the linkage engaged, the bristles follow LuGre's law along the motion
-        load = jnp.where(rest > 0.0, _approach(jnp.maximum(load, 0.0), length, rest), load)
+        load = jnp.where(rest > 0.0, _approach(load, length, rest), load)  # load >= 0 here: 0 once opened
         moved = travel > 0
         z = jnp.where(moved, direction * load, _dead_zone(state.w, half))
         w = jnp.where(moved, direction * (half * play + load), state.w)
@@ -158,13 +157,15 @@ class LuGreBacklash(AbstractFrictionModel):
 
 
 def _dead_zone(total: Array, half: Array) -> Array:
-    """The bristles' deflection [m] of a total deflection `total` [m] behind a play of half-width `half` [m] (ties
-    resolved by `where`, so that a derivative at the edge of the gap is one side's, not the average of both)."""
+    """The bristles' deflection [m] of a total deflection `total` [m] behind a play of half-width `half` [m]: what
+    the slack does not take up, exactly 0 inside the gap (`total - half * _clip(total / half)` would leave round-off
+    there, which the phases of `step` read as a loaded or unloading contact), the ties resolved as in `_clip`."""
     return jnp.where(total > half, total - half, jnp.where(total < -half, total + half, 0.0))
 
 
 def _clip(value: Array) -> Array:
-    """`value` clipped to [-1, 1] (by `where`, as `_dead_zone`)."""
+    """`value` clipped to [-1, 1], the ties resolved by `where` (not `jnp.clip`, whose derivative at a tie is the
+    mean of both sides'), so that a derivative at the edge of the gap is one side's."""
     return jnp.where(value > 1.0, 1.0, jnp.where(value < -1.0, -1.0, value))
 
 
