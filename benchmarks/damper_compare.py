@@ -13,8 +13,8 @@ initialises the model and is not scored), the mean over the records, the best mo
 time, machine and versions. The device's force drops to about zero for ~3 mm after each reversal (its linkage's
 play): `lugre-backlash` (`fj.LuGreBacklash`) is the model of that; `--models` restricts the fit.
 
-Run: `python benchmarks/damper_compare.py [--protocol several single] [--models ...]` (about 5 + 2 minutes on 2
-cores).
+Run: `python benchmarks/damper_compare.py [--protocol several single] [--models ...] [--reversed]` (about 5 + 2
+minutes on 2 cores).
 """
 
 from __future__ import annotations
@@ -42,13 +42,12 @@ PROTOCOLS = {
 }
 
 
-def run(protocol: str, models: list[str] | None) -> dict:
+def run(protocol: str, models: list[str] | None, reverse: bool = False) -> dict:
     folder = fj.data_folder("damper") / "dataset-3" / "characterization_tests"
     train, test = PROTOCOLS[protocol]
-    # in file-name order, as a shell glob (`'char/0.25Hz*.npz'`) passes them: the joined training record that the
-    # starts are read from follows the order, and the fits with it (NLR on the 1 Hz 1 in test: 6.00 % in this
-    # order, 4.83 % with the records by frequency and amplitude)
-    paths = sorted(str(folder / RECORD.format(*pair)) for pair in train)
+    # in file-name order, as a shell glob (`'char/0.25Hz*.npz'`) passes them, or reversed (`--reversed`): the starts
+    # are read off each record on its own and pooled, so the order moves the fits by round-off only
+    paths = sorted((str(folder / RECORD.format(*pair)) for pair in train), reverse=reverse)
     tests = sorted(str(folder / RECORD.format(*pair)) for pair in test)
     with tempfile.TemporaryDirectory() as scratch:
         out = pathlib.Path(scratch) / "compare"
@@ -67,6 +66,7 @@ def run(protocol: str, models: list[str] | None) -> dict:
     return {
         "benchmark": "damper_compare",
         "protocol": protocol,
+        "training_order": "reversed file names" if reverse else "file names",
         "train": [pathlib.Path(p).name for p in paths],
         "test": names,
         "test_nmse_percent": scores,
@@ -80,9 +80,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--protocol", nargs="+", choices=sorted(PROTOCOLS), default=["several", "single"])
     parser.add_argument("--models", nargs="+", default=None, help="compare's --models (default: its defaults)")
+    parser.add_argument("--reversed", action="store_true", help="the training records in reversed file-name order")
     args = parser.parse_args()
     for protocol in args.protocol:
-        print(json.dumps({**run(protocol, args.models), **environment()}), flush=True)
+        print(json.dumps({**run(protocol, args.models, args.reversed), **environment()}), flush=True)
 
 
 if __name__ == "__main__":

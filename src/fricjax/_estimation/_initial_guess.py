@@ -31,6 +31,7 @@ from .._models.physics._stribeck import ExponentialStribeck
 from .._simulate import simulate
 from .._smoothing import AbstractSmoothing, Exact
 from .._validation import nonnegative_float, positive_int
+from ._records import padded_record
 from ._sweep import stack_models
 
 _SIMULATE_EACH = eqx.filter_jit(eqx.filter_vmap(simulate, in_axes=(0, None)))  # a batch of models, one record
@@ -63,34 +64,48 @@ class RecordScales:
     slip: float = 0.0
 
     @classmethod
-    def from_data(cls, data: FrictionData) -> RecordScales:
-        """The scales of `data` (a `fj.FrictionData`)."""
-        if not isinstance(data, FrictionData):
-            raise TypeError(f"initial_guess: `data` must be an fj.FrictionData, got {type(data).__name__}.")
-        samples = data.motion.samples()
-        x, v = np.asarray(samples.x, float), np.asarray(samples.v, float)
-        force = np.asarray(data.force, float)
-        centred = force - np.median(force)
+    def from_data(cls, data: FrictionData | Sequence[FrictionData]) -> RecordScales:
+        """The scales of `data` (a `fj.FrictionData`, or several records of one device as a list: the readings pooled
+        over the records, each read on its own, so that neither their order nor the seams between them count; each
+        record its own force offset in the sliding line (a record with none of the pooled fastest samples: the mean
+        residual of its own fastest 30 % from the pooled line), `offset` their mean weighted by length)."""
+        records = as_records(data, "RecordScales.from_data")
+        signals = [_host_signals(r) for r in records]
+        x_of, v_of, force_of = ([item[i] for item in signals] for i in range(3))
+        v, force = np.concatenate(v_of), np.concatenate(force_of)
+        centred = np.concatenate([f - np.median(f) for f in force_of])
         scale = 0.5 * float(np.percentile(centred, 99) - np.percentile(centred, 1))
         fast = np.abs(v) > np.percentile(np.abs(v), 70)
-        Fc, Fv, offset = _sliding_line(force[fast], v[fast]) if fast.sum() >= 3 else (scale, 0.0, 0.0)
+        group = np.concatenate([np.full(len(f), i) for i, f in enumerate(force_of)])
+        offsets = np.array([float(np.median(f)) for f in force_of]) if len(records) > 1 else np.zeros(1)
+        if fast.sum() >= 3:
+            Fc, Fv, offsets = _sliding_line(force[fast], v[fast], group[fast], offsets)
+            for i in sorted(set(range(len(records))) - set(group[fast])):  # a slow record: its own fastest samples
+                own = np.abs(v_of[i]) > np.percentile(np.abs(v_of[i]), 70)
+                if own.any():
+                    line = Fc * np.sign(v_of[i][own]) + Fv * v_of[i][own]
+                    offsets[i] = float(np.mean(force_of[i][own] - line))
+        else:
+            Fc, Fv = scale, 0.0
         if not Fc > 0:
             Fc = float(np.median(np.abs(centred[fast]))) if fast.any() else scale
-        Fs = max(float(np.percentile(np.abs(force - offset), 99.5)), 1.05 * Fc)
+        offset = _mean_offset(offsets, [len(f) for f in force_of])
+        Fs = max(float(np.percentile(np.abs(force - offsets[group]), 99.5)), 1.05 * Fc)
         vs = float(np.percentile(np.abs(v), 30)) or 1e-3
-        stiffness = _presliding_stiffness(x, force, Fs)
+        stiffness = _presliding_stiffness(x_of, force_of, Fs)
         if stiffness is None:  # no reversal spans the pre-sliding range: the steepest 3-sample slopes
-            dxw, dfw = x[3:] - x[:-3], force[3:] - force[:-3]
-            moving = np.abs(dxw) > np.percentile(np.abs(dxw), 20) + 1e-15
+            dxw = np.concatenate([x[3:] - x[:-3] for x in x_of])
+            dfw = np.concatenate([f[3:] - f[:-3] for f in force_of])
+            moving = np.abs(dxw) > np.percentile(np.abs(dxw), 20) + 1e-15 if dxw.size else dxw > 0
             slopes = np.abs(dfw[moving] / dxw[moving])
             stiffness = float(np.percentile(slopes, 90)) if slopes.size else scale / 1e-5
         if not stiffness > 0:  # a record without force or motion: a unit stiffness keeps the scales finite
             stiffness = 1.0
-        steps = np.abs(np.diff(x))
+        steps = np.abs(np.concatenate([np.diff(x) for x in x_of]))
         dx = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1e-9
-        duration = data.length * float(np.asarray(data.motion.dt))
+        duration = sum(r.length * float(np.asarray(r.motion.dt)) for r in records)
         v_fast = float(np.percentile(np.abs(v), 90)) or 1e-3
-        slip = _slip_distance(x, force, Fc) or Fs / stiffness
+        slip = _slip_distance(x_of, force_of, Fc) or Fs / stiffness
         return cls(scale, Fc, Fs, vs, stiffness, Fs / stiffness, dx, duration, v_fast, Fv, offset, slip)
 
     def thresholds(self, elements: int) -> np.ndarray:
@@ -98,19 +113,24 @@ class RecordScales:
         return max(self.slip, self.breakaway) * np.geomspace(0.05, 1.0, elements)
 
 
-def _presliding_stiffness(x: np.ndarray, force: np.ndarray, Fs: float, share: float = 0.3) -> float | None:
+def _presliding_stiffness(
+    x_of: Sequence[np.ndarray], force_of: Sequence[np.ndarray], Fs: float, share: float = 0.3
+) -> float | None:
     """The median secant slope |dF / dx| [N/m] from each displacement reversal until the force has changed by `share`
     of the full swing `2 Fs` (for an exponential pre-sliding curve `0.84 x` its initial slope at 0.3), over the
-    reversals that reach it before the next one; None when none does."""
-    reached = _reversal_secants(x, force, share * 2.0 * Fs)
+    reversals of every record (displacements `x_of`, forces `force_of`) that reach it before the next one; None when
+    none does."""
+    reached = [row for x, f in zip(x_of, force_of, strict=True) for row in _reversal_secants(x, f, share * 2.0 * Fs)]
     return float(np.median([change / travelled for travelled, change in reached])) if reached else None
 
 
-def _slip_distance(x: np.ndarray, force: np.ndarray, Fc: float, share: float = 0.9) -> float | None:
+def _slip_distance(
+    x_of: Sequence[np.ndarray], force_of: Sequence[np.ndarray], Fc: float, share: float = 0.9
+) -> float | None:
     """Half the median displacement [m] from a reversal until the force has changed by `share` of the sliding swing
-    `2 Fc`: where the last elements of a multi-element model start slipping (a reversal curve is the loading curve
-    doubled, Masing's rule); None when no reversal gets there."""
-    reached = _reversal_secants(x, force, share * 2.0 * Fc)
+    `2 Fc`, over the reversals of every record: where the last elements of a multi-element model start slipping (a
+    reversal curve is the loading curve doubled, Masing's rule); None when no reversal gets there."""
+    reached = [row for x, f in zip(x_of, force_of, strict=True) for row in _reversal_secants(x, f, share * 2.0 * Fc)]
     return 0.5 * float(np.median([travelled for travelled, _ in reached])) if reached else None
 
 
@@ -136,7 +156,7 @@ def _reversal_secants(x: np.ndarray, force: np.ndarray, target: float) -> list[t
     return found
 
 
-def _linkage_gap(data: FrictionData, s: RecordScales) -> tuple[float, float]:
+def _linkage_gap(records: Sequence[FrictionData], s: RecordScales) -> tuple[float, float]:
     """A linkage's gap [m] and the bristle stiffness behind it [N/m] (`fj.LuGreBacklash`'s start), read off the
     reversals from sliding to sliding (those whose force swing is at least 80 % of the largest) by LuGre's bristle law
     (relaxation length `L = W / (2 sigma0)`, `W` the reversal's swing `2 Fc`): the first 20 % of the swing (unloading
@@ -145,11 +165,26 @@ def _linkage_gap(data: FrictionData, s: RecordScales) -> tuple[float, float]:
     offset and an asymmetry of the two sliding levels hardly enter (a viscous term does: it adds `2 sigma2 |v|` to the
     swing). Reversals are the turning points of the displacement beyond 1 % of its range (sensor noise makes no
     reversal), the crossings interpolated between samples. Medians over the reversals; without such reversals the
-    record's stiffness and 5 % of its breakaway displacement, which is also the least gap returned."""
-    samples = data.motion.samples()
-    x, force = np.asarray(samples.x, float), np.asarray(data.force, float)
-    turns = _turning_points(x, 0.01 * float(np.ptp(x)) if x.size else 0.0)
+    record's stiffness and 5 % of its breakaway displacement, which is also the least gap returned. Several records:
+    the reversals of each, pooled."""
     found = []  # (swing W [N], travel to 20 % of it, travel from 20 % to 80 % [m]) per reversal
+    for x, _, force in map(_host_signals, records):
+        found.extend(_linkage_reversals(x, force))
+    largest = max((w for w, _, _ in found), default=0.0)
+    found = [row for row in found if row[0] >= 0.8 * largest]
+    if not found:
+        return 0.05 * s.breakaway, s.stiffness
+    swing, unloading, crossing = (np.median([row[i] for row in found]) for i in range(3))
+    length = float(unloading) / np.log(1.25)
+    sigma0 = 0.5 * float(swing) / length
+    return max(float(crossing) - np.log(4.0) * length, 0.05 * s.breakaway), sigma0
+
+
+def _linkage_reversals(x: np.ndarray, force: np.ndarray) -> list[tuple[float, float, float]]:
+    """For each reversal of one record (`_linkage_gap`): the force swing `W` [N] after it, the travel [m] to 20 % of
+    the swing, and the travel [m] from 20 % to 80 % of it."""
+    turns = _turning_points(x, 0.01 * float(np.ptp(x)) if x.size else 0.0)
+    found = []
     for start, end in itertools.pairwise([*turns, len(x) - 1]):  # none for a record that never reverses
         direction = np.sign(x[end] - x[start])
         swing = direction * (force[start : end + 1] - force[start])  # rises from 0 after the reversal
@@ -160,14 +195,7 @@ def _linkage_gap(data: FrictionData, s: RecordScales) -> tuple[float, float]:
         early, late = (_crossing(travelled, swing, share * full) for share in (0.2, 0.8))
         if early > 0:
             found.append((full, early, late - early))
-    largest = max((w for w, _, _ in found), default=0.0)
-    found = [row for row in found if row[0] >= 0.8 * largest]
-    if not found:
-        return 0.05 * s.breakaway, s.stiffness
-    swing, unloading, crossing = (np.median([row[i] for row in found]) for i in range(3))
-    length = float(unloading) / np.log(1.25)
-    sigma0 = 0.5 * float(swing) / length
-    return max(float(crossing) - np.log(4.0) * length, 0.05 * s.breakaway), sigma0
+    return found
 
 
 def _turning_points(x: np.ndarray, threshold: float) -> list[int]:
@@ -197,10 +225,42 @@ def _crossing(travelled: np.ndarray, rising: np.ndarray, level: float) -> float:
     return float(travelled[k - 1] + share * (travelled[k] - travelled[k - 1]))
 
 
-def _sliding_line(force: np.ndarray, v: np.ndarray) -> tuple[float, float, float]:
-    """Least squares of `force ~ offset + Fc sign(v) + Fv v` with `Fv >= 0`: `(Fc, Fv, offset)`."""
-    offset, Fc, Fv = _with_viscous_slope(np.stack([np.ones_like(v), np.sign(v)], axis=1), v, force)
-    return float(Fc), float(Fv), float(offset)
+def _sliding_line(
+    force: np.ndarray, v: np.ndarray, group: np.ndarray, offsets: np.ndarray
+) -> tuple[float, float, np.ndarray]:
+    """Least squares of `force ~ offset[group] + Fc sign(v) + Fv v` with `Fv >= 0` (`group`: each sample's record):
+    `(Fc, Fv, offsets)`, each record's offset [N]; a record without samples here keeps its entry of `offsets`."""
+    present = np.unique(group)
+    columns = np.stack([*(group == g for g in present), np.sign(v)], axis=1).astype(float)
+    coef = _with_viscous_slope(columns, v, force)
+    offsets = np.array(offsets, dtype=float)
+    offsets[present] = coef[: len(present)]
+    return float(coef[len(present)]), float(coef[-1]), offsets
+
+
+def _host_signals(record: FrictionData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A record's displacement [m], velocity [m/s] and force [N] as float64 NumPy arrays."""
+    samples = record.motion.samples()
+    return np.asarray(samples.x, float), np.asarray(samples.v, float), np.asarray(record.force, float)
+
+
+def _mean_offset(offsets: Any, lengths: Sequence[int]) -> float:
+    """The records' force offsets [N] as one: their mean weighted by the records' lengths (one record's as it is)."""
+    offsets = np.asarray(offsets, np.float64)
+    return float(offsets[0]) if offsets.size == 1 else float(np.average(offsets, weights=lengths))
+
+
+def as_records(data: Any, owner: str) -> list[FrictionData]:
+    """`data` (an `fj.FrictionData`, or a non-empty list / tuple of them) as a list of records; a clear error naming
+    `owner` otherwise."""
+    if isinstance(data, FrictionData):
+        return [data]
+    if isinstance(data, (list, tuple)) and data and all(isinstance(r, FrictionData) for r in data):
+        return list(data)
+    raise TypeError(
+        f"{owner}: `data` must be an fj.FrictionData or a non-empty list of them (several records of one device), "
+        f"got {type(data).__name__}."
+    )
 
 
 def _with_viscous_slope(columns: np.ndarray, v: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -217,7 +277,7 @@ GUESSABLE = (Coulomb, CoulombViscous, Tustin, BoPavelescu, LuGre, LuGreBacklash,
 
 def initial_guess(
     model: Any,
-    data: FrictionData,
+    data: FrictionData | Sequence[FrictionData],
     *,
     elements: int | str | None = None,
     smoothing: AbstractSmoothing | None = None,
@@ -229,7 +289,10 @@ def initial_guess(
     - `model`: a class (`fj.LuGre`, `fj.LuGreBacklash` (its gap and stiffness from the reversals), `fj.GMS`,
       `fj.MaxwellSlip` (an NLR model), `fj.Dahl`, `fj.Coulomb`, `fj.CoulombViscous`, `fj.Tustin`, `fj.BoPavelescu`)
       or an instance, whose structure (element count, smoothing) is kept.
-    - `data`: the training record (`fj.FrictionData`).
+    - `data`: the training record (`fj.FrictionData`), or several records of one device (a list): every reading
+      pooled over them, each record read on its own (no reversal or element state carried from one into the
+      next, each its own force offset; the start's `offset` is their mean weighted by length), so that the order
+      of the records does not matter.
     - `elements`: element count of GMS / Maxwell-slip (default: the instance's, else 4); `"auto"`: read off the
       record (`fj.element_count`).
     - `smoothing`: the start's smoothing (default: the instance's, else `fj.Exact()`).
@@ -253,13 +316,14 @@ def initial_guess(
         raise TypeError(f"initial_guess: no data-driven start for {cls.__name__}; it has one for {names}.")
     if smoothing is None:
         smoothing = Exact() if isinstance(model, type) else getattr(model, "smoothing", Exact())
+    records = as_records(data, "initial_guess")
     if elements is None:
         elements = 4 if isinstance(model, type) else _element_count(model)
     elif elements == "auto":
-        elements = element_count(data) if issubclass(cls, (GMS, MaxwellSlip)) else 4  # others have no elements
+        elements = element_count(records) if issubclass(cls, (GMS, MaxwellSlip)) else 4  # others have no elements
     else:
         elements = positive_int(elements, "elements", "initial_guess", hint="(or 'auto')")
-    s = RecordScales.from_data(data)
+    s = RecordScales.from_data(records)
     if not s.Fc > 0:
         raise ValueError(
             "initial_guess: the record's force does not vary (no friction level to read a start from); check the "
@@ -277,12 +341,12 @@ def initial_guess(
     if cls is LuGre:
         return LuGre(stribeck, sigma0=s.stiffness, sigma1=0.0, sigma2=s.Fv, offset=s.offset, smoothing=smoothing)
     if cls is LuGreBacklash:
-        gap, sigma0 = _linkage_gap(data, s)
+        gap, sigma0 = _linkage_gap(records, s)
         return LuGreBacklash(
             stribeck, sigma0=sigma0, sigma1=0.0, sigma2=s.Fv, gap=gap, offset=s.offset, smoothing=smoothing
         )
     if cls is GMS:
-        found = maxwell_slip_elements(data, s, elements, viscous=True)
+        found = maxwell_slip_elements(records, s, elements, viscous=True)
         if found is not None:  # the elements of a Maxwell-slip model of the record: stiffness and force shares
             thresholds, k, offset, Fv = found
             capacity = k * thresholds
@@ -290,7 +354,7 @@ def initial_guess(
                 stribeck, k=k, alpha=capacity / capacity.sum(), C=10.0 * s.Fs, sigma2=Fv, offset=offset,
                 smoothing=smoothing,
             )  # fmt: skip
-            return _screen_gms_sliding_law(guess, data)
+            return _screen_gms_sliding_law(guess, records)
         shares = np.arange(elements, 0, -1, dtype=float)  # stiffer elements first
         return GMS(
             stribeck,
@@ -303,7 +367,7 @@ def initial_guess(
         )
     if cls is Dahl:
         return Dahl(sigma0=s.stiffness, Fc=s.Fc, offset=s.offset, smoothing=smoothing)
-    found = maxwell_slip_elements(data, s, elements)
+    found = maxwell_slip_elements(records, s, elements)
     if found is None:  # no motion to regress on: the elements share the static level
         thresholds = s.thresholds(elements)
         return MaxwellSlip.nlr(
@@ -317,11 +381,13 @@ GRID_ELEMENTS = 48  # the dense LR model of `maxwell_slip_elements`
 
 
 def maxwell_slip_elements(
-    data: FrictionData, scales: RecordScales, elements: int, *, viscous: bool = False
+    data: FrictionData | Sequence[FrictionData], scales: RecordScales, elements: int, *, viscous: bool = False
 ) -> tuple[np.ndarray, np.ndarray, float, float] | None:
     """The `elements` Maxwell-slip elements that best reproduce the record: thresholds [m], stiffnesses [N/m], the
     force offset [N] and, with `viscous`, a viscous slope [N s/m] (>= 0) fitted with them (else 0); None for a
-    record without motion. GMS starts take their element stiffnesses and force shares from them.
+    record without motion. GMS starts take their element stiffnesses and force shares from them. Several records
+    (a list): one regression of all, each record's elements starting from rest and each record its own offset (the
+    offset returned is their mean weighted by length).
 
     Two steps, both without a descent through the non-smooth threshold clip (parlitz2004 §III-C fits NLR models by a
     genetic algorithm and Nelder-Mead for that reason): (1) an LR model (parlitz2004 §III-A) of `GRID_ELEMENTS`
@@ -332,7 +398,7 @@ def maxwell_slip_elements(
     capacity), until `elements` are left (the curve fixes the model's response to any displacement history:
     Masing's rule). On the benchmark records (benchmarks/global_search.py) the start alone is within 1.005x of the
     true model's held-out error."""
-    dense = _dense_elements(data, scales, viscous=viscous, elements=elements)
+    dense = _dense_elements(as_records(data, "maxwell_slip_elements"), scales, viscous=viscous, elements=elements)
     if dense is None:
         return None
     grid, stiffness, offset, Fv = dense
@@ -341,47 +407,54 @@ def maxwell_slip_elements(
 
 
 def _elements_by_nnls(
-    deflections: np.ndarray, velocity: np.ndarray | None, force: Any
-) -> tuple[np.ndarray, float, float, float]:
-    """Non-negative least squares of `force ~ deflections @ c + Fv v + offset` (the normalised element deflections,
-    shape (N, M); no viscous column when `velocity` is None; the offset of either sign): the element forces `c`
-    [N], `Fv` [N s/m], the offset [N] and the mean squared residual [N^2]. The design is first reduced to its
-    triangular factor (small; the same minimiser, and the residual of the part it cannot reach added back)."""
+    deflections: np.ndarray, velocity: np.ndarray | None, force: Any, group: np.ndarray | None = None
+) -> tuple[np.ndarray, float, np.ndarray, float]:
+    """Non-negative least squares of `force ~ deflections @ c + Fv v + offset[group]` (the normalised element
+    deflections, shape (N, M); no viscous column when `velocity` is None; `group` each sample's record, default one
+    record; the offsets of either sign): the element forces `c` [N], `Fv` [N s/m], the offset of each record [N] and
+    the mean squared residual [N^2]. The design is first reduced to its triangular factor (small; the same
+    minimiser, and the residual of the part it cannot reach added back)."""
     import scipy.optimize
 
     force = np.asarray(force, np.float64)
-    ones = np.ones((len(force), 1))
+    group = np.zeros(len(force), int) if group is None else np.asarray(group)
+    records = int(group.max()) + 1
+    indicator = (group[:, None] == np.arange(records)[None, :]).astype(np.float64)
     v = np.zeros((len(force), 0)) if velocity is None else np.asarray(velocity, np.float64)[:, None]
-    design = np.concatenate([deflections, v, ones, -ones], axis=1)
+    design = np.concatenate([deflections, v, indicator, -indicator], axis=1)
     triangle = np.asarray(np.linalg.qr(np.concatenate([design, force[:, None]], axis=1), mode="r"))
     n = design.shape[1]
     solution, reduced = scipy.optimize.nnls(triangle[:n, :n], triangle[:n, n], maxiter=50 * n)
     m = deflections.shape[1]
     Fv = float(solution[m]) if velocity is not None else 0.0
     residual = (float(reduced) ** 2 + float(triangle[n, n]) ** 2) / len(force)
-    return solution[:m], Fv, float(solution[-2] - solution[-1]), residual
+    offsets = solution[n - 2 * records : n - records] - solution[n - records :]
+    return solution[:m], Fv, offsets, residual
 
 
 def _dense_elements(
-    data: FrictionData, scales: RecordScales, *, viscous: bool, elements: int = 2
+    records: Sequence[FrictionData], scales: RecordScales, *, viscous: bool, elements: int = 2
 ) -> tuple[np.ndarray, np.ndarray, float, float] | None:
     """The dense LR model of `maxwell_slip_elements` (step 1): the thresholds [m] and stiffnesses [N/m] of its
-    elements with a non-zero force, its offset [N] and viscous slope [N s/m]; None for a record without motion
-    (or shorter than `3 * elements` samples)."""
-    samples = data.motion.samples()
-    x = np.asarray(samples.x, np.float64)
-    steps = np.abs(np.diff(x))
+    elements with a non-zero force, its offset [N] (several records: their offsets' mean weighted by length) and
+    viscous slope [N s/m]; None for records without motion (or shorter than `3 * elements` samples)."""
+    signals = [_host_signals(r) for r in records]
+    steps = np.abs(np.concatenate([np.diff(x) for x, _, _ in signals]))
     steps = steps[steps > 0]
-    if steps.size < 2 or data.length < 3 * elements:
+    lengths = [r.length for r in records]
+    if steps.size < 2 or sum(lengths) < 3 * elements:
         return None
     top = 20.0 * max(scales.slip, scales.breakaway)
     low = min(max(float(np.percentile(steps, 2)), 5e-5 * top), 1e-2 * top)  # the small steps near reversals
     grid = np.geomspace(low, top, GRID_ELEMENTS)
-    velocity = np.asarray(samples.v, np.float64) if viscous else None
-    capacity, Fv, offset, _ = _elements_by_nnls(_deflections(data.motion, grid), velocity, data.force)
+    velocity = np.concatenate([v for _, v, _ in signals]) if viscous else None
+    force = np.concatenate([f for _, _, f in signals])
+    group = np.repeat(np.arange(len(records)), lengths)
+    capacity, Fv, offsets, _ = _elements_by_nnls(_deflections(records, grid), velocity, force, group)
     keep = capacity > 1e-9 * max(float(capacity.max()), 1e-300)
     if not keep.any():
         return None
+    offset = _mean_offset(offsets, lengths)
     return grid[keep], capacity[keep] / grid[keep], offset, Fv
 
 
@@ -424,13 +497,13 @@ def element_count(
         if not records or not all(isinstance(r, FrictionData) for r in records):
             raise TypeError("element_count: `data` must be an fj.FrictionData or a non-empty list of them.")
         return max(element_count(r, most=most, tolerance=tolerance, fewest=fewest) for r in records)
-    dense = _dense_elements(data, RecordScales.from_data(data), viscous=True, elements=most)
+    dense = _dense_elements([data], RecordScales.from_data(data), viscous=True, elements=most)
     if dense is None:  # nothing to read: the former default, within the asked range
         return min(max(4, fewest), most)
     grid, stiffness, _, _ = dense
     counts = list(range(fewest, most + 1))
     merged = [_merge_elements(grid, stiffness, m)[0] for m in counts]
-    deflections = _deflections(data.motion, np.concatenate(merged))  # normalised, (N, all counts' elements)
+    deflections = _deflections([data], np.concatenate(merged))  # normalised, (N, all counts' elements)
     v = np.asarray(data.motion.samples().v, np.float64)
     edges = np.cumsum([0, *(len(t) for t in merged)])
     residuals = [
@@ -445,13 +518,13 @@ STRIBECK_VELOCITY_FACTORS = (0.3, 1.0, 3.0)  # times the record's slow velocity
 ATTRACTION_FACTORS = (1.0, 4.0)  # times 10 Fs per second
 
 
-def _screen_gms_sliding_law(guess: GMS, data: FrictionData) -> GMS:
+def _screen_gms_sliding_law(guess: GMS, records: Sequence[FrictionData]) -> GMS:
     """`guess` with the Stribeck curve and attraction rate of the best of a small grid (`STATIC_RATIOS` x
     `STRIBECK_VELOCITY_FACTORS` x `ATTRACTION_FACTORS`, and `guess`'s own), each run free on the record in one
     vmap-ed program, with the viscous slope (>= 0) and offset of each solved by least squares: the peak of |F| on a
     record underestimates `Fs` when the elements reach their bound only once the velocity has passed `vs`, and a
     gradient fit from too low an `Fs` stays in a flat Stribeck curve (benchmarks/global_search.py: 8-17x the true
-    model's error on 4 of 10 seeds)."""
+    model's error on 4 of 10 seeds). Several records: each run from rest, each its own offset, the cost pooled."""
     p = unwrap(guess)
     Fc, vs, C = float(p.stribeck.Fc), float(p.stribeck.vs), float(p.C) / float(p.stribeck.Fs)
     candidates = [guess]
@@ -463,17 +536,21 @@ def _screen_gms_sliding_law(guess: GMS, data: FrictionData) -> GMS:
                     GMS(stribeck, k=p.k, alpha=p.alpha, C=rate * C * ratio * Fc, sigma2=p.sigma2, offset=p.offset,
                         smoothing=guess.smoothing)
                 )  # fmt: skip
-    forces = _simulate_each(candidates, data.motion)
-    v = np.asarray(data.motion.samples().v, np.float64)
+    forces = _simulate_each(candidates, records)
+    signals = [_host_signals(r) for r in records]
+    v = np.concatenate([v for _, v, _ in signals])
     elastic = forces - np.asarray(p.sigma2) * v - np.asarray(p.offset)  # each candidate without its linear terms
-    residual = np.asarray(data.force, np.float64)[None, :] - elastic
+    residual = np.concatenate([f for _, _, f in signals])[None, :] - elastic
     best, best_cost, best_linear = 0, np.inf, (float(p.sigma2), float(p.offset))
-    ones = np.ones((len(v), 1))
+    lengths = [r.length for r in records]
+    group = np.repeat(np.arange(len(records)), lengths)
+    indicator = (group[:, None] == np.arange(len(records))[None, :]).astype(np.float64)
     for i, r in enumerate(residual):
-        offset, Fv = _with_viscous_slope(ones, v, r)
-        cost = float(np.mean((r - Fv * v - offset) ** 2))
+        *offsets, Fv = _with_viscous_slope(indicator, v, r)
+        cost = float(np.mean((r - Fv * v - np.asarray(offsets)[group]) ** 2))
         if np.isfinite(cost) and cost < best_cost:
-            best, best_cost, best_linear = i, cost, (float(Fv), float(offset))
+            best, best_cost = i, cost
+            best_linear = (float(Fv), _mean_offset(offsets, lengths))
     chosen = unwrap(candidates[best])
     law = chosen.stribeck
     stribeck = ExponentialStribeck(Fc=float(law.Fc), Fs=float(law.Fs), vs=float(law.vs), delta=float(law.delta))
@@ -483,17 +560,31 @@ def _screen_gms_sliding_law(guess: GMS, data: FrictionData) -> GMS:
     )  # fmt: skip
 
 
-def _deflections(motion: Any, thresholds: np.ndarray) -> np.ndarray:
-    """The exact Maxwell-slip element deflections over thresholds, normalised (`delta_i / Delta_i`), shape (N, M),
-    from rest (parlitz2004 eq. 3): one single-element model per threshold (`k = 1 / Delta`: its force is the
-    normalised deflection), run side by side in one vmap-ed program."""
-    return _simulate_each([MaxwellSlip.nlr(k=[1.0 / t], thresholds=[t]) for t in thresholds], motion).T
+def _deflections(records: Sequence[FrictionData], thresholds: np.ndarray) -> np.ndarray:
+    """The exact Maxwell-slip element deflections over thresholds, normalised (`delta_i / Delta_i`), shape (N, M)
+    (N the records' samples one after another), each record from rest (parlitz2004 eq. 3): one single-element model
+    per threshold (`k = 1 / Delta`: its force is the normalised deflection), run side by side in one vmap-ed
+    program."""
+    return _simulate_each([MaxwellSlip.nlr(k=[1.0 / t], thresholds=[t]) for t in thresholds], records).T
 
 
-def _simulate_each(models: list[Any], motion: Any) -> np.ndarray:
-    """The free-run forces of models of one structure on `motion`, shape (models, N): one vmap-ed program
-    (compiled once per structure and record shape)."""
-    return np.asarray(_SIMULATE_EACH(stack_models(models), motion), np.float64)
+def _simulate_each(models: list[Any], records: Sequence[FrictionData]) -> np.ndarray:
+    """The free-run forces of models of one structure on each record's motion from rest, shape (models, N), the
+    records one after another: one vmap-ed program (compiled once per structure and record shape; several records
+    are padded at rest to the longest, so one program serves them all, and the padding is cut off)."""
+    stacked = stack_models(models)
+    if len(records) == 1:
+        return np.asarray(_SIMULATE_EACH(stacked, records[0].motion), np.float64)
+    total = max(r.length for r in records)
+    return np.concatenate(
+        [
+            np.asarray(_SIMULATE_EACH(stacked, padded_record(r, total, frozenset(), False).motion), np.float64)[
+                :, : r.length
+            ]
+            for r in records
+        ],
+        axis=1,
+    )
 
 
 def _merge_elements(grid: np.ndarray, stiffness: np.ndarray, elements: int) -> tuple[np.ndarray, np.ndarray]:

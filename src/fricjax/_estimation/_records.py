@@ -136,7 +136,7 @@ class RecordBatch(eqx.Module):
             if not 0 <= start < length:
                 raise ValueError(f"fit: {name} of `{argument}` scores from sample {start} of {length}: nothing left.")
         total = max(lengths)
-        padded = [_padded(r, total, requires, all(with_normal)) for r in records]
+        padded = [padded_record(r, total, requires, all(with_normal)) for r in records]
         data = jax.tree_util.tree_map(
             lambda *leaves: jax.device_put(np.stack([np.asarray(a) for a in leaves])), *padded
         )
@@ -179,7 +179,7 @@ class RecordBatch(eqx.Module):
         return FrictionData(motion, one.force[cut])
 
 
-def _padded(record: FrictionData, total: int, requires: frozenset[str], normal: bool) -> FrictionData:
+def padded_record(record: FrictionData, total: int, requires: frozenset[str], normal: bool) -> FrictionData:
     """`record` with its position, velocity (and acceleration where the model reads it) derived once at its own
     length, then padded to `total` samples at rest (last position held, velocity 0); its normal load with `normal`
     (every record of the batch holds one). All on the host (NumPy): no XLA program per record length."""

@@ -43,16 +43,18 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
 
     regressed: dict[
         tuple[int, int], tuple[Any, tuple[np.ndarray, np.ndarray]]
-    ] = {}  # by record: NLR and DNLRX share it
+    ] = {}  # by training data: NLR and DNLRX share it
 
     def elements(s: DataScales, m: int) -> tuple[np.ndarray, np.ndarray]:
         """`m` Maxwell-slip thresholds [m] and stiffnesses [N/m]: those of `fj.initial_guess` (a dense LR model
-        of the training record merged down to `m` elements), else `spread_elements`; one regression per record."""
-        if s.train is None:
+        of the training record(s) merged down to `m` elements), else `spread_elements`; one regression per
+        training set."""
+        parts = s.parts
+        if not parts:
             return spread_elements(s, m)
         key = (id(s.train), m)  # the record is kept with its result: its id is not reused meanwhile
         if key not in regressed:
-            found = maxwell_slip_elements(s.train, RecordScales.from_data(s.train), m)
+            found = maxwell_slip_elements(parts, RecordScales.from_data(parts), m)
             regressed[key] = (s.train, spread_elements(s, m) if found is None else (found[0], found[1]))
         return regressed[key][1]
 
@@ -65,8 +67,8 @@ def physics_models(settings: FitSettings) -> dict[str, ModelSpec]:
         off the training record(s); `_gms_fit` keeps them only where the validation part prefers them)."""
         if n_gms != "auto":
             return _gms_structure(s, int(n_gms))
-        records = list(s.records) or ([] if s.train is None else [s.train])
-        return _gms_structure(s, max(DEFAULT_GMS_ELEMENTS, element_count(records) if records else 0))
+        parts = s.parts
+        return _gms_structure(s, max(DEFAULT_GMS_ELEMENTS, element_count(parts) if parts else 0))
 
     return {
         "stribeck": ModelSpec(
@@ -118,7 +120,7 @@ def _validation_chooses(
     regression's: 3.54 / 3.68 % on the 0.25 Hz / 0.5 Hz records, from the spread one 2.59 / 2.53 %)."""
 
     def run(start: Any, split: Split | TrainingRecords, seed: int, progress: bool) -> FitResult:
-        other = with_friction(start, alternative(DataScales.from_data(split.train)))
+        other = with_friction(start, alternative(DataScales.from_data(split.train_records)))
         results = []
         for name, begin in (("the regression's elements", start), ("elements spread to the breakaway", other)):
             result = recipe(begin, split, seed, progress)
@@ -154,10 +156,10 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
 
     def fit_from(start: Any, split: Split | TrainingRecords, seed: int, progress: bool) -> FitResult:
         train, records = split.fit_arguments(start, drift=settings.drift != "none")
-        scales = DataScales.from_data(split.train)
+        scales = DataScales.from_data(split.train_records)
         eps = max(1e-3 * scales.dx, 1e-12)
         prefix = wrapper_prefix(start)
-        guess = initial_guess(friction_of(start), split.train, smoothing=Smooth(eps))
+        guess = initial_guess(friction_of(start), split.train_records, smoothing=Smooth(eps))
         count = max(SCREENED_GMS_STARTS, settings.starts)
         result = fit(
             with_friction(start, guess),
@@ -179,7 +181,7 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         elements = int(np.shape(unwrap(friction_of(start)).k)[-1])
         if settings.gms_elements != "auto" or elements <= DEFAULT_GMS_ELEMENTS:
             return result
-        fewer = with_friction(start, _gms_structure(DataScales.from_data(split.train), DEFAULT_GMS_ELEMENTS))
+        fewer = with_friction(start, _gms_structure(DataScales.from_data(split.train_records), DEFAULT_GMS_ELEMENTS))
         smaller = fit_from(fewer, split, seed, progress)
         keep, why = _significantly_better(smaller, result, split)
         chosen = result if keep else smaller
@@ -205,9 +207,10 @@ def _stribeck(s: DataScales) -> ExponentialStribeck:
 
 def _lugre_backlash(s: DataScales, smoothing: Smooth) -> LuGreBacklash:
     """LuGre behind a linkage with backlash, its gap and bristle stiffness read off the training record's reversals
-    (`fj.initial_guess`); without a record, the record's scales and a gap of a tenth of the breakaway displacement."""
-    if s.train is not None:
-        guess = unwrap(initial_guess(LuGreBacklash, s.train, smoothing=smoothing))
+    (`fj.initial_guess`, the reversals of every training record); without a record, the record's scales and a gap of a
+    tenth of the breakaway displacement."""
+    if s.parts:
+        guess = unwrap(initial_guess(LuGreBacklash, s.parts, smoothing=smoothing))
         gap, sigma0 = float(guess.gap), float(guess.sigma0)
     else:
         gap, sigma0 = 0.1 * s.breakaway, s.stiffness

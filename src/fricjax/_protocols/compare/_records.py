@@ -101,6 +101,11 @@ class Split:
         """False: one training record (`TrainingRecords` is the several-record form)."""
         return False
 
+    @property
+    def train_records(self) -> list[FrictionData]:
+        """The train part as a list of one record (`TrainingRecords.train_records`: one per record)."""
+        return [self.train]
+
     def fit_arguments(self, model: Any, drift: bool = False) -> tuple[Any, dict[str, Any]]:
         """`fj.fit`'s data and validation arguments: the train part, and the record up to the validation part's end
         with the train part as burn-in (hysteretic models enter the validation part in the state their history

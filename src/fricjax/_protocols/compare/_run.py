@@ -4,7 +4,6 @@ models, figures and `report.json` (`run_compare`)."""
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import os
 import pathlib
@@ -92,9 +91,7 @@ def fit_and_score(
             raise CompareError("several training records: name the records to test on (--test)")
         tests = [split.test_record()]
     tests = list(tests)
-    scales = DataScales.from_data(split.train)
-    if isinstance(split, TrainingRecords):  # the records one by one, for what is read off each from its own start
-        scales = dataclasses.replace(scales, records=tuple(split.train_records))
+    scales = DataScales.from_data(split.train_records)  # several: each read on its own start, the readings pooled
     rows = []
     for name in names:
         check_interrupt()  # SIGINT / SIGTERM under `fricjax compare` stop the run here (a no-op elsewhere)
@@ -151,13 +148,17 @@ def _fit_and_score_one(
         fit_time=elapsed,
         num_parameters=count_parameters(model),
         result=result.code,  # the name of the fj.RESULTS item
-        message="; ".join(
-            [command_line_advice(result.message), *implausible(model, half_excursion(split.train.motion))]
-        ),
+        message="; ".join([command_line_advice(result.message), *implausible(model, _largest_excursion(split))]),
         std=result.std,
         validation_nmse=100 * result.val_loss if split.several else None,
         records=result.records,
     )
+
+
+def _largest_excursion(split: Split | TrainingRecords) -> float | None:
+    """Half the largest displacement swing between two reversals [m] over the training records, each on its own."""
+    swings = [h for h in (half_excursion(r.motion) for r in split.train_records) if h is not None]
+    return max(swings) if swings else None
 
 
 @releasing_output_locks

@@ -5,10 +5,11 @@ and the one-line error for bad input (`CompareError`)."""
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 
-from ..._data._record import FrictionData
+from ..._data._record import FrictionData, concatenate
 from ..._validation import nonnegative_float, positive_int
 
 
@@ -37,27 +38,39 @@ class DataScales:
     records: tuple[FrictionData, ...] = dataclasses.field(default=(), repr=False, compare=False)
 
     @classmethod
-    def from_data(cls, data: FrictionData) -> DataScales:
-        samples = data.motion.samples()
-        x, v = np.asarray(samples.x), np.asarray(samples.v)
-        force = np.asarray(data.force)
-        force = force - np.median(force)
+    def from_data(cls, data: FrictionData | Sequence[FrictionData]) -> DataScales:
+        """The scales of a record, or of several records of one device (a list: each record read on its own, its
+        force centred on its own median, the readings pooled, so that their order and the seams between them do not
+        count; `train` is then the records joined end to end and `records` holds them one by one)."""
+        records = [data] if isinstance(data, FrictionData) else list(data)
+        signals = [(np.asarray(s.x), np.asarray(s.v)) for s in (r.motion.samples() for r in records)]
+        x_of, v_of = [x for x, _ in signals], [v for _, v in signals]
+        force_of = [np.asarray(r.force) - np.median(np.asarray(r.force)) for r in records]
+        v, force = np.concatenate(v_of), np.concatenate(force_of)
         scale = 0.5 * float(np.percentile(force, 99) - np.percentile(force, 1))
         fast = np.abs(v) > np.percentile(np.abs(v), 70)
         Fc = float(np.median(np.abs(force[fast]))) if fast.any() else scale
         Fs = max(float(np.percentile(np.abs(force), 99.5)), 1.05 * Fc)
         vs = float(np.percentile(np.abs(v), 30)) or 1e-3
         window = 3
-        dxw = x[window:] - x[:-window]
-        dfw = force[window:] - force[:-window]
+        dxw = np.concatenate([x[window:] - x[:-window] for x in x_of])
+        dfw = np.concatenate([f[window:] - f[:-window] for f in force_of])
         moving = np.abs(dxw) > np.percentile(np.abs(dxw), 20) + 1e-15
         slopes = np.abs(dfw[moving] / dxw[moving])
         stiffness = float(np.percentile(slopes, 90)) if slopes.size else scale / 1e-5
-        steps = np.abs(np.diff(x))
+        steps = np.abs(np.concatenate([np.diff(x) for x in x_of]))
         dx = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1e-9
-        duration = data.length * float(np.asarray(data.motion.dt))
+        duration = sum(r.length * float(np.asarray(r.motion.dt)) for r in records)
         v_fast = float(np.percentile(np.abs(v), 90)) or 1e-3
-        return cls(scale, Fc, Fs, vs, stiffness, Fs / stiffness, dx, duration, v_fast, data)
+        several: tuple[FrictionData, ...] = tuple(records) if len(records) > 1 else ()
+        train = concatenate(records) if several else records[0]
+        return cls(scale, Fc, Fs, vs, stiffness, Fs / stiffness, dx, duration, v_fast, train, several)
+
+    @property
+    def parts(self) -> list[FrictionData]:
+        """The training records one by one (one record: `[train]`; none: `[]`), for what is read off each record
+        from its own start (`fj.initial_guess`)."""
+        return list(self.records) or ([] if self.train is None else [self.train])
 
 
 @dataclasses.dataclass(frozen=True)
