@@ -235,6 +235,10 @@ def test_several_records_are_read_each_from_its_own_start_in_any_order(family, t
         _leaves(fj.initial_guess(family, [a, _shifted(b, 1e-2), c])), start, rtol=1e-6, atol=1e-4
     )
     assert np.array_equal(_leaves(fj.initial_guess(family, [a])), _leaves(fj.initial_guess(family, a)))
+    as_dict = fj.initial_guess(family, {"a": a, "b": b, "c": c})  # as fj.fit takes them
+    np.testing.assert_allclose(_leaves(as_dict), start, rtol=1e-9)
+    batch = fj.initial_guess(family, fj.RecordBatch.from_records([a, b, c]))  # padded, read unpadded
+    np.testing.assert_allclose(_leaves(batch), start, rtol=1e-9)
 
 
 def test_several_records_each_get_their_own_force_offset(three_records):

@@ -31,7 +31,7 @@ from .._models.physics._stribeck import ExponentialStribeck
 from .._simulate import simulate
 from .._smoothing import AbstractSmoothing, Exact
 from .._validation import nonnegative_float, positive_int
-from ._records import padded_record
+from ._records import RecordBatch, padded_record
 from ._sweep import stack_models
 
 _SIMULATE_EACH = eqx.filter_jit(eqx.filter_vmap(simulate, in_axes=(0, None)))  # a batch of models, one record
@@ -251,15 +251,19 @@ def _mean_offset(offsets: Any, lengths: Sequence[int]) -> float:
 
 
 def as_records(data: Any, owner: str) -> list[FrictionData]:
-    """`data` (an `fj.FrictionData`, or a non-empty list / tuple of them) as a list of records; a clear error naming
-    `owner` otherwise."""
+    """`data` as a list of records: an `fj.FrictionData`, a non-empty list / tuple of them, a dict `{name: record}`
+    (as `fj.fit` takes) or an `fj.RecordBatch` (its records unpadded); a clear error naming `owner` otherwise."""
     if isinstance(data, FrictionData):
         return [data]
+    if isinstance(data, RecordBatch):
+        return [data.record(i) for i in range(data.count)]
+    if isinstance(data, dict):
+        data = list(data.values())
     if isinstance(data, (list, tuple)) and data and all(isinstance(r, FrictionData) for r in data):
         return list(data)
     raise TypeError(
-        f"{owner}: `data` must be an fj.FrictionData or a non-empty list of them (several records of one device), "
-        f"got {type(data).__name__}."
+        f"{owner}: `data` must be an fj.FrictionData or a non-empty list of them (several records of one device; a "
+        f"dict of them or an fj.RecordBatch also does), got {type(data).__name__}."
     )
 
 
@@ -277,7 +281,7 @@ GUESSABLE = (Coulomb, CoulombViscous, Tustin, BoPavelescu, LuGre, LuGreBacklash,
 
 def initial_guess(
     model: Any,
-    data: FrictionData | Sequence[FrictionData],
+    data: FrictionData | Sequence[FrictionData] | dict[str, FrictionData] | RecordBatch,
     *,
     elements: int | str | None = None,
     smoothing: AbstractSmoothing | None = None,
@@ -289,7 +293,8 @@ def initial_guess(
     - `model`: a class (`fj.LuGre`, `fj.LuGreBacklash` (its gap and stiffness from the reversals), `fj.GMS`,
       `fj.MaxwellSlip` (an NLR model), `fj.Dahl`, `fj.Coulomb`, `fj.CoulombViscous`, `fj.Tustin`, `fj.BoPavelescu`)
       or an instance, whose structure (element count, smoothing) is kept.
-    - `data`: the training record (`fj.FrictionData`), or several records of one device (a list): every reading
+    - `data`: the training record (`fj.FrictionData`), or several records of one device (a list, a dict of them, or
+      an `fj.RecordBatch`): every reading
       pooled over them, each record read on its own (no reversal or element state carried from one into the
       next, each its own force offset; the start's `offset` is their mean weighted by length), so that the order
       of the records does not matter.
