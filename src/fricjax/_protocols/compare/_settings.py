@@ -10,6 +10,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..._data._record import FrictionData, concatenate
+from ..._estimation._initial_guess import as_records
 from ..._validation import nonnegative_float, positive_int
 
 
@@ -39,10 +40,11 @@ class DataScales:
 
     @classmethod
     def from_data(cls, data: FrictionData | Sequence[FrictionData]) -> DataScales:
-        """The scales of a record, or of several records of one device (a list: each record read on its own, its
-        force centred on its own median, the readings pooled, so that their order and the seams between them do not
-        count; `train` is then the records joined end to end and `records` holds them one by one)."""
-        records = [data] if isinstance(data, FrictionData) else list(data)
+        """The scales of a record, or of several records of one device (a list, a dict of them or an
+        `fj.RecordBatch`: each record read on its own, its force centred on its own median, the readings pooled, so
+        that their order and the seams between them do not count; `train` is then the records joined end to end and
+        `records` holds them one by one)."""
+        records = as_records(data, "DataScales.from_data")
         signals = [(np.asarray(s.x), np.asarray(s.v)) for s in (r.motion.samples() for r in records)]
         x_of, v_of = [x for x, _ in signals], [v for _, v in signals]
         force_of = [np.asarray(r.force) - np.median(np.asarray(r.force)) for r in records]
