@@ -76,7 +76,7 @@ class RecordScales:
         centred = np.concatenate([f - np.median(f) for f in force_of])
         scale = 0.5 * float(np.percentile(centred, 99) - np.percentile(centred, 1))
         fast = np.abs(v) > np.percentile(np.abs(v), 70)
-        group = np.concatenate([np.full(len(f), i) for i, f in enumerate(force_of)])
+        group = _record_of_each_sample([len(f) for f in force_of])
         offsets = np.array([float(np.median(f)) for f in force_of]) if len(records) > 1 else np.zeros(1)
         if fast.sum() >= 3:
             Fc, Fv, offsets = _sliding_line(force[fast], v[fast], group[fast], offsets)
@@ -231,7 +231,7 @@ def _sliding_line(
     """Least squares of `force ~ offset[group] + Fc sign(v) + Fv v` with `Fv >= 0` (`group`: each sample's record):
     `(Fc, Fv, offsets)`, each record's offset [N]; a record without samples here keeps its entry of `offsets`."""
     present = np.unique(group)
-    columns = np.stack([*(group == g for g in present), np.sign(v)], axis=1).astype(float)
+    columns = np.concatenate([_indicator(group, len(offsets))[:, present], np.sign(v)[:, None]], axis=1)
     coef = _with_viscous_slope(columns, v, force)
     offsets = np.array(offsets, dtype=float)
     offsets[present] = coef[: len(present)]
@@ -239,9 +239,19 @@ def _sliding_line(
 
 
 def _host_signals(record: FrictionData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A record's displacement [m], velocity [m/s] and force [N] as float64 NumPy arrays."""
-    samples = record.motion.samples()
-    return np.asarray(samples.x, float), np.asarray(samples.v, float), np.asarray(record.force, float)
+    """A record's displacement [m], velocity [m/s] and force [N] as float64 NumPy arrays (`Motion.host_signals`)."""
+    x, v, _, _ = record.motion.host_signals()
+    return np.asarray(x, float), np.asarray(v, float), np.asarray(record.force, float)
+
+
+def _record_of_each_sample(lengths: Sequence[int]) -> np.ndarray:
+    """The index of the record each sample belongs to, the records' samples one after another."""
+    return np.repeat(np.arange(len(lengths)), lengths)
+
+
+def _indicator(group: np.ndarray, records: int) -> np.ndarray:
+    """One column per record, 1 on its samples (`group`: each sample's record): the per-record offset columns."""
+    return (group[:, None] == np.arange(records)[None, :]).astype(np.float64)
 
 
 def _mean_offset(offsets: Any, lengths: Sequence[int]) -> float:
@@ -294,10 +304,9 @@ def initial_guess(
       `fj.MaxwellSlip` (an NLR model), `fj.Dahl`, `fj.Coulomb`, `fj.CoulombViscous`, `fj.Tustin`, `fj.BoPavelescu`)
       or an instance, whose structure (element count, smoothing) is kept.
     - `data`: the training record (`fj.FrictionData`), or several records of one device (a list, a dict of them, or
-      an `fj.RecordBatch`): every reading
-      pooled over them, each record read on its own (no reversal or element state carried from one into the
-      next, each its own force offset; the start's `offset` is their mean weighted by length), so that the order
-      of the records does not matter.
+      an `fj.RecordBatch`): every reading pooled over them, each record read on its own (no reversal or element
+      state carried from one into the next, each its own force offset; the start's `offset` is their mean weighted
+      by length), so that the order of the records does not matter.
     - `elements`: element count of GMS / Maxwell-slip (default: the instance's, else 4); `"auto"`: read off the
       record (`fj.element_count`).
     - `smoothing`: the start's smoothing (default: the instance's, else `fj.Exact()`).
@@ -424,7 +433,7 @@ def _elements_by_nnls(
     force = np.asarray(force, np.float64)
     group = np.zeros(len(force), int) if group is None else np.asarray(group)
     records = int(group.max()) + 1
-    indicator = (group[:, None] == np.arange(records)[None, :]).astype(np.float64)
+    indicator = _indicator(group, records)
     v = np.zeros((len(force), 0)) if velocity is None else np.asarray(velocity, np.float64)[:, None]
     design = np.concatenate([deflections, v, indicator, -indicator], axis=1)
     triangle = np.asarray(np.linalg.qr(np.concatenate([design, force[:, None]], axis=1), mode="r"))
@@ -454,7 +463,7 @@ def _dense_elements(
     grid = np.geomspace(low, top, GRID_ELEMENTS)
     velocity = np.concatenate([v for _, v, _ in signals]) if viscous else None
     force = np.concatenate([f for _, _, f in signals])
-    group = np.repeat(np.arange(len(records)), lengths)
+    group = _record_of_each_sample(lengths)
     capacity, Fv, offsets, _ = _elements_by_nnls(_deflections(records, grid), velocity, force, group)
     keep = capacity > 1e-9 * max(float(capacity.max()), 1e-300)
     if not keep.any():
@@ -548,8 +557,8 @@ def _screen_gms_sliding_law(guess: GMS, records: Sequence[FrictionData]) -> GMS:
     residual = np.concatenate([f for _, _, f in signals])[None, :] - elastic
     best, best_cost, best_linear = 0, np.inf, (float(p.sigma2), float(p.offset))
     lengths = [r.length for r in records]
-    group = np.repeat(np.arange(len(records)), lengths)
-    indicator = (group[:, None] == np.arange(len(records))[None, :]).astype(np.float64)
+    group = _record_of_each_sample(lengths)
+    indicator = _indicator(group, len(records))
     for i, r in enumerate(residual):
         *offsets, Fv = _with_viscous_slope(indicator, v, r)
         cost = float(np.mean((r - Fv * v - np.asarray(offsets)[group]) ** 2))
