@@ -182,7 +182,7 @@ def run_way(way: str, args: argparse.Namespace, env: dict[str, Any]) -> dict[str
     if way == "records":
         found = results[0].records
         line["offset_error_max_N"] = round(float(np.max(np.abs(found.offset - offsets))), 5)
-        line["train_nmse_percent_per_record"] = [round(100 * float(v), 4) for v in found.train_nmse]
+        line["train_nmse_percent_per_record"] = [round(float(v), 4) for v in found.train_nmse]
     line["loadavg_1min"] = round(os.getloadavg()[0], 2)
     return {**line, **env}
 

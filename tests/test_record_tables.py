@@ -149,7 +149,9 @@ def test_inconsistent_velocity_is_named_and_fixed_by_the_keyword(tmp_path):
     noisy = _table(tmp_path / "n.npz", t=K * DT, x=X + 1e-3 * np.random.default_rng(0).standard_normal(N), v=V, force=F)
     np.testing.assert_allclose(fj.load_record(noisy).motion.v, V)  # noise on x does not hide an agreeing v
     only_v = _table(tmp_path / "v.npz", t=K * DT, v=V, force=F)
-    with pytest.raises(fj.RecordError, match=r"velocity='derive' needs a displacement column .* only 'v'"):
+    with pytest.raises(
+        fj.RecordError, match=r"velocity='derive' \(--velocity derive\) needs a displacement column .* only 'v'"
+    ):
         fj.load_record(only_v, velocity="derive")
     with pytest.raises(fj.RecordError, match=r"velocity must be 'auto', 'file' or 'derive', got 'measured'"):
         fj.load_record(path, velocity="measured")
@@ -182,8 +184,8 @@ def test_normal_force_errors_name_the_file_the_column_and_the_columns_found(tmp_
         fj.load_record(path, normal_force_column=("actuator_force1_lb", "actuator_force2_lb"))
     message = str(caught.value)
     assert message == (
-        f"{path}: no column 'actuator_force2_lb' for the normal force (normal_force_column); found: 'time_s', 'x', "
-        "'force', 'actuator_force1_lb', 'meta_json'"
+        f"{path}: no column 'actuator_force2_lb' for the normal force (normal_force_column, --normal-force-column); "
+        "found: 'time_s', 'x', 'force', 'actuator_force1_lb', 'meta_json'"
     )
     with pytest.raises(fj.RecordError, match=r"column 'force' gives 'force'; it cannot also be the normal force"):
         fj.load_record(path, normal_force_column="force")

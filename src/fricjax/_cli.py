@@ -8,6 +8,7 @@ import argparse
 import os
 import pathlib
 import sys
+import warnings
 from collections.abc import Sequence
 
 from ._compilation_cache import cache_disabled, default_cache_dir, enable_compilation_cache
@@ -43,10 +44,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             args = _parser().parse_args(argv)
             command, out = f"fricjax {args.command}", args.out
             check_interrupt()
-            return _run(args)
+            with warnings.catch_warnings():  # a warning as one line among the run's own ("warning: ..."), not
+                warnings.showwarning = _print_warning  # Python's two lines with a source path and a line of code
+                return _run(args)
         except KeyboardInterrupt:  # `Interrupted`; the staging folder is removed on the way out
             print(f"{command}: interrupted; nothing was written to {out}", file=sys.stderr)
             return 130
+
+
+def _print_warning(message: Warning | str, category: type[Warning], *_: object, **__: object) -> None:
+    """`warnings.showwarning` for the command line: `warning: MESSAGE` on stdout, with the run's other lines."""
+    print("warning: " + " ".join(str(message).split()), flush=True)
 
 
 def _parser() -> argparse.ArgumentParser:

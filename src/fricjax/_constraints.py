@@ -280,8 +280,35 @@ PARAMETER_UNITS = {
 
 
 def parameter_unit(path: str) -> str:
-    """The unit of a parameter path (`"stribeck.Fc"` -> `"N"`), `""` where fricjax does not know it."""
+    """The unit of a literature symbol by the last name of its path (`"stribeck.Fc"` -> `"N"`), `""` where fricjax
+    does not know it. For a model's parameters use `parameter_units`, which asks the module that owns each field
+    (a network's bias `w0` has no unit; LuGre with backlash's `w0` is a length)."""
     return PARAMETER_UNITS.get(path.split(".")[-1], "")
+
+
+def parameter_units(tree: Any) -> dict[str, str]:
+    """The unit of every floating-point array of `tree` (pass `unwrap(exact(model))`, as to `parameter_arrays`),
+    keyed by the same paths: the owning module's own table where its class declares one (`units`, a class
+    attribute: `{}` for black-box networks, whose weights have no units; `{"m": "kg", ...}` for the oscillators),
+    else the literature symbols (`PARAMETER_UNITS`) by the field's name; `""` where unknown."""
+    out = {}
+    for path, leaf in jax.tree_util.tree_leaves_with_path(tree):
+        if not (eqx.is_array(leaf) and jnp.issubdtype(leaf.dtype, jnp.floating)):
+            continue
+        owner, name = tree, None
+        node = tree
+        for key in path:
+            if isinstance(key, jax.tree_util.GetAttrKey):
+                owner, name = node, key.name
+                node = getattr(node, key.name)
+            elif isinstance(key, (jax.tree_util.SequenceKey, jax.tree_util.DictKey)):
+                node = node[key.idx if isinstance(key, jax.tree_util.SequenceKey) else key.key]
+            else:  # a flattened index of another container: the field above it names the array
+                break
+        table = getattr(type(owner), "units", None)
+        table = PARAMETER_UNITS if table is None else table
+        out[jax.tree_util.keystr(path).lstrip(".")] = table.get(name, "") if name is not None else ""
+    return out
 
 
 def parameter_line(path: str, value: Any, std: Any = None, unit: str = "") -> str:

@@ -96,15 +96,7 @@ class Motion(eqx.Module):
         if dt is None:
             self.dt = None
         else:
-            dtype = (self.x if self.x is not None else self.v).dtype  # type: ignore[union-attr]
-            self.dt = jnp.asarray(dt, dtype=dtype)
-            if is_concrete(self.dt):
-                if self.dt.ndim != 0:
-                    raise ValueError(
-                        f"Motion: `dt` must be a scalar sample time in seconds, got shape {self.dt.shape}."
-                    )
-                if not (bool(np.isfinite(np.asarray(self.dt))) and float(np.asarray(self.dt)) > 0):
-                    raise ValueError(f"Motion: `dt` must be a positive, finite sample time in seconds, got {dt!r}.")
+            self.dt = _sample_time(dt, (self.x if self.x is not None else self.v).dtype)  # type: ignore[union-attr]
 
     @property
     def length(self) -> int:
@@ -161,13 +153,25 @@ class Motion(eqx.Module):
     def from_position(cls, x: ArrayLike, dt: ArrayLike) -> Motion:
         """Build a motion from displacement; `v` by central differences (one-sided at the ends)."""
         x = _as_signal(x, "x")
-        return cls(x=x, v=velocity_from_position(x, jnp.asarray(dt, x.dtype)), dt=dt)
+        return cls(x=x, v=velocity_from_position(x, _sample_time(dt, x.dtype)), dt=dt)
 
     @classmethod
     def from_velocity(cls, v: ArrayLike, dt: ArrayLike, x0: ArrayLike = 0.0) -> Motion:
         """Build a motion from velocity; `x_k = x0 + dt * sum_{j=1..k} v_j` (the zero-order hold of `v`)."""
         v = _as_signal(v, "v")
-        return cls(x=position_from_velocity(v, jnp.asarray(dt, v.dtype), x0), v=v, dt=dt)
+        return cls(x=position_from_velocity(v, _sample_time(dt, v.dtype), x0), v=v, dt=dt)
+
+
+def _sample_time(dt: ArrayLike, dtype: Any) -> Array:
+    """`dt` [s] as a scalar of the signals' `dtype`, checked where concrete (a positive, finite scalar) before
+    anything is divided by it."""
+    value = jnp.asarray(dt, dtype=dtype)
+    if is_concrete(value):
+        if value.ndim != 0:
+            raise ValueError(f"Motion: `dt` must be a scalar sample time in seconds, got shape {value.shape}.")
+        if not (bool(np.isfinite(np.asarray(value))) and float(np.asarray(value)) > 0):
+            raise ValueError(f"Motion: `dt` must be a positive, finite sample time in seconds, got {dt!r}.")
+    return value
 
 
 def velocity_from_position(x: Array, dt: Array) -> Array:

@@ -250,7 +250,8 @@ def read_record(
         if key:
             if role not in (None, "normal_force"):
                 raise RecordError(
-                    f"{path}: column {raw!r} gives {role!r}; it cannot also be the normal force (normal_force_column)"
+                    f"{path}: column {raw!r} gives {role!r}; it cannot also be the normal force "
+                    "(normal_force_column, --normal-force-column)"
                 )
             values = _one_signal(path, raw, values)
             normal[key] = (raw, values, _force_unit_of(raw) if role is None else unit)
@@ -280,7 +281,8 @@ def read_record(
     if missing:
         found = ", ".join(repr(raw) for raw, _ in entries) or "nothing"
         raise RecordError(
-            f"{path}: no column {named[missing[0]]!r} for the normal force (normal_force_column); found: {found}"
+            f"{path}: no column {named[missing[0]]!r} for the normal force (normal_force_column, "
+            f"--normal-force-column); found: {found}"
         )
     units = Units(
         x=_resolve_unit(path, "x", declared["x"], x_unit),
@@ -309,8 +311,8 @@ def read_record(
     if velocity == "derive" and "v" in data:
         if "x" not in data:
             raise RecordError(
-                f"{path}: velocity='derive' needs a displacement column 'x' (or position, displacement, pos) to "
-                f"recompute the velocity from; the file has only {columns['v']!r}"
+                f"{path}: velocity='derive' (--velocity derive) needs a displacement column 'x' (or position, "
+                f"displacement, pos) to recompute the velocity from; the file has only {columns['v']!r}"
             )
         del data["v"]
         ignored.append(columns.pop("v"))
@@ -333,7 +335,8 @@ def read_record(
             raise RecordError(
                 f"{path}: velocity column {columns['v']!r} disagrees with displacement column {columns['x']!r}: it "
                 f"is {ratio:.3g} times the rate of change of {columns['x']!r} (RMS); drop the velocity column or pass "
-                "velocity='derive' to recompute it from the displacement (velocity='file' keeps it unchecked)"
+                "velocity='derive' (--velocity derive) to recompute it from the displacement (velocity='file', "
+                "--velocity file, keeps it unchecked)"
             )
     return record, RecordInfo(str(path), columns, tuple(ignored), units, int(force.size), float(dt))
 

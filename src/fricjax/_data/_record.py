@@ -34,10 +34,15 @@ class FrictionData(eqx.Module):
         if not isinstance(motion, Motion):
             raise TypeError(f"FrictionData: `motion` must be a fricjax.Motion, got {type(motion).__name__}.")
         force = as_float_array(force)
-        if force.shape[-1:] != (motion.length,):
+        shape = (motion.x if motion.x is not None else motion.v).shape  # type: ignore[union-attr]
+        if force.shape != shape:
+            if force.size == motion.length and force.ndim == 2 and 1 in force.shape:
+                fix = "flatten the column (`np.ravel(force)`)"
+            else:
+                fix = "give one force sample per motion sample"
             raise ValueError(
-                f"FrictionData: `force` has {force.shape[-1] if force.ndim else 0} samples but the motion has "
-                f"{motion.length}; give one force sample per motion sample."
+                f"FrictionData: `force` has shape {force.shape} but the motion's signals have {shape} "
+                f"({motion.length} samples); {fix}."
             )
         if is_concrete(force) and not bool(np.all(np.isfinite(np.asarray(force)))):
             raise ValueError("FrictionData: `force` contains NaN or inf; clean or interpolate the record.")

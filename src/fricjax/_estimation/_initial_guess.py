@@ -438,6 +438,8 @@ def _elements_by_nnls(
     design = np.concatenate([deflections, v, indicator, -indicator], axis=1)
     triangle = np.asarray(np.linalg.qr(np.concatenate([design, force[:, None]], axis=1), mode="r"))
     n = design.shape[1]
+    # fewer samples than columns (a short record, a fine grid): the factor has fewer rows; its missing rows are zeros
+    triangle = np.pad(triangle, ((0, max(0, n + 1 - triangle.shape[0])), (0, 0)))
     solution, reduced = scipy.optimize.nnls(triangle[:n, :n], triangle[:n, n], maxiter=50 * n)
     m = deflections.shape[1]
     Fv = float(solution[m]) if velocity is not None else 0.0

@@ -427,7 +427,7 @@ def _record_states(model: Any, batch: RecordBatch, states: bool = True) -> tuple
 class RecordNuisances:
     """The per-record nuisances a fit to several records estimated, in SI units: `names`; `offset` [N] (R,) or
     None; `drift` [N/s] (R,) or None; `initial_state` (the model's state pytree, leaves (R, ...)) or None;
-    `train_nmse` (R,) each record's training NMSE (fraction, not %)."""
+    `train_nmse` (R,) each record's training NMSE [%] (as `fj.nmse`)."""
 
     names: tuple[str, ...]
     offset: np.ndarray | None
@@ -456,7 +456,7 @@ class RecordNuisances:
                     "name": name,
                     "offset_N": None if self.offset is None else float(self.offset[i]),
                     "drift_N_per_s": None if self.drift is None else float(self.drift[i]),
-                    "train_nmse_percent": 100 * float(self.train_nmse[i]),
+                    "train_nmse_percent": float(self.train_nmse[i]),
                 }
             )
         return rows
@@ -470,7 +470,7 @@ def record_nuisances(loss: RecordsLoss, model: Any, extra: RecordExtra, batch: R
         offset if extra.offset is not None else None,
         drift if extra.rate is not None else None,
         state if extra.state is not None else None,
-        nmse,
+        100 * nmse,  # [%]
     )
 
 
@@ -504,7 +504,7 @@ def _record_nmse(loss: RecordsLoss, model: Any, extra: Any, batch: RecordBatch) 
 class Initialisation:
     """A record's nuisances estimated from its first samples by `fj.initialise`: `offset` [N] (0 when not
     estimated), `state0` (the model's state entering the record's first sample, for `fj.simulate(model, motion,
-    state0)`), `window_nmse` the NMSE (fraction) left on the window, `steps` the solver steps taken, and `drift`
+    state0)`), `window_nmse` the NMSE [%] left on the window (as `fj.nmse`), `steps` the solver steps taken, and `drift`
     [N/s] (0 unless asked for: the record's force is then `simulate(...) + offset + drift * t`, t = k dt)."""
 
     offset: float
@@ -571,17 +571,18 @@ def initialise(
         physical, batch
     )
     if not (offset or initial_state or drift):
-        nmse = float(_record_nmse(loss, physical, extra0, batch)[0])
+        nmse = 100 * float(_record_nmse(loss, physical, extra0, batch)[0])
         return Initialisation(0.0, physical.init_state(), nmse, 0)
     solved, steps = _solve_nuisances(loss, physical, extra0, batch, max_steps, optx.LevenbergMarquardt(1e-6, 1e-9))
     found = loss._recorded(physical, solved, batch, jnp.asarray(0))
-    nmse = float(_record_nmse(loss, physical, solved, batch)[0])
+    nmse = 100 * float(_record_nmse(loss, physical, solved, batch)[0])
     state0 = jax.tree_util.tree_map(np.asarray, found.state0)
     if offset and initial_state and _offset_share(loss, physical, solved, batch) < 0.02:
         warnings.warn(
             "fj.initialise: on this window the force offset and the model's initial state change the force alike "
             "(no sliding in the window: a pre-sliding branch is an offset plus a stiffness), so their split is not "
-            "determined; lengthen the window to include sliding (compare: --init-window) or pass initial_state=False.",
+            "determined; lengthen the window to include sliding (compare: --init-window) or pass initial_state=False "
+            "(compare: --init offset).",
             stacklevel=2,
         )
     return Initialisation(float(found.offset), state0, nmse, int(steps), float(found.rate))

@@ -13,7 +13,7 @@ import equinox as eqx
 import numpy as np
 
 from .._constraints import PARAMETER_UNITS as PARAMETER_UNITS
-from .._constraints import parameter_arrays, parameter_line, parameter_unit, unwrap
+from .._constraints import parameter_arrays, parameter_line, parameter_units, unwrap
 from .._smoothing import exact
 
 
@@ -129,10 +129,11 @@ class Solution:
         """One row per physical parameter: `path`, `value`, `std` (NaN where unknown) and `unit` (SI; `""` where the
         name is not a literature symbol fricjax knows)."""
         rows = []
+        units = parameter_units(unwrap(exact(self.model)))
         for path, (value, std) in self.parameters().items():
             value = np.asarray(value)
             std = np.full(value.shape, np.nan) if std is None else np.asarray(std)
-            rows.append({"path": path, "value": value, "std": std, "unit": parameter_unit(path)})
+            rows.append({"path": path, "value": value, "std": std, "unit": units[path]})
         return rows
 
     def _validation_text(self) -> str:
@@ -154,8 +155,14 @@ class Solution:
         losses = f"train loss {self.train_loss:.4g}, " + self._validation_text()
         lines = [f"{type(self).__name__}: {self.code}{effort}: {self.message}", losses]
         rows = self.parameter_table()
+        # with per-record offsets the model's own `offset` fields were held at their start (fj.Nuisances): the
+        # force on record i is the model's, its own offset included, plus record i's offset
+        per_record_offsets = self.records is not None and self.records.offset is not None
         for row in rows[:max_parameters]:
-            lines.append("  " + parameter_line(row["path"], row["value"], row["std"], row["unit"]))
+            line = "  " + parameter_line(row["path"], row["value"], row["std"], row["unit"])
+            if per_record_offsets and row["path"].split(".")[-1] == "offset":
+                line += " (held; each record's offset below is added to it)"
+            lines.append(line)
         if len(rows) > max_parameters:
             lines.append(f"  ... and {len(rows) - max_parameters} more parameter arrays (Solution.parameters())")
         if self.records is not None:

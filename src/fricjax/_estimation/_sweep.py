@@ -23,7 +23,7 @@ import optax
 
 from .._constraints import trainable_filter
 from .._validation import nonnegative_int, positive_int
-from ._loop import Search, run_stage
+from ._loop import Search, batched_losses, run_stage
 from ._losses import AbstractLoss, SimulationLoss
 from ._problem import Problem
 from ._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch
@@ -59,11 +59,11 @@ def stack_models(models: Sequence[Any]) -> Any:
 
 @dataclasses.dataclass(frozen=True)
 class SweepResult:
-    """The outcome of `fj.sweep`: `models` (stacked, leading axis B: index with `result.model(i)`),
+    """The outcome of `fj.sweep`: `models` (stacked, leading axis B: index with `result.model(i)`), each
+    configuration where its training loss was lowest, its start and each check (so never worse than its start),
     `train_loss` and `val_loss` (B,) of the returned models, `history` (`step`, `train_loss` of shape (checks, B):
-    the loss after each check), `diverged` (B,) bools (a configuration whose loss became non-finite keeps its last
-    finite parameters), and
-    `wall_time` [s] (compilation included)."""
+    the loss after each check), `diverged` (B,) bools (a configuration whose loss became non-finite: it keeps its
+    best finite parameters), and `wall_time` [s] (compilation included)."""
 
     models: Any
     train_loss: np.ndarray
@@ -138,7 +138,9 @@ def sweep(
     if len(sizes) != 1:
         raise ValueError("sweep: `models` must be a list of models or a stack of them (one leading batch axis).")
     count = sizes.pop()
-    rates = np.broadcast_to(np.asarray(learning_rate, dtype=float), (count,))
+    rates = np.asarray(learning_rate, dtype=float)
+    if rates.ndim == 0 or rates.shape == (1,):
+        rates = np.broadcast_to(rates.reshape(()), (count,))
     if rates.shape != (count,) or not bool(np.all(np.isfinite(rates) & (rates > 0))):
         raise ValueError(f"sweep: `learning_rate` must be positive and finite, one number or one per model ({count}).")
 
@@ -171,13 +173,16 @@ def sweep(
     # the one optimisation loop: each configuration's own rate sits in its optimiser state (inject_hyperparams)
     solver = _injected_solver(optimiser)
     search = Search(ys, False, start_time, bar)
+    search.restart(*batched_losses(problem, ys, static, True))  # the start is each configuration's first best
     run_stage(
         solver, problem, search, static, budget=steps, check_every=max(1, steps // checks), states=states,
         batched_args=True,
     )  # fmt: skip
     search.close()
-    trained = eqx.combine(search.ys[0], static)
-    train_loss = np.asarray(_batch_loss(trained, loss, search.ys[1], data))
+    # each configuration at its lowest training loss, its start and the checks (the last iterate of a learning rate
+    # too high can be worse than its start)
+    trained = eqx.combine(search.best_ys[0], static)
+    train_loss = np.asarray(_batch_loss(trained, loss, search.best_ys[1], data))
     val_loss = np.full(count, np.nan)
     if validation is not None:
         val_loss = np.asarray(_batch_loss(trained, val_loss_fn, None, validation))

@@ -42,6 +42,10 @@ class AbstractModel(eqx.Module):
     # fields that only set the state at rest (`init_state`: LuGre `z0`, Dahl `F0`): a fit to several records, which
     # estimates each record's initial state, holds them (`fj.Nuisances(initial_state=True)`)
     initial_state_fields: ClassVar[frozenset[str]] = frozenset()
+    # the SI units of the class's own fields by name, where they are not the literature symbols of
+    # `fricjax._constraints.PARAMETER_UNITS` (None: those symbols); `{}` for networks, whose weights have no units
+    # (`parameter_units`: printed models, `Solution.parameter_table`, compare's report)
+    units: ClassVar[dict[str, str] | None] = None
     # performance only: when set, the free run outside derivatives runs with the parameters packed into one
     # vector that the loop body unpacks, at this scan unrolling (faster loops on XLA:CPU for some models; see
     # `fricjax._simulate.run` and benchmarks/README.md). Derivatives are those of the plain scan.

@@ -121,9 +121,27 @@ def simulate(
         if measured is None:
             raise ValueError("simulate: `horizon` needs the measured outputs: pass `measured=` (teacher forcing).")
     check_options(model, derivatives, batching, scan=scan)
+    if state0 is not None:
+        _check_state(model, state0)
     if measured is not None:  # arrays, never static Python values, under the jit
         measured = jax.tree_util.tree_map(jnp.asarray, measured)
     return _simulate(model, inputs, state0, measured, horizon, unroll, derivatives, batching, scan)
+
+
+def _check_state(model: AbstractModel, state0: Any) -> None:
+    """`state0` of the structure and shapes of `model.init_state()`: one line naming both where not (inside the
+    model's step a wrong state fails with an error about tracers)."""
+    expected = jax.eval_shape(lambda m: unwrap(m).init_state(), model)
+    structure, given = jax.tree_util.tree_structure(expected), jax.tree_util.tree_structure(state0)
+    shapes = [jnp.shape(leaf) for leaf in jax.tree_util.tree_leaves(expected)]
+    got = [jnp.shape(leaf) for leaf in jax.tree_util.tree_leaves(state0)]
+    if given != structure or got != shapes:  # type: ignore[operator]
+        raise ValueError(
+            f"simulate: `state0` must be shaped as {type(model).__name__}'s `init_state()` "
+            f"({type(expected).__name__}, leaf shapes {shapes}), got {type(state0).__name__} with leaf shapes "
+            f"{got}; start from `model.init_state()` "
+            "or a state `fj.initialise` returns."
+        )
 
 
 @eqx.filter_jit

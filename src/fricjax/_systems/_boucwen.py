@@ -81,6 +81,16 @@ class BoucWen(AbstractSystem):
     substeps: int = eqx.field(static=True, default=20)
 
     requires: ClassVar[frozenset[str]] = frozenset({"u", "u_next"})
+    units: ClassVar[dict[str, str] | None] = {
+        "m": "kg",
+        "c": "N s/m",
+        "k": "N/m",
+        "alpha": "N/m",
+        "beta": "1/m",
+        "gamma": "-",
+        "delta": "-",
+        "nu": "-",
+    }
 
     def __init__(
         self,

@@ -70,6 +70,7 @@ class HystereticOscillator(AbstractSystem):
     substeps: int = eqx.field(static=True, default=8)
 
     requires: ClassVar[frozenset[str]] = frozenset({"u", "u_next"})
+    units: ClassVar[dict[str, str] | None] = {"m": "kg", "c": "N s/m", "k": "N/m"}
 
     def __init__(self, m: ParamLike, c: ParamLike, k: ParamLike, element: AbstractFrictionModel, substeps: int = 8):
         if not isinstance(element, AbstractFrictionModel):

@@ -27,7 +27,7 @@ delay vectors cannot hold the non-local memory of pre-sliding hysteresis; play-o
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import equinox as eqx
 import jax
@@ -105,6 +105,8 @@ class LocalModel(AbstractFrictionModel):
     (600,)
     ```
     """
+
+    units: ClassVar[dict[str, str] | None] = {"forces": "N"}  # the training points are normalised
 
     regressors: NARXRegressors
     points: Fixed[Float[Array, "N D"]]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Sequence
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import equinox as eqx
 import jax
@@ -31,6 +31,8 @@ class AbstractNARX(AbstractFrictionModel):
 
     regressors: eqx.AbstractVar[NARXRegressors]
     unit_mask: eqx.AbstractVar[Fixed[Float[Array, " units"]]]  # 0/1 per unit (hidden unit, term, centre)
+
+    units: ClassVar[dict[str, str] | None] = {}  # network weights and coefficients: no units
 
     @property
     def requires(self) -> frozenset[str]:  # type: ignore[override]

@@ -4,7 +4,7 @@ sparse coupling, driven by the displacement and delayed copies of it, read out l
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -47,6 +47,8 @@ class RecurrentNetwork(AbstractFrictionModel):
     [N]; `smoothing`; `unit_mask`. Build a random, echo-state style network with `RecurrentNetwork.init(data, N,
     key=...)`; the readout `(theta, theta0)` is linear: `fj.fit(..., separable=("theta", "theta0"))`.
     """
+
+    units: ClassVar[dict[str, str] | None] = {}  # network weights: no units
 
     alpha_raw: Array
     w: Array

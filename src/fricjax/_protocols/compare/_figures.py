@@ -3,6 +3,7 @@ vs predicted friction-displacement loops of the best models (`plot_test_loops`).
 
 from __future__ import annotations
 
+import pathlib
 from collections.abc import Sequence
 from typing import Any
 
@@ -42,7 +43,8 @@ def plot_prediction_errors(rows: Sequence[Any], test: Any, path: Any, *, units: 
     fig, axes = plt.subplots(len(ordered) + 1, 1, figsize=(10, 1.4 * (len(ordered) + 1)), sharex=True)
     axes[0].plot(t[::step], f_scale * measured[::step], "k", lw=0.7)
     axes[0].set_ylabel(f"F [{f_unit}]")
-    axes[0].set_title(f"{test.name}: measured force (top) and prediction errors e = F_hat - F (each its own scale)")
+    name = pathlib.PurePath(test.name).name or test.name  # a file record by its file name: a path overflows
+    axes[0].set_title(f"{name}: measured force (top) and prediction errors e = F_hat - F (each its own scale)")
     for ax, r in zip(axes[1:], ordered, strict=True):
         error = f_scale * (np.asarray(r.prediction) - measured)
         ax.plot(t[::step], error[::step], lw=0.6)

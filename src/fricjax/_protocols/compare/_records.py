@@ -68,11 +68,14 @@ class Split:
     [train_end, validation_end), test = [validation_end, T) (empty when the models are tested on other
     records). Hysteretic models are always simulated from the start of the record, and scored on their part
     only, so they enter each part in the state their history gives them (parlitz2004 and worden2007 simulate the
-    whole record in the same way)."""
+    whole record in the same way). `reference`: for a synthetic record, the force its sensor reads without white
+    noise (`load_split` and `split_record` attach it for built-in records), which `test_record` hands on so that
+    `reference_scores` gives the noise floor."""
 
     full: FrictionData
     train_end: int
     validation_end: int
+    reference: np.ndarray | None = dataclasses.field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if not 0 < self.train_end < self.validation_end <= self.full.length:
@@ -82,7 +85,9 @@ class Split:
             )
 
     @classmethod
-    def fractions(cls, full: FrictionData, train_end: float, validation_end: float) -> Split:
+    def fractions(
+        cls, full: FrictionData, train_end: float, validation_end: float, reference: np.ndarray | None = None
+    ) -> Split:
         """Split at fractions of the record (`0 < train_end < validation_end <= 1`)."""
         if not 0 < train_end < validation_end <= 1:
             raise CompareError(
@@ -90,7 +95,7 @@ class Split:
                 "training record)"
             )
         n = full.length
-        return cls(full, int(round(train_end * n)), int(round(validation_end * n)))
+        return cls(full, int(round(train_end * n)), int(round(validation_end * n)), reference)
 
     @property
     def train(self) -> FrictionData:
@@ -122,11 +127,13 @@ class Split:
 
     def test_record(self, init_window: int | None = None, reference: Any = None) -> TestRecord:
         """The test part as a `TestRecord` simulated from the record's start; `init_window` samples of it (default
-        `default_init_window`) initialise the model and estimate the offset."""
+        `default_init_window`) initialise the model and estimate the offset; `reference` (default the split's own)
+        the sensor's noise-free reading, for the noise floor (`reference_scores`)."""
         samples = self.full.length - self.validation_end
         if samples <= 0:
             raise CompareError("the training record has no test part (its split ends at 1); pass --test records")
         window = default_init_window(samples) if init_window is None else int(init_window)
+        reference = self.reference if reference is None else reference
         ref = None if reference is None else np.asarray(reference, dtype=float)
         return TestRecord("test part", self.full, self.validation_end, window, ref)
 
@@ -339,14 +346,15 @@ def split_record(
     """The training record's split: `fractions` (TRAIN_END, VALIDATION_END) where given; else 0.8 / 1.0 when the
     models are tested on other records (`tested_elsewhere`), the tribometer's own edges for built-in records, and
     60 / 20 / 20 otherwise."""
-    edges = loaded.card.get("split_edges")
+    edges, reference = loaded.card.get("split_edges"), loaded.reference
     if fractions is not None:
-        return Split.fractions(loaded.data, *fractions)
+        train_end, validation_end = fractions
+        return Split.fractions(loaded.data, train_end, validation_end, reference)
     if tested_elsewhere:
-        return Split.fractions(loaded.data, 0.8, 1.0)
+        return Split.fractions(loaded.data, 0.8, 1.0, reference=reference)
     if edges is not None:
-        return Split(loaded.data, int(edges[1]), int(edges[2]))
-    return Split.fractions(loaded.data, 0.6, 0.8)
+        return Split(loaded.data, int(edges[1]), int(edges[2]), reference)
+    return Split.fractions(loaded.data, 0.6, 0.8, reference=reference)
 
 
 def load_split(spec: str, *, seed: int = 0) -> tuple[Split, dict[str, Any], Any]:

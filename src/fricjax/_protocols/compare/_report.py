@@ -10,8 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..._constraints import parameter_arrays, unwrap
-from ..._estimation._solution import parameter_unit
+from ..._constraints import parameter_arrays, parameter_units, unwrap
 from ..._smoothing import exact
 from ..._version import fricjax_version
 from ._names import NEURAL_MODELS
@@ -160,7 +159,7 @@ def compare_report(
                 "result": r.result,
                 "result_message": r.message,
                 "parameters": _parameters(r.model),
-                "parameter_units": _units(_parameters(r.model)),
+                "parameter_units": _units(r.model),
                 "parameter_std": _estimated_std(r.std) if r.std is not None else None,
                 "training_records": r.records.table() if r.records is not None else None,
             }
@@ -191,10 +190,10 @@ def _parameters(model: Any) -> dict[str, Any]:
     return {path: value.tolist() for path, value in parameter_arrays(unwrap(exact(model))).items()}
 
 
-def _units(parameters: dict[str, Any]) -> dict[str, str | None]:
-    """The SI unit of each parameter (`fj.Solution.parameter_table`'s), whatever the record's units; `None` where the
-    parameter is not a literature symbol fricjax knows (network weights, polynomial coefficients)."""
-    return {path: parameter_unit(path) or None for path in parameters}
+def _units(model: Any) -> dict[str, str | None]:
+    """The SI unit of each parameter (`fj.Solution.parameter_table`'s), whatever the record's units; `None` where
+    fricjax does not know one (network weights, polynomial coefficients)."""
+    return {path: unit or None for path, unit in parameter_units(unwrap(exact(model))).items()}
 
 
 def _estimated_std(std: Any) -> dict[str, Any]:

@@ -5,6 +5,7 @@ models, figures and `report.json` (`run_compare`)."""
 from __future__ import annotations
 
 import functools
+import inspect
 import os
 import pathlib
 import time
@@ -155,6 +156,51 @@ def _fit_and_score_one(
     )
 
 
+# run_compare's arguments that `--data emps` does not take (its inverse dynamic model has its own records, split and
+# laws), with their command-line spellings
+_NOT_FOR_EMPS = {
+    "test": "--test",
+    "validation": "--validation",
+    "split_at": "--split",
+    "init_window": "--init-window",
+    "models": "--models",
+    "steps": "--steps",
+    "gms_elements": "--gms-elements",
+    "maxwell_elements": "--maxwell-elements",
+    "starts": "--starts",
+    "drift": "--drift",
+    "neural_steps": "--neural-steps",
+    "dt": "--dt",
+    "x_unit": "--x-unit",
+    "force_unit": "--force-unit",
+    "velocity": "--velocity",
+    "normal_force_column": "--normal-force-column",
+    "init": "--init",
+    "test_drift": "--test-drift",
+    "seed": "--seed",
+}
+
+
+def _check_emps_options(arguments: dict[str, Any]) -> None:
+    """`--data emps` with an option it would ignore: one line naming the options (a run that silently ignored
+    `--models` or `--test` would print a table the user did not ask for)."""
+    defaults = inspect.signature(run_compare).parameters
+    given = []
+    for name, flag in _NOT_FOR_EMPS.items():
+        value, default = arguments[name], defaults[name].default
+        if name == "models":
+            value, default = [m.lower() for m in value], list(default)
+        elif isinstance(value, (list, tuple)) and not value:
+            value = None
+        if value != default:
+            given.append(flag)
+    if given:
+        raise CompareError(
+            f"--data emps runs the EMPS table (the benchmark's own records, split and friction laws) and takes none "
+            f"of {', '.join(given)}: drop them, or run compare on a record file (--data FILE)"
+        )
+
+
 def _largest_excursion(split: Split | TrainingRecords) -> float | None:
     """Half the largest displacement swing between two reversals [m] over the training records, each on its own."""
     swings = [h for h in (half_excursion(r.motion) for r in split.train_records) if h is not None]
@@ -232,6 +278,8 @@ def run_compare(
     several = len(data_specs) > 1 or bool(validation_specs)
     if "emps" in data_specs and len(data_specs) > 1:
         raise CompareError("--data emps runs the EMPS table on its own; give it alone")
+    if data_specs == ["emps"]:
+        _check_emps_options(arguments)
     settings = FitSettings(
         steps=steps,
         gms_elements=gms_elements,
@@ -270,7 +318,8 @@ def run_compare(
             trainings, validations, None if split_at is None else split_at[0]
         )
         if not test_specs:
-            raise CompareError("several --data records: name the records to test on with --test")
+            given = "several --data records" if len(data_specs) > 1 else "--validation records"
+            raise CompareError(f"{given}: name the records to test on with --test")
     else:
         training, training_cards = load_record_spec(data, seed=seed, **units_kw), None
         split = split_record(training, split_at, tested_elsewhere=bool(test_specs))

@@ -1,0 +1,96 @@
+"""Mends from a new user's and an API prober's reading (2026-11-27): each a defect they hit, checked through the
+public API and the command line."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import optax
+import pytest
+
+import fricjax as fj
+
+DT = 1e-3
+
+
+def _record(samples: int = 600) -> fj.FrictionData:
+    t = np.arange(samples) * DT
+    motion = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * 1.5 * t), dt=DT)
+    truth = fj.CoulombViscous(1.0, 30.0, smoothing=fj.Smooth(1e-4))
+    return fj.FrictionData(motion, np.asarray(fj.simulate(truth, motion)))
+
+
+def test_the_documented_noise_floor_snippet_gives_the_floor():
+    """docs/exercises/compare.md: `reference_scores([split.test_record()])` on built-in data is the noise floor
+    (the split carries the sensor's noise-free reading); it printed `{}`."""
+    split, _, _ = fj.compare.load_split("tribometer:mixed")
+    floor = fj.compare.reference_scores([split.test_record()])
+    assert floor["test part"].nmse == pytest.approx(0.0958, abs=5e-4)
+
+
+def test_emps_table_refuses_the_options_it_would_ignore(tmp_path, capsys):
+    code = fj.main(["compare", "--data", "emps", "--models", "lugre", "--steps", "3", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--models" in err and "--steps" in err and len(err.strip().splitlines()) == 1
+
+
+def test_validation_records_without_test_records_say_so(tmp_path, capsys):
+    argv = ["compare", "--data", "tribometer:mixed", "--validation", "tribometer:mixed:seed=1"]
+    assert fj.main([*argv, "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--validation records: name the records to test on with --test" in err and "several" not in err
+
+
+def test_parameter_units_follow_the_module_that_owns_the_field():
+    """A network's bias `w0` has no unit (it was printed in metres, the unit of LuGre with backlash's `w0`)."""
+    regressors = fj.NARXRegressors(("x", "v"), 0, 2)
+    network = fj.GSNN.init(regressors, units=2, key=jax.random.PRNGKey(0))
+    assert [line for line in str(network).splitlines() if line.strip().startswith("w0")][0].endswith("]")
+    assert "w0 = 0 [m]" in str(fj.LuGreBacklash(fj.ExponentialStribeck(1.0, 1.4, 1e-3), 1e5, 300.0, 10.0, gap=1e-4))
+    element = fj.MaxwellSlip.nlr(k=[2e4], thresholds=[1e-4])
+    text = str(fj.HystereticOscillator(m=2.0, c=10.0, k=5e4, element=element))
+    assert "m = 2 [kg]" in text and "c = 10 [N s/m]" in text and "element.thresholds = [0.0001] [m]" in text
+
+
+def test_a_zero_sample_time_is_named_before_it_divides():
+    for build in (fj.Motion.from_position, fj.Motion.from_velocity):
+        with pytest.raises(ValueError, match="`dt` must be a positive, finite sample time"):
+            build(np.linspace(0.0, 1e-3, 20), dt=0.0)
+
+
+def test_a_force_column_or_a_batch_of_forces_is_refused_at_construction():
+    motion = fj.Motion.from_position(np.linspace(0.0, 1e-3, 30), dt=DT)
+    with pytest.raises(ValueError, match=r"shape \(30, 1\).*flatten the column"):
+        fj.FrictionData(motion, np.zeros((30, 1)))
+    with pytest.raises(ValueError, match=r"shape \(2, 30\).*one force sample per motion sample"):
+        fj.FrictionData(motion, np.zeros((2, 30)))
+
+
+def test_a_wrong_initial_state_is_named():
+    model = fj.LuGre(fj.ExponentialStribeck(1.0, 1.4, 1e-3), 1e5, 300.0, 10.0)
+    motion = fj.Motion.from_position(np.linspace(0.0, 1e-4, 10), dt=DT)
+    with pytest.raises(ValueError, match="`state0` must be shaped as LuGre's `init_state\\(\\)`"):
+        fj.simulate(model, motion, np.zeros(3))
+    assert fj.simulate(model, motion, model.init_state()).shape == (10,)
+
+
+@pytest.mark.parametrize("family", [fj.GMS, fj.MaxwellSlip])
+def test_initial_guess_of_element_models_on_a_record_shorter_than_its_grid(family):
+    """50 samples give fewer rows than the regression's candidate thresholds (an IndexError before)."""
+    motion = fj.Motion.from_position(1e-5 * np.sin(np.arange(50) * 0.2), dt=DT)
+    truth = fj.MaxwellSlip.nlr(k=[1e5, 5e4], thresholds=[2e-6, 5e-6])
+    start = fj.initial_guess(family, fj.FrictionData(motion, np.asarray(fj.simulate(truth, motion))))
+    assert np.all(np.isfinite(np.asarray(fj.simulate(start, motion))))
+
+
+def test_sweep_returns_each_configuration_at_its_best_never_worse_than_its_start():
+    """A learning rate too high ends worse than it began: the sweep returned that last iterate."""
+    data = _record()
+    start = fj.CoulombViscous(0.95, 29.0, smoothing=fj.Smooth(1e-4))
+    start_loss = float(fj.SimulationLoss()(start, None, data))
+    result = fj.sweep([start, start], data, steps=40, learning_rate=[0.5, 2.0], checks=10)
+    history = np.asarray(result.history["train_loss"])
+    assert np.all(result.train_loss <= start_loss * (1 + 1e-12))
+    np.testing.assert_allclose(result.train_loss, np.minimum(history.min(axis=0), start_loss), rtol=1e-9)
+    with pytest.raises(ValueError, match=r"one number or one per model \(2\)"):
+        fj.sweep([start, start], data, steps=2, learning_rate=[0.1, 0.2, 0.3], optimiser=optax.sgd)
