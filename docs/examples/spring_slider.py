@@ -60,6 +60,6 @@ if __name__ == "__main__":
     start = SpringSlider(k=5e4, Fc=1.5, c=0.0, smoothing=fj.Smooth(1e-2))  # smooth for training
     result = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=50, separable=("c",))
     fitted = fj.exact(result.model)  # exact for evaluation
-    print(result.result, "NMSE %:", float(fj.nmse(data.force, fj.simulate(fitted, motion))))
+    print(result.code, "NMSE %:", float(fj.nmse(data.force, fj.simulate(fitted, motion))))
     fj.save_model("spring_slider.eqx", fitted)
     again = fj.load_model("spring_slider.eqx", classes=(SpringSlider, SpringSliderState))

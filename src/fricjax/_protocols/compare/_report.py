@@ -126,9 +126,9 @@ def compare_report(
         ],
         "settings": {
             **dataclasses.asdict(settings),
-            "solvers": "Levenberg-Marquardt (optimistix) with separable least squares for linear parameters; "
-            "GMS: Levenberg-Marquardt from fj.initial_guess's start, 256 log-uniform draws around it screened by their "
-            "loss at the start, the best 4 fitted",
+            "solvers": "Levenberg-Marquardt (fj.levenberg_marquardt) with separable least squares for linear "
+            "parameters; GMS: Levenberg-Marquardt from fj.initial_guess's start, 256 log-uniform draws around it "
+            "screened by their loss at the start, the best 4 fitted",
             "scoring": "free run in exact mode from each record's first sample; on records the model was not fitted "
             + (
                 "on, the force offset and the model's initial state are fitted on the initialisation window "
