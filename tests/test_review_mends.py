@@ -94,3 +94,11 @@ def test_sweep_returns_each_configuration_at_its_best_never_worse_than_its_start
     np.testing.assert_allclose(result.train_loss, np.minimum(history.min(axis=0), start_loss), rtol=1e-9)
     with pytest.raises(ValueError, match=r"one number or one per model \(2\)"):
         fj.sweep([start, start], data, steps=2, learning_rate=[0.1, 0.2, 0.3], optimiser=optax.sgd)
+
+
+def test_a_non_finite_force_is_named_by_its_sample():
+    motion = fj.Motion.from_position(np.linspace(0.0, 1e-3, 10), dt=DT)
+    force = np.zeros(10)
+    force[7] = np.nan
+    with pytest.raises(ValueError, match=r"`force` contains NaN or inf \(first at flat index 7\)"):
+        fj.FrictionData(motion, force)

@@ -45,7 +45,11 @@ class FrictionData(eqx.Module):
                 f"({motion.length} samples); {fix}."
             )
         if is_concrete(force) and not bool(np.all(np.isfinite(np.asarray(force)))):
-            raise ValueError("FrictionData: `force` contains NaN or inf; clean or interpolate the record.")
+            bad = int(np.flatnonzero(~np.isfinite(np.asarray(force)))[0])
+            raise ValueError(
+                f"FrictionData: `force` contains NaN or inf (first at flat index {bad}); clean or interpolate the "
+                "record."
+            )
         self.motion = motion
         self.force = force
 
