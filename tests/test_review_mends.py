@@ -102,3 +102,11 @@ def test_a_non_finite_force_is_named_by_its_sample():
     force[7] = np.nan
     with pytest.raises(ValueError, match=r"`force` contains NaN or inf \(first at flat index 7\)"):
         fj.FrictionData(motion, force)
+
+
+def test_a_model_class_passed_for_an_instance_is_named_with_the_fix():
+    motion = fj.Motion.from_position(np.linspace(0.0, 1e-3, 10), dt=DT)
+    with pytest.raises(TypeError, match=r"got the class LuGre; pass an instance .*fj.initial_guess\(fj.LuGre, data\)"):
+        fj.simulate(fj.LuGre, motion)
+    with pytest.raises(TypeError, match="got the class CoulombViscous"):
+        fj.fit(fj.CoulombViscous, fj.FrictionData(motion, np.zeros(10)))

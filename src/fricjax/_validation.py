@@ -35,6 +35,18 @@ __all__ = [
 _T = TypeVar("_T")
 
 
+def got_model(value: Any) -> str:
+    """What was passed where a model instance belongs, for an error message: a class is named with the fix (its
+    type is equinox's metaclass, which says nothing)."""
+    if isinstance(value, type):
+        name = value.__name__
+        return (
+            f"the class {name}; pass an instance (fj.{name}(...)) or a start read off a record "
+            f"(fj.initial_guess(fj.{name}, data))"
+        )
+    return type(value).__name__
+
+
 def is_integer(value: Any) -> bool:
     """Whether `value` is an integer (`int`, `np.int64`, ...) and not a bool: for arguments that take an integer or
     something else (a sequence of them, a name)."""

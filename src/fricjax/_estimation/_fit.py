@@ -24,7 +24,7 @@ from .._data._record import FrictionData
 from .._metrics import scaled_std
 from .._models._base import AbstractModel
 from .._smoothing import Smooth, exact, is_concrete, with_smoothing
-from .._validation import nonnegative_float, nonnegative_int, optional, positive_int, seed_value
+from .._validation import got_model, nonnegative_float, nonnegative_int, optional, positive_int, seed_value
 from ._loop import Search, run_stage, start_losses
 from ._losses import AbstractLoss, SimulationLoss
 from ._placement import choose_device, to_device
@@ -440,7 +440,7 @@ def _several_records(
 
 def _check_records(model: Any, data: Any, validation: Any, loss: Any) -> None:
     if not isinstance(model, eqx.Module):
-        raise TypeError(f"fit: `model` must be a fricjax model (an equinox Module), got {type(model).__name__}.")
+        raise TypeError(f"fit: `model` must be a fricjax model (an equinox Module), got {got_model(model)}.")
     data_type = getattr(loss, "data_type", FrictionData)
     for name, value in (("data", data), ("validation", validation)):
         if value is not None and not isinstance(value, data_type):

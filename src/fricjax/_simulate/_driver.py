@@ -15,7 +15,7 @@ import jax.numpy as jnp
 
 from .._constraints import unwrap
 from .._models._base import AbstractModel, feeds_back
-from .._validation import positive_int
+from .._validation import got_model, positive_int
 from ._parallel import SCANS, parallel_run, uses_parallel
 from ._primal import primal_run
 from ._scan import DEFAULT_UNROLL, plain_run, split_time_signals
@@ -113,7 +113,7 @@ def simulate(
     if not isinstance(model, AbstractModel):
         raise TypeError(
             f"simulate: `model` must be a fricjax model (an fj.AbstractModel: fj.LuGre, fj.GMS, ...), "
-            f"got {type(model).__name__}."
+            f"got {got_model(model)}."
         )
     model.check_inputs(inputs)
     if horizon is not None:
