@@ -19,6 +19,7 @@ the fitted models (`add_ensembles`) and the comparison table (`format_table`). F
 ```
 """
 
+from ._protocols.compare._blackbox_recipes import linear_in_parameters_models as linear_in_parameters_models
 from ._protocols.compare._ensembles import add_ensembles as add_ensembles
 from ._protocols.compare._figures import distinct_models as distinct_models
 from ._protocols.compare._figures import plot_prediction_errors as plot_prediction_errors
