@@ -110,3 +110,12 @@ def test_a_model_class_passed_for_an_instance_is_named_with_the_fix():
         fj.simulate(fj.LuGre, motion)
     with pytest.raises(TypeError, match="got the class CoulombViscous"):
         fj.fit(fj.CoulombViscous, fj.FrictionData(motion, np.zeros(10)))
+
+
+def test_carrying_a_drift_that_was_not_fitted_is_refused(tmp_path, capsys):
+    several = ["compare", "--data", "tribometer:mixed", "tribometer:sliding", "--test", "tribometer:mixed:seed=1"]
+    assert fj.main([*several, "--test-drift", "carry", "--out", str(tmp_path / "a")]) == 2
+    assert "with several --data records each keeps its own" in capsys.readouterr().err
+    one = ["compare", "--data", "tribometer:mixed", "--drift", "none", "--test-drift", "carry"]
+    assert fj.main([*one, "--out", str(tmp_path / "b")]) == 2
+    assert "--drift none fits none" in capsys.readouterr().err

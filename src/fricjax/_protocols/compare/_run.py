@@ -292,6 +292,12 @@ def run_compare(
     )
     # --drift auto: a linear drift with one training record, none with several (fitted per record on the damper's
     # characterization tests, the drifts made DNLRX's held-out NMSE 10x worse and changed nothing for the others)
+    if test_drift == "carry" and (several or settings.drift == "none"):
+        raise CompareError(
+            "--test-drift carry carries the drift fitted with one training record; "
+            + ("with several --data records each keeps its own" if several else "--drift none fits none")
+            + ": use --test-drift window or none"
+        )
     data = data_specs[0] if not several else " ".join(data_specs)
     check_writable(
         out, ("report.json",) if data == "emps" else ("test_errors.png", "hysteresis_loops.png", "report.json")
