@@ -77,4 +77,7 @@ def test_summary_without_validation_data_prints_no_nan():
     assert "no validation data" in fj.Solution(model, train_loss=0.25).summary()
     with_validation = fj.Solution(model, train_loss=0.25, val_loss=0.5, exact_val_loss=0.75).summary()
     assert "validation loss 0.5 (exact 0.75)" in with_validation
+    # a model without a smooth mode (kernel NARX, local models) has one validation loss: no "(exact nan)"
+    one_loss = fj.Solution(model, train_loss=0.25, val_loss=0.5).summary()
+    assert "validation loss 0.5" in one_loss and "nan" not in one_loss.lower()
     assert "  Fc = 1 [N]" in with_validation.splitlines()

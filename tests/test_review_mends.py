@@ -119,3 +119,12 @@ def test_carrying_a_drift_that_was_not_fitted_is_refused(tmp_path, capsys):
     one = ["compare", "--data", "tribometer:mixed", "--drift", "none", "--test-drift", "carry"]
     assert fj.main([*one, "--out", str(tmp_path / "b")]) == 2
     assert "--drift none fits none" in capsys.readouterr().err
+
+
+def test_keeping_the_files_velocity_needs_one(tmp_path):
+    t = np.arange(200) * DT
+    path = tmp_path / "r.csv"
+    np.savetxt(path, np.c_[t, 1e-3 * np.sin(t), np.cos(t)], delimiter=",", header="t,x,force", comments="")
+    with pytest.raises(fj.RecordError, match=r"velocity='file' \(--velocity file\) .* has no velocity column"):
+        fj.load_record(path, velocity="file")
+    assert fj.load_record(path).length == 200

@@ -308,6 +308,11 @@ def read_record(
                 )
             normal_force += values * _FORCE_UNITS[unit]
         columns["normal_force"] = " + ".join(raw for raw, _, _ in normal.values())
+    if velocity == "file" and "v" not in data:
+        raise RecordError(
+            f"{path}: velocity='file' (--velocity file) keeps the file's velocity, but it has no velocity column "
+            "(v, velocity, vel); drop the option to derive the velocity from the displacement"
+        )
     if velocity == "derive" and "v" in data:
         if "x" not in data:
             raise RecordError(

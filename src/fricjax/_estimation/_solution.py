@@ -140,6 +140,8 @@ class Solution:
         """The validation part of the summary's loss line; never a bare "nan": without validation data (the losses
         and their history all NaN) it says so."""
         if np.isfinite(self.val_loss) or np.isfinite(self.exact_val_loss):
+            if not np.isfinite(self.exact_val_loss):  # a model without a smooth mode (kernel, local): one loss
+                return f"validation loss {self.val_loss:.4g}"
             return f"validation loss {self.val_loss:.4g} (exact {self.exact_val_loss:.4g})"
         history = np.asarray(self.history.get("val_loss", []), dtype=float)
         if np.any(np.isfinite(history)):
