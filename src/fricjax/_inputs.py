@@ -153,13 +153,15 @@ class Motion(eqx.Module):
     def from_position(cls, x: ArrayLike, dt: ArrayLike) -> Motion:
         """Build a motion from displacement; `v` by central differences (one-sided at the ends)."""
         x = _as_signal(x, "x")
-        return cls(x=x, v=velocity_from_position(x, _sample_time(dt, x.dtype)), dt=dt)
+        dt = _sample_time(dt, x.dtype)  # checked before it divides
+        return cls(x=x, v=velocity_from_position(x, dt), dt=dt)
 
     @classmethod
     def from_velocity(cls, v: ArrayLike, dt: ArrayLike, x0: ArrayLike = 0.0) -> Motion:
         """Build a motion from velocity; `x_k = x0 + dt * sum_{j=1..k} v_j` (the zero-order hold of `v`)."""
         v = _as_signal(v, "v")
-        return cls(x=position_from_velocity(v, _sample_time(dt, v.dtype), x0), v=v, dt=dt)
+        dt = _sample_time(dt, v.dtype)
+        return cls(x=position_from_velocity(v, dt, x0), v=v, dt=dt)
 
 
 def _sample_time(dt: ArrayLike, dtype: Any) -> Array:

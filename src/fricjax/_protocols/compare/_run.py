@@ -157,28 +157,12 @@ def _fit_and_score_one(
 
 
 # run_compare's arguments that `--data emps` does not take (its inverse dynamic model has its own records, split and
-# laws), with their command-line spellings
-_NOT_FOR_EMPS = {
-    "test": "--test",
-    "validation": "--validation",
-    "split_at": "--split",
-    "init_window": "--init-window",
-    "models": "--models",
-    "steps": "--steps",
-    "gms_elements": "--gms-elements",
-    "maxwell_elements": "--maxwell-elements",
-    "starts": "--starts",
-    "drift": "--drift",
-    "neural_steps": "--neural-steps",
-    "dt": "--dt",
-    "x_unit": "--x-unit",
-    "force_unit": "--force-unit",
-    "velocity": "--velocity",
-    "normal_force_column": "--normal-force-column",
-    "init": "--init",
-    "test_drift": "--test-drift",
-    "seed": "--seed",
-}
+# laws); each is the command line's `--NAME` with dashes, `split_at` its `--split`
+_NOT_FOR_EMPS = (
+    "test", "validation", "split_at", "init_window", "models", "steps", "gms_elements", "maxwell_elements", "starts",
+    "drift", "neural_steps", "dt", "x_unit", "force_unit", "velocity", "normal_force_column", "init", "test_drift",
+    "seed",
+)  # fmt: skip
 
 
 def _check_emps_options(arguments: dict[str, Any]) -> None:
@@ -186,14 +170,14 @@ def _check_emps_options(arguments: dict[str, Any]) -> None:
     `--models` or `--test` would print a table the user did not ask for)."""
     defaults = inspect.signature(run_compare).parameters
     given = []
-    for name, flag in _NOT_FOR_EMPS.items():
+    for name in _NOT_FOR_EMPS:
         value, default = arguments[name], defaults[name].default
         if name == "models":
             value, default = [m.lower() for m in value], list(default)
         elif isinstance(value, (list, tuple)) and not value:
             value = None
         if value != default:
-            given.append(flag)
+            given.append("--split" if name == "split_at" else "--" + name.replace("_", "-"))
     if given:
         raise CompareError(
             f"--data emps runs the EMPS table (the benchmark's own records, split and friction laws) and takes none "
@@ -332,7 +316,7 @@ def run_compare(
     tests: list[TestRecord] = []
     cards: dict[str, Any] = {}  # the data cards of the other test records, by test name
     if isinstance(split, Split) and split.validation_end < training.data.length:
-        tests.append(split.test_record(init_window, training.reference))
+        tests.append(split.test_record(init_window))  # the split carries the record's noise-free reading
     for spec in test_specs:
         loaded = load_record_spec(spec, seed=seed, **units_kw)
         name = loaded.name if loaded.name not in {t.name for t in tests} else f"{loaded.name} #{len(tests) + 1}"
