@@ -90,7 +90,9 @@ def one(family: str, seed: int, starts: int, steps: int, screen: float = 0.25, k
     elements = {"gms": 4, "nlr": 5}.get(family)  # the true model's structure (initial_guess's default is 4)
     start = fj.initial_guess(type(model), train, elements=elements, smoothing=smoothing(family, train))
     multistart = (
-        None if starts == 1 else fj.MultiStart(starts, 1.0, distribution="log-uniform", keep=keep, screen=screen)
+        None
+        if starts == 1
+        else fj.MultiStart(starts, 1.0, distribution="log-uniform", keep=keep if keep < starts else None, screen=screen)
     )
     result = fj.fit(
         start,

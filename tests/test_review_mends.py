@@ -128,3 +128,39 @@ def test_keeping_the_files_velocity_needs_one(tmp_path):
     with pytest.raises(fj.RecordError, match=r"velocity='file' \(--velocity file\) .* has no velocity column"):
         fj.load_record(path, velocity="file")
     assert fj.load_record(path).length == 200
+
+
+def test_element_models_refuse_zero_elements():
+    with pytest.raises(ValueError, match="at least one element"):
+        fj.MaxwellSlip.nlr(k=[], thresholds=[])
+    with pytest.raises(ValueError, match="at least one element"):
+        fj.GMS(fj.ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3), k=[], alpha=[], C=1.0)
+
+
+def test_screening_that_keeps_every_start_is_refused():
+    """`keep >= count` screened nothing and said nothing; `keep=None` fits every start."""
+    with pytest.raises(ValueError, match="`keep` \\(4\\) must be below `count` \\(4\\)"):
+        fj.MultiStart(4, keep=4)
+    assert fj.MultiStart(4).keep is None
+
+
+def test_the_table_flags_a_row_with_notes_and_lists_them_below():
+    scores = {"a.csv": fj.compare.Score(1.0, 0.5, 0.1), "b.csv": fj.compare.Score(2.0, 0.7, -0.2)}
+    flagged = fj.compare.ModelScore(
+        "lugre", "LuGre", 1.0, 0.5, 3.0, 7, "successful", None, np.zeros(1), tests=scores, notes=("Fs < Fc", "x")
+    )
+    clean = fj.compare.ModelScore("gms", "GMS", 0.5, 0.4, 3.0, 14, "successful", None, np.zeros(1), tests=scores)
+    lines = fj.compare.format_table([flagged, clean]).splitlines()
+    assert "MAX/std 1" in lines[0]  # the first test record's, as the NMSE the rows are sorted by
+    assert lines[1].startswith("GMS") and lines[1].endswith("successful")
+    assert lines[2].startswith("LuGre") and lines[2].endswith("successful (note 1)")
+    assert lines[-1] == "note 1, LuGre: Fs < Fc; x"
+
+
+def test_a_fit_worse_than_a_constant_force_is_noted_in_the_table(tmp_path, capsys):
+    """A static law on a pre-sliding record (NMSE above 100 %) was printed without a word beside its result."""
+    argv = ["compare", "--data", "tribometer:presliding:duration=1", "--models", "stribeck", "--steps", "3"]
+    assert fj.main([*argv, "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "(note 1)" in out and "note 1, Stribeck (static): NMSE above 100 % (" in out
+    assert "worse than a constant force" in out

@@ -112,6 +112,11 @@ class MultiStart(AbstractStrategy):
             )
         if self.keep is not None:
             object.__setattr__(self, "keep", positive_int(self.keep, "keep", "MultiStart"))
+            if self.keep >= self.count:
+                raise ValueError(
+                    f"MultiStart: `keep` ({self.keep}) must be below `count` ({self.count}): screening keeps the best "
+                    f"`keep` of the `count` starts. Leave `keep=None` to fit every start."
+                )
         screen = nonnegative_float(self.screen, "screen", "MultiStart")
         if not 0 <= screen < 1:
             raise ValueError(
@@ -121,7 +126,7 @@ class MultiStart(AbstractStrategy):
         object.__setattr__(self, "screen", screen)
 
     def prepare(self, plan: FitPlan) -> FitPlan:
-        if self.keep is None or self.keep >= self.count:
+        if self.keep is None:
             return plan
         return dataclasses.replace(plan, screen=(self.screen, self.keep))
 

@@ -107,6 +107,8 @@ class GMS(AbstractFrictionModel):
         k = as_float_array(k)
         if k.ndim != 1:
             raise ValueError(f"GMS: `k` must have shape (N,), one stiffness per element, got shape {k.shape}.")
+        if k.shape[0] == 0:
+            raise ValueError("GMS: `k` and `alpha` are empty; give at least one element (N >= 1).")
         self.stribeck = stribeck
         self.k = positive(k, "k", dtype)
         alpha = as_float_array(alpha).astype(k.dtype)

@@ -163,6 +163,8 @@ class MaxwellSlip(AbstractFrictionModel):
             raise ValueError(
                 f"MaxwellSlip: `thresholds` must have shape (M,), got {jnp.shape(unwrap(self.thresholds))}."
             )
+        if m == 0:
+            raise ValueError("MaxwellSlip: `thresholds` is empty; give at least one element (M >= 1).")
         if isinstance(force_map, SpringForces) and jnp.shape(unwrap(force_map.k)) != (m,):
             raise ValueError(
                 f"MaxwellSlip: `k` must have shape ({m},) like `thresholds`, got {jnp.shape(unwrap(force_map.k))}."

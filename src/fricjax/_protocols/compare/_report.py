@@ -33,31 +33,38 @@ def label_width(rows: list[ModelScore]) -> int:
 def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = None) -> str:
     """The comparison table, sorted by test NMSE (kernel paper Table 1 / worden2007 Fig. 11 layout): one NMSE
     column per test record (where there are several), MAX as the largest absolute error divided by the standard
-    deviation of the measured force, the noise-floor reference row where there is one, and what the result
-    codes mean."""
+    deviation of the measured force (the first test record's), the noise-floor reference row where there is one,
+    what the result codes mean, and each flagged row's notes (`ModelScore.notes`)."""
     w = label_width(rows)
     names = list(rows[0].tests) if rows and rows[0].tests else ["test"]
     several = len(names) > 1
     heads = [f"NMSE % {i + 1}" for i in range(len(names))] if several else ["NMSE %"]
+    max_head = "MAX/std 1" if several else "MAX/std"  # the first test record's, as the sort
     lines = [
         f"{'model':{w}s} {'params':>6s} "
         + " ".join(f"{h:>10s}" for h in heads)
-        + f" {'MAX/std':>7s} {'fit s':>7s}  result"
+        + f" {max_head:>9s} {'fit s':>7s}  result"
     ]
 
     def values(tests: dict[str, Score], fallback: float) -> list[float]:
         return [tests[n].nmse if n in tests else fallback for n in names] if tests else [fallback]
 
+    flagged: list[ModelScore] = []
     for r in sorted(rows, key=by_score):
         cells = " ".join(f"{v:10.4f}" for v in values(r.tests, r.nmse))
-        lines.append(f"{r.label:{w}s} {r.num_parameters:6d} {cells} {r.max_error:7.3f} {r.fit_time:7.1f}  {r.result}")
+        flag = f" (note {len(flagged) + 1})" if r.notes else ""
+        if r.notes:
+            flagged.append(r)
+        lines.append(
+            f"{r.label:{w}s} {r.num_parameters:6d} {cells} {r.max_error:9.3f} {r.fit_time:7.1f}  {r.result}{flag}"
+        )
     if reference:
         floor = [reference[n].nmse if n in reference else float("nan") for n in names]
         cells = " ".join(f"{v:10.4f}" for v in floor)
         first = reference.get(names[0])
         lines.append(
             f"{'noise floor (true model + sensor model)':{w}s} {'':6s} {cells} "
-            f"{(first.max_error if first else float('nan')):7.3f}"
+            f"{(first.max_error if first else float('nan')):9.3f}"
         )
     if several:
         lines.append("test records: " + "; ".join(f"{i + 1} = {n}" for i, n in enumerate(names)))
@@ -66,6 +73,7 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
     if any(r.result == "max_steps" and r.name in NEURAL_MODELS for r in rows):  # their budget is --neural-steps
         legend["max_steps"] = legend["max_steps"].replace("--steps", "--steps; neural models: --neural-steps")
     lines.append("result: " + "; ".join(f"{c} = {legend[c]}" for c in codes))
+    lines += [f"note {i + 1}, {r.label}: " + "; ".join(r.notes) for i, r in enumerate(flagged)]
     return "\n".join(lines)
 
 
@@ -158,6 +166,7 @@ def compare_report(
                 "num_parameters": r.num_parameters,
                 "result": r.result,
                 "result_message": r.message,
+                "notes": list(r.notes),
                 "parameters": _parameters(r.model),
                 "parameter_units": _units(r.model),
                 "parameter_std": _estimated_std(r.std) if r.std is not None else None,

@@ -138,6 +138,7 @@ def _fit_and_score_one(
         else predict_test_record(model, test, settings.init, settings.test_drift, training_range)
         for test in tests
     }
+    notes = implausible(model, _largest_excursion(split))
     return score_row(
         name,
         label,
@@ -149,7 +150,8 @@ def _fit_and_score_one(
         fit_time=elapsed,
         num_parameters=count_parameters(model),
         result=result.code,  # the name of the fj.RESULTS item
-        message="; ".join([command_line_advice(result.message), *implausible(model, _largest_excursion(split))]),
+        message="; ".join([command_line_advice(result.message), *notes]),
+        notes=tuple(notes),
         std=result.std,
         validation_nmse=100 * result.val_loss if split.several else None,
         records=result.records,

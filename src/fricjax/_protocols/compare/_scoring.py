@@ -159,6 +159,7 @@ class ModelScore:
     validation_nmse: float = float("nan")
     std: Any = None
     records: Any = None  # several training records: the fit's `fj.RecordNuisances`
+    notes: tuple[str, ...] = ()  # what the table flags: an implausible fitted model, worse than a constant force
 
 
 def count_parameters(model: Any) -> int:
@@ -197,6 +198,7 @@ def score_row(
         val = slice(split.train_end, split.validation_end)
         validation_nmse = float(nmse(measured[val], full_prediction[val]))
     first = scores[tests[0].name]
+    notes = (*extra.pop("notes", ()), *_worse_than_constant(validation_nmse, scores))
     return ModelScore(
         name,
         label,
@@ -208,5 +210,17 @@ def score_row(
         tests=scores,
         test_predictions=test_predictions,
         validation_nmse=validation_nmse,
+        notes=notes,
         **extra,
     )
+
+
+def _worse_than_constant(validation_nmse: float, scores: dict[str, Score]) -> list[str]:
+    """Where a model's NMSE is above 100 %: it predicts the force worse than its mean would (a fit that stopped
+    `successful` can still be there)."""
+    parts = [f"validation {validation_nmse:.0f} %"] if validation_nmse > 100 else []
+    several = len(scores) > 1
+    for i, score in enumerate(scores.values()):
+        if score.nmse > 100:
+            parts.append(f"test{f' {i + 1}' if several else ''} {score.nmse:.0f} %")
+    return [f"NMSE above 100 % ({', '.join(parts)}): worse than a constant force"] if parts else []
