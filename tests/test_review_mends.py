@@ -164,3 +164,11 @@ def test_a_fit_worse_than_a_constant_force_is_noted_in_the_table(tmp_path, capsy
     out = capsys.readouterr().out
     assert "(note 1)" in out and "note 1, Stribeck (static): NMSE above 100 % (" in out
     assert "worse than a constant force" in out
+
+
+def test_per_record_offsets_print_in_the_records_force_unit():
+    """compare printed each training record's offset in N for records read in kip."""
+    nuisances = fj.RecordNuisances(("a.csv",), np.array([2 * 4448.2216]), np.array([4448.2216]), None, np.ones(1))
+    (line,) = nuisances.lines("kip", 4448.2216)
+    assert line == "a.csv: train NMSE 1 %, offset 2 kip, drift 1 kip/s"
+    assert nuisances.lines()[0].endswith("offset 8896 N, drift 4448 N/s")

@@ -435,15 +435,16 @@ class RecordNuisances:
     initial_state: Any
     train_nmse: np.ndarray
 
-    def lines(self) -> list[str]:
-        """One line per record: its name, training NMSE and the nuisances estimated (offset [N], drift [N/s])."""
+    def lines(self, force_unit: str = "N", newtons_per_unit: float = 1.0) -> list[str]:
+        """One line per record: its name, training NMSE and the nuisances estimated, offset and drift in
+        `force_unit` (`newtons_per_unit` N each; default N, N/s)."""
         out = []
         for row in self.table():
             text = f"{row['name']}: train NMSE {row['train_nmse_percent']:.4g} %"
             if row["offset_N"] is not None:
-                text += f", offset {row['offset_N']:.4g} N"
+                text += f", offset {row['offset_N'] / newtons_per_unit:.4g} {force_unit}"
             if row["drift_N_per_s"] is not None:
-                text += f", drift {row['drift_N_per_s']:.4g} N/s"
+                text += f", drift {row['drift_N_per_s'] / newtons_per_unit:.4g} {force_unit}/s"
             out.append(text)
         return out
 

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..._constraints import parameter_arrays, parameter_units, unwrap
+from ..._data._io import Units
 from ..._smoothing import exact
 from ..._version import fricjax_version
 from ._names import NEURAL_MODELS
@@ -77,14 +78,15 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
     return "\n".join(lines)
 
 
-def format_record_nuisances(rows: list[ModelScore]) -> str:
-    """Each model's per-record nuisances after a fit to several records: the force offset [N], drift [N/s] and
-    training NMSE of every training record (`fj.RecordNuisances`)."""
-    lines = ["per training record (training NMSE, offset [N], drift [N/s]):"]
+def format_record_nuisances(rows: list[ModelScore], units: Units | None = None) -> str:
+    """Each model's per-record nuisances after a fit to several records: the force offset, drift and training
+    NMSE of every training record (`fj.RecordNuisances`), in the records' force unit (`units`; default N)."""
+    unit, factor = (units.force, units.force_factor) if units is not None else ("N", 1.0)
+    lines = [f"per training record (training NMSE, offset [{unit}], drift [{unit}/s]):"]
     for r in sorted(rows, key=by_score):
         if r.records is None:
             continue
-        lines += [f"  {r.label}:", *("    " + line for line in r.records.lines())]
+        lines += [f"  {r.label}:", *("    " + line for line in r.records.lines(unit, factor))]
     return "\n".join(lines)
 
 

@@ -370,7 +370,7 @@ def run_compare(
     print()
     print(format_table(rows, floor))
     if isinstance(split, TrainingRecords):
-        print(format_record_nuisances(rows))
+        print(format_record_nuisances(rows, units))
     try:
         staging = Staging(out)  # the files are written there, then moved into `out` together (or not at all)
     except OSError as err:
