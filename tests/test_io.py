@@ -79,7 +79,12 @@ def test_force_unit_argument(tmp_path, force_unit, factor):
 
 def test_unit_arguments_win_over_the_file(tmp_path):
     path = _csv(tmp_path / "r.csv", "t,x [um],v [mm/s],force [kN]", T, X, X, F)
-    data = fj.load_record(path, x_unit="mm", force_unit="N", velocity="file")  # v is not dx/dt: keep it unchecked
+    with pytest.warns(UserWarning) as warned:  # v is not dx/dt: keep it unchecked
+        data = fj.load_record(path, x_unit="mm", force_unit="N", velocity="file")
+    assert [str(w.message).split(": ", 1)[1] for w in warned] == [
+        "x_unit='mm' (--x-unit) overrides the displacement unit 'um' that 'x [um]' gives; the data are read in 'mm'",
+        "force_unit='N' (--force-unit) overrides the force unit 'kN' that 'force [kN]' gives; the data are read in 'N'",
+    ]
     np.testing.assert_allclose(data.motion.x, 1e-3 * X)
     np.testing.assert_allclose(data.motion.v, 1e-3 * X)
     np.testing.assert_allclose(data.force, F)

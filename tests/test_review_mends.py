@@ -3,6 +3,8 @@ public API and the command line."""
 
 from __future__ import annotations
 
+import warnings
+
 import jax
 import numpy as np
 import optax
@@ -172,3 +174,85 @@ def test_per_record_offsets_print_in_the_records_force_unit():
     (line,) = nuisances.lines("kip", 4448.2216)
     assert line == "a.csv: train NMSE 1 %, offset 2 kip, drift 1 kip/s"
     assert nuisances.lines()[0].endswith("offset 8896 N, drift 4448 N/s")
+
+
+def _csv(path, header: str, *columns) -> str:
+    np.savetxt(path, np.column_stack(columns), delimiter=",", header=header, comments="")
+    return str(path)
+
+
+def _damper_like(path, scale: float = 1.0, samples: int = 800) -> str:
+    """A record in the damper's column names: inches, kip, and an actuator force in pounds (a normal-load candidate)."""
+    t = np.arange(samples) * DT
+    x = 0.02 * np.sin(2 * np.pi * 2.0 * t)
+    force = scale * (0.5 * np.tanh(np.gradient(x, DT) / 0.01) + 0.01 * np.random.default_rng(0).normal(size=samples))
+    header = "time_s,displacement_in,friction_force_kip,actuator_force1_lb,actuator_pos1_in"
+    return _csv(path, header, t, x, force, np.full(samples, 3000.0), x)
+
+
+def test_a_length_column_named_as_the_normal_load_is_refused(tmp_path):
+    """`actuator_pos1_in` was read as a force in the friction force's unit (0.655 in became 2914 N)."""
+    path = _damper_like(tmp_path / "r.csv")
+    with pytest.raises(fj.RecordError, match="'actuator_pos1_in' is named in a displacement unit \\('in'\\)"):
+        fj.load_record(path, normal_force_column="actuator_pos1_in")
+    data = fj.load_record(path, normal_force_column="actuator_force1_lb")
+    np.testing.assert_allclose(data.motion.normal_force, 3000.0 * 4.4482216152605)
+
+
+def test_a_sample_time_argument_that_contradicts_the_time_column_is_warned_of(tmp_path):
+    path = _damper_like(tmp_path / "r.csv")
+    with pytest.warns(UserWarning, match="dt = 1 s \\(the argument, used\\) disagrees with 'time_s'"):
+        data = fj.load_record(path, dt=1.0)
+    assert float(data.motion.dt) == 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        fj.load_record(path, dt=DT * (1 + 1e-6))  # within rounding: no warning
+
+
+def test_two_training_records_in_units_10x_apart_are_refused_naming_both(tmp_path, capsys):
+    """Against a median that includes the record itself, two records 10x apart read 0.18x / 1.8x and passed."""
+    good, bad = _damper_like(tmp_path / "good.csv"), _damper_like(tmp_path / "bad.csv", scale=10.0)
+    argv = ["compare", "--data", good, bad, "--test", good, "--models", "stribeck", "--no-progress"]
+    assert fj.main([*argv, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "force spread is" in err and "good.csv" in err and "bad.csv" in err and "check the units of both" in err
+
+
+def test_a_folder_given_as_a_record_is_named_with_the_glob(tmp_path, capsys):
+    assert fj.main(["compare", "--data", str(tmp_path), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    assert "a folder; name its records, e.g. with a quoted glob" in capsys.readouterr().err
+
+
+def test_compare_dedupes_models_and_warns_of_unused_loads_and_of_testing_on_training_data(tmp_path, capsys):
+    """`--models lugre lugre` fitted twice and then failed to write its files; a test record that is a training
+    record, and unused columns that hold the damper's normal load, passed without a word."""
+    path = _damper_like(tmp_path / "r.csv")
+    argv = ["compare", "--data", path, "--test", path, "--models", "stribeck", "STRIBECK", "--steps", "3"]
+    assert fj.main([*argv, "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "models: stribeck\n" in out and out.count("Stribeck (static)  ") == 1
+    assert "a training record too; its test score is not held out" in out
+    assert "columns 'actuator_force1_lb' are not used; if they hold the normal load, name them" in out
+
+
+def test_load_split_takes_the_record_options_its_errors_name(tmp_path):
+    t = np.arange(800) * DT
+    x = 1e-3 * np.sin(2 * np.pi * 2.0 * t)
+    path = _csv(tmp_path / "r.csv", "t,x,v,force", t, x, 0.01 * np.gradient(x, DT), np.tanh(np.gradient(x, DT) / 1e-3))
+    with pytest.raises(fj.compare.CompareError, match="velocity='derive'"):
+        fj.compare.load_split(path)
+    split, card, truth = fj.compare.load_split(path, velocity="derive")
+    assert split.full.length == 800 and truth is None
+
+
+def test_wrapped_models_name_the_field_and_the_record_they_miss():
+    motion = fj.Motion.from_position(1e-3 * np.sin(np.arange(500) * DT), dt=DT)
+    loaded = fj.Motion(x=motion.x, v=motion.v, dt=DT, normal_force=np.full(500, 100.0))
+    model = fj.NormalLoad(fj.CoulombViscous(1.0, 30.0, smoothing=fj.Smooth(1e-4)), reference=100.0)
+    with pytest.raises(TypeError, match="got the class CoulombViscous; pass an instance"):
+        fj.NormalLoad(fj.CoulombViscous, reference=100.0)
+    data = fj.FrictionData(loaded, np.asarray(fj.simulate(model, loaded)))
+    with pytest.raises(ValueError, match="The wrapped model's field: 'model.Fc'"):
+        fj.fit(model, data, freeze="Fc", steps=1)
+    with pytest.raises(ValueError, match="record 1 of `data`: NormalLoad needs the normal load"):
+        fj.fit(model, [data, fj.FrictionData(motion, data.force)], steps=1)

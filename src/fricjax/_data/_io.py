@@ -8,6 +8,7 @@ import math
 import pathlib
 import re
 import sys
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -254,7 +255,10 @@ def read_record(
                     "(normal_force_column, --normal-force-column)"
                 )
             values = _one_signal(path, raw, values)
-            normal[key] = (raw, values, _force_unit_of(raw) if role is None else unit)
+            own = _force_unit_of(raw) if role is None else unit
+            if own is None:
+                _refuse_other_quantity(path, raw)
+            normal[key] = (raw, values, own)
             continue
         if role is None or (role == "normal_force" and named):
             if raw.strip():
@@ -290,6 +294,8 @@ def read_record(
     )
     if dt is None:
         dt = _sample_time(path, data, columns, declared)
+    elif "t" in data or "dt" in data:
+        _warn_if_time_disagrees(path, dt, data, columns, declared)
     force = _scaled(data["force"], units.force_factor)
     if force.size < 100:
         raise RecordError(f"{path}: only {force.size} samples; need at least 100")
@@ -520,6 +526,24 @@ def _sample_time(
     return dt
 
 
+def _warn_if_time_disagrees(
+    path: pathlib.Path, dt: float, data: dict[str, np.ndarray], columns: dict[str, str], declared: Any
+) -> None:
+    """The `dt` argument wins over the file's time columns; a warning where they disagree by more than 0.1 %
+    (a sample time in the wrong unit makes every rate parameter wrong)."""
+    try:
+        found = _sample_time(path, data, columns, declared)
+    except RecordError:  # the columns cannot give one: the argument is the sample time
+        return
+    if abs(found - dt) > 1e-3 * dt:
+        named = " / ".join(repr(columns[role]) for role in ("t", "dt") if role in columns)
+        warnings.warn(
+            f"{path}: dt = {dt:.6g} s (the argument, used) disagrees with {named} in the file ({found:.6g} s, "
+            f"{dt / found:.3g}x); check the sample time's unit",
+            stacklevel=4,
+        )
+
+
 def _scaled(values: np.ndarray, factor: float) -> np.ndarray:
     """`values * factor`, in place (the arrays are the reader's own): a record is not copied for its units."""
     if factor != 1.0:
@@ -573,6 +597,20 @@ def _force_unit_of(raw: str) -> str | None:
         return unit
     head, sep, suffix = name.rpartition("_")
     return suffix if sep and head and _is_unit("force", suffix) else None
+
+
+def _refuse_other_quantity(path: Any, raw: str) -> None:
+    """A column named for the normal force whose name ends in a unit of another quantity (`"actuator_pos1_in"`:
+    a displacement in inches) is refused: it would be read as a force in the friction force's unit."""
+    head, sep, suffix = _split_unit(raw)[0].rpartition("_")
+    if not (sep and head):
+        return
+    for quantity in ("x", "t"):
+        if _is_unit(quantity, suffix):
+            raise RecordError(
+                f"{path}: column {raw!r} is named in a {_KIND[quantity]} unit ({suffix!r}), not a force unit; name "
+                "the normal-force column(s) (normal_force_column, --normal-force-column)"
+            )
 
 
 def _named(raw: str, named: dict[str, str]) -> str:
@@ -632,9 +670,18 @@ def _resolve_unit(
     (SI if None)."""
     if override is not None:
         try:
-            return Units.check(quantity, override)
+            chosen = Units.check(quantity, override)
         except ValueError as err:
             raise RecordError(f"{path}: {err}") from None
+        for unit, where in declared:
+            if _is_unit(quantity, unit) and Units.check(quantity, unit) != chosen:
+                warnings.warn(
+                    f"{path}: {_OPTIONS[quantity].replace('= ', f'={chosen!r} ')} overrides the {_KIND[quantity]} unit "
+                    f"{unit!r} that {where} gives; the data are read in {chosen!r}",
+                    stacklevel=4,
+                )
+                break
+        return chosen
     found: dict[str, str] = {}
     fix = f", or pass {_OPTIONS[quantity]}" if quantity in _OPTIONS else ""
     for unit, where in declared:

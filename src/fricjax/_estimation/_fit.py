@@ -126,7 +126,8 @@ def fit(
     - `patience`: evaluations without validation improvement before stopping (default: never).
     - `tolerance`: a stopping rule for any solver: the fit ends as converged (`successful`) when the training
       loss of the best start falls by less than this fraction over one check (`eval_every` steps; optimistix
-      solvers then run in chunks of that many steps). Default: none (optax runs its budget; optimistix stops
+      solvers and fricjax's LM then run in chunks of that many steps, by default an eighth of the budget and at
+      least 5: a trust-region solver rejects runs of trial steps, which leave the loss unchanged). Default: none (optax runs its budget; optimistix stops
       by its own `rtol` / `atol`).
     - `progress`: show a tqdm progress bar. `seed`: for the multi-start draws (results are deterministic).
     - `compute_std`: Gauss-Newton standard deviations of the trained physical parameters (a dense Jacobian
@@ -254,7 +255,9 @@ def fit(
             if solver.kind == "optax":
                 check_every = eval_every or max(1, steps // 50)
             else:  # solvers with their own convergence test run their budget unless a tolerance asks for checks
-                check_every = budget if tolerance is None else (eval_every or max(1, budget // 8))
+                # at least 5 steps a check: LM rejects runs of trial steps, and a window of one rejected step
+                # reads as no change (`--steps 10` stopped at step 3 as converged)
+                check_every = budget if tolerance is None else (eval_every or min(budget, max(5, budget // 8)))
             screening, plan = plan.screen, dataclasses.replace(plan, screen=None)  # the first stage screens
             if screening is not None and screening[0] == 0:  # forward screening: each start's loss, no step
                 search.restart(*start_losses(solver, problem, search.ys, static))

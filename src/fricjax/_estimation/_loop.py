@@ -381,7 +381,8 @@ def run_stage(
             break  # every start's solver met its own convergence test (or failed)
         if tolerance is not None and search.converged(tolerance):
             outcome.converged = (
-                f"converged: the loss fell by less than {tolerance:g} (relative) over the last {n} steps "
+                f"converged: the loss fell by less than {tolerance:g} (relative) over the last {n} "
+                f"step{'s' if n != 1 else ''} "
                 f"(step {search.step_count})"
             )
             break  # this stage has converged (a next continuation stage, if any, still runs)

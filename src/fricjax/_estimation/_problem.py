@@ -57,12 +57,30 @@ def _where(selector: Any, model: Any, argument: str) -> list[tuple[str, Callable
             raise ValueError(
                 f"fit: {label!r} in `{argument}` is not a field path of {type(model).__name__} ({err}); fields: "
                 + ", ".join(fields)
-                + ". Use dotted names such as 'sigma1', 'stribeck.Fc' or 'layers.0.weight', or a callable."
+                + (
+                    f". The wrapped model's field: {_wrapped_path(model, label)!r}."
+                    if _wrapped_path(model, label)
+                    else ". Use dotted names such as 'sigma1', 'stribeck.Fc' or 'layers.0.weight', or a callable."
+                )
             ) from None
         if not jax.tree_util.tree_leaves(nodes):
             raise ValueError(f"fit: {label!r} in `{argument}` of {type(model).__name__} holds no array to select.")
         out.append((label, where))
     return out
+
+
+def _wrapped_path(model: Any, label: str) -> str:
+    """`label` inside the model a wrapper holds (`NormalLoad`, `SensorDrift`, `Backlash`: field `model`), where it
+    names a field there (`"sigma0"` -> `"model.sigma0"`); "" otherwise."""
+    path = label
+    while hasattr(model, "model") and isinstance(model.model, eqx.Module):
+        model, path = model.model, f"model.{path}"
+        try:
+            where_from_path(label)(model)
+        except (AttributeError, IndexError, KeyError, TypeError):
+            continue
+        return path
+    return ""
 
 
 def _set_spec(spec: Any, model: Any, selector: Any, value: bool, argument: str) -> Any:

@@ -207,7 +207,11 @@ def as_record_batch(value: Any, model: Any, argument: str, score_from: Sequence[
     if isinstance(model, AbstractModel):
         for index, record in enumerate(value):
             if isinstance(record, FrictionData):
-                model.check_inputs(record.motion)
+                try:
+                    model.check_inputs(record.motion)
+                except ValueError as err:  # which record: "simulate: ..." says only what is missing
+                    label = repr(names[index]) if names is not None else f"record {index}"
+                    raise ValueError(f"fit: {label} of `{argument}`: {str(err).removeprefix('simulate: ')}") from None
             else:
                 raise TypeError(
                     f"fit: record {index} of `{argument}` is a {type(record).__name__}; every record must be an "

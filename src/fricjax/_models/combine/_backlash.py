@@ -18,6 +18,7 @@ from jaxtyping import Array
 from ..._constraints import Parameter, ParamLike, model_dtype, positive, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, safe_div
+from ..._validation import got_model
 from .._base import AbstractFrictionModel
 from ..blackbox._regressors import advance_plays
 
@@ -75,7 +76,7 @@ class Backlash(AbstractFrictionModel):
 
     def __init__(self, model: AbstractFrictionModel, gap: ParamLike, *, smoothing: AbstractSmoothing = Exact()):
         if not isinstance(model, AbstractFrictionModel):
-            raise TypeError(f"Backlash: `model` must be a fricjax friction model, got {type(model).__name__}.")
+            raise TypeError(f"Backlash: `model` must be a fricjax friction model, got {got_model(model)}.")
         self.model = model
         self.gap = positive(gap, "gap", model_dtype(gap), scalar=True)
         self.smoothing = smoothing

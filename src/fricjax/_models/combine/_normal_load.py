@@ -17,6 +17,7 @@ from jaxtyping import Array
 from ..._constraints import Fixed, FixedScalar, ParamLike, model_dtype, real, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import is_concrete, safe_div
+from ..._validation import got_model
 from .._base import AbstractFrictionModel
 from .._state_maps import AffineMaps
 
@@ -64,7 +65,7 @@ class NormalLoad(AbstractFrictionModel):
 
     def __init__(self, model: AbstractFrictionModel, reference: ParamLike):
         if not isinstance(model, AbstractFrictionModel):
-            raise TypeError(f"NormalLoad: `model` must be a fricjax friction model, got {type(model).__name__}.")
+            raise TypeError(f"NormalLoad: `model` must be a fricjax friction model, got {got_model(model)}.")
         self.model = model
         value = real(reference, "reference", model_dtype(reference), scalar=True)
         if is_concrete(value) and not float(value) > 0:

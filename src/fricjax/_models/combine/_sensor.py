@@ -18,6 +18,7 @@ from jaxtyping import Array
 
 from ..._constraints import Parameter, ParamLike, model_dtype, positive, real, unwrap
 from ..._inputs import MotionSample
+from ..._validation import got_model
 from .._base import AbstractFrictionModel
 from .._state_maps import AffineMaps
 
@@ -58,7 +59,7 @@ class SensorDrift(AbstractFrictionModel):
 
     def __init__(self, model: AbstractFrictionModel, rate: ParamLike = 0.0, tau: ParamLike | None = None):
         if not isinstance(model, AbstractFrictionModel):
-            raise TypeError(f"SensorDrift: `model` must be a fricjax friction model, got {type(model).__name__}.")
+            raise TypeError(f"SensorDrift: `model` must be a fricjax friction model, got {got_model(model)}.")
         dtype = model_dtype(rate, *([] if tau is None else [tau]))
         self.model = model
         self.rate = real(rate, "rate", dtype, scalar=True)

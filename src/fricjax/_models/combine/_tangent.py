@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..._validation import got_model
 from .._base import AbstractFrictionModel, feeds_back
 
 
@@ -46,7 +47,7 @@ class TangentGradients(AbstractFrictionModel):
 
     def __init__(self, model: AbstractFrictionModel):
         if not isinstance(model, AbstractFrictionModel):
-            raise TypeError(f"TangentGradients: `model` must be a fricjax friction model, got {type(model).__name__}.")
+            raise TypeError(f"TangentGradients: `model` must be a fricjax friction model, got {got_model(model)}.")
         if feeds_back(model):
             raise ValueError(
                 f"TangentGradients: {type(model).__name__} feeds back its outputs; the tangent path covers free runs "

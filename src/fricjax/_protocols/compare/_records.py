@@ -316,6 +316,8 @@ def load_record_spec(
             spec, data.full, dict(data.card), Units(), data.true_model, np.asarray(data.sensor_force, dtype=float)
         )
     path = pathlib.Path(spec)
+    if path.is_dir():
+        raise CompareError(f"{spec}: a folder; name its records, e.g. with a quoted glob '{path / '*.npz'}'")
     if not path.is_file():
         raise CompareError(f"{spec}: no such file (use tribometer:presliding|mixed|sliding, emps, or a .csv / .npz)")
     try:
@@ -357,10 +359,11 @@ def split_record(
     return Split.fractions(loaded.data, 0.6, 0.8, reference=reference)
 
 
-def load_split(spec: str, *, seed: int = 0) -> tuple[Split, dict[str, Any], Any]:
-    """Resolve `--data` and split it 60 / 20 / 20 (the tribometer's own edges for built-in records).
+def load_split(spec: str, *, seed: int = 0, **record_options: Any) -> tuple[Split, dict[str, Any], Any]:
+    """Resolve `--data` and split it 60 / 20 / 20 (the tribometer's own edges for built-in records);
+    `record_options` are `load_record_spec`'s (`dt`, `x_unit`, `force_unit`, `velocity`, `normal_force_column`).
     **Returns:** `(split, data card, true model or None)`."""
-    loaded = load_record_spec(spec, seed=seed)
+    loaded = load_record_spec(spec, seed=seed, **record_options)
     return split_record(loaded), loaded.card, loaded.truth
 
 

@@ -8,6 +8,7 @@ import functools
 import inspect
 import os
 import pathlib
+import re
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -244,7 +245,7 @@ def run_compare(
         with forced_device(target):
             return run_compare(**{**arguments, "device": "auto"})
     out = pathlib.Path(out)
-    models = [m.lower() for m in models]  # model names are case-insensitive
+    models = list(dict.fromkeys(m.lower() for m in models))  # case-insensitive, each once
     if models == ["all"]:
         models = list(MODEL_NAMES)
     unknown = [m for m in models if m not in MODEL_NAMES]
@@ -355,6 +356,9 @@ def run_compare(
         )
         + f"; models: {', '.join(models)}"
     )
+    unused_loads = _unused_load_columns(split, training_cards or [training.card])
+    for line in [*_trained_on(data_specs + validation_specs, test_specs), *unused_loads]:
+        print("warning: " + line)
     for line in statistics_warnings(split, tests, units):
         print("warning: " + line)
     started = time.perf_counter()
@@ -396,9 +400,39 @@ def run_compare(
         staging.write("report.json", lambda path: path.write_text(strict_json(report)))  # the report last
         staging.publish()
     print(
-        f"\nreport: {out / 'report.json'}; figures: {out / 'test_errors.png'}, {out / 'hysteresis_loops.png'}; "
-        f"models: {out / 'models'} ({time.perf_counter() - started:.0f} s)"
+        f"\nreport: {out / 'report.json'}; figures: {out / 'test_errors.png'}, {out / 'hysteresis_loops.png'}"
+        + (f" (test record 1, {tests[0].name})" if len(tests) > 1 else "")
+        + f"; models: {out / 'models'} ({time.perf_counter() - started:.0f} s)"
     )
+
+
+def _unused_load_columns(split: Any, cards: Sequence[dict[str, Any]]) -> list[str]:
+    """A line where the training records hold no normal load but their files have unused columns whose names
+    suggest one (a force or a load: the damper's `actuator_force1_lb`), which change the fits a lot when named."""
+    if split.train.motion.normal_force is not None:
+        return []
+    names = dict.fromkeys(
+        name for card in cards for name in card.get("ignored", ()) if re.search(r"force|load|normal", name, re.I)
+    )
+    if not names:
+        return []
+    listed = ", ".join(repr(n) for n in names)
+    return [f"columns {listed} are not used; if they hold the normal load, name them with --normal-force-column"]
+
+
+def _trained_on(training: Sequence[str], tests: Sequence[str]) -> list[str]:
+    """A line for each --test record that is also a --data / --validation record (the same file, or the same
+    built-in record): its score is not held out."""
+
+    def key(spec: str) -> str:
+        return spec if spec.startswith("tribometer") else str(pathlib.Path(spec).resolve())
+
+    seen = {key(spec) for spec in training}
+    return [
+        f"{spec}: a training record too; its test score is not held out (test on records the fit has not seen)"
+        for spec in dict.fromkeys(tests)
+        if key(spec) in seen
+    ]
 
 
 def _check_together(records: Sequence[Any]) -> None:
@@ -418,10 +452,19 @@ def _check_together(records: Sequence[Any]) -> None:
         (force, "force spread", 10.0, "--force-unit"),
         (travel, "travel", 100.0, "--x-unit"),
     ):
-        middle = float(np.median(values))
-        for record, value in zip(records, values, strict=True):
-            if middle > 0 and not 1 / limit <= value / middle <= limit:
+        fix = f"(a unit in the column header, e.g. 'force [kN]', or {option} for files without one)"
+        for i, (record, value) in enumerate(zip(records, values, strict=True)):
+            # against the others' median: a record's own value would pull it (of two records, half-way)
+            others = [v for j, v in enumerate(values) if j != i]
+            middle = float(np.median(others))
+            if not (middle > 0 and not 1 / limit < value / middle < limit):
+                continue
+            if len(records) == 2:
                 raise CompareError(
-                    f"{record.name}: its {what} is {value / middle:.3g}x the records' median (in SI units): check "
-                    f"its units (a unit in the column header, e.g. 'force [kN]', or {option} for files without one)"
+                    f"{record.name}: its {what} is {value / middle:.3g}x that of {records[1 - i].name} (in SI "
+                    f"units): check the units of both {fix}"
                 )
+            raise CompareError(
+                f"{record.name}: its {what} is {value / middle:.3g}x the other records' median (in SI units): check "
+                f"its units {fix}"
+            )

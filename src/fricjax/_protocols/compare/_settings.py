@@ -82,7 +82,7 @@ class FitSettings:
 
     - `steps`: the Levenberg-Marquardt step budget of every fit (GMS: twice that). An LM fit ends earlier, as
       converged (`successful`), when its training loss falls by less than `tolerance` (relative) over `steps / 8`
-      steps (GMS: `steps / 4`); `max_steps` means not converged.
+      steps (GMS: `steps / 4`; at least 5); `max_steps` means not converged.
     - `gms_elements`, `maxwell_elements`: the element counts of GMS and of Maxwell-slip NLR / DNLRX; GMS's
       `"auto"` (default): 4, or more where `fj.element_count` reads more off the training record (the fewest
       elements, 2-8, whose Maxwell-slip regression fits it within 2 % of the best count's residual) and the
