@@ -259,7 +259,7 @@ PARAMETER_UNITS = {
     "z0": "m",
     "k": "N/m",
     "alpha": "-",
-    "C": "1/s",
+    "C": "N/s",
     "thresholds": "m",
     "rate": "N/s",
     "tau": "s",

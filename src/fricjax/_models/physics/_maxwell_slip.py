@@ -91,6 +91,8 @@ class FIRForces(AbstractForceMap):
     theta: Float[Array, "n1 M"]
     c: Float[Array, " nx1"] | None
 
+    units: ClassVar[dict[str, str]] = {"theta": "N", "c": "N/m", "offset": "N"}
+
     def __init__(self, theta: ParamLike, c: ParamLike | None = None, offset: ParamLike = 0.0):
         dtype = model_dtype(theta, c, offset)
         theta = real(theta, "theta", dtype)
