@@ -352,7 +352,7 @@ def fit_emps_open_loop(
     - `law`, `asymmetric`: the friction law class and variant, as `fit_emps_idm`.
     - `eps`: the smoothing of the training law: a `Continuation(eps_start, eps_end, stages)` (default
       `DEFAULT_SMOOTHING`) or a fixed width [m/s] (> 0).
-    - `solver`: default `levenberg_marquardt()`; any solver `fit` accepts. `steps`: its step budget (300).
+    - `solver`: default `levenberg_marquardt()`; any solver `fit` accepts. `steps`: its step budget (150).
     - `validation`: `None` (default; no validation), a fraction in (0, 1) of the record held out at its end
       (fitted on the head, the tail scored in free run from its own window), or another `EMPSRecord`.
     - `freeze`: field paths not to train (e.g. `("mass",)`, `("friction.Fv",)`).
