@@ -4,8 +4,11 @@ public API and the command line."""
 from __future__ import annotations
 
 import warnings
+from typing import ClassVar
 
+import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
@@ -256,3 +259,88 @@ def test_wrapped_models_name_the_field_and_the_record_they_miss():
         fj.fit(model, data, freeze="Fc", steps=1)
     with pytest.raises(ValueError, match="record 1 of `data`: NormalLoad needs the normal load"):
         fj.fit(model, [data, fj.FrictionData(motion, data.force)], steps=1)
+
+
+class _ScalarForce(fj.AbstractFrictionModel):
+    """A researcher's model (tests below): `Fc tanh(v / 1e-4) + C v`, its force reshaped as `shape`."""
+
+    Fc: jax.Array
+    C: jax.Array
+    shape: tuple = eqx.field(static=True, default=())
+    reads_a: bool = eqx.field(static=True, default=False)
+    requires: ClassVar[frozenset[str]] = frozenset({"v"})
+
+    def init_state(self):
+        return jnp.zeros(())
+
+    def step(self, state, sample):
+        force = self.Fc * jnp.tanh(sample.v / 1e-4) + self.C * sample.v
+        if self.reads_a:
+            force = force + 0.1 * sample.a
+        return state, jnp.reshape(force, self.shape)
+
+
+def test_a_custom_step_returning_a_force_of_shape_1_is_refused_with_the_fix():
+    """It broadcast against the (T,) force: Adam drove Fc to 1e-5 silently; LM failed in a concatenate."""
+    data = _record()
+    bad = _ScalarForce(jnp.asarray(0.5), jnp.asarray(0.0), shape=(1,))
+    for call in (
+        lambda: fj.simulate(bad, data.motion),
+        lambda: fj.fit(bad, data, steps=2, solver=optax.adam(1e-1)),
+        lambda: fj.fit(bad, data, steps=2, solver=fj.levenberg_marquardt()),
+    ):
+        with pytest.raises(ValueError, match="_ScalarForce.step returned a force of shape \\(1,\\)"):
+            call()
+
+
+def test_a_signal_read_but_not_required_is_named():
+    model = _ScalarForce(jnp.asarray(1.0), jnp.asarray(0.0), reads_a=True)
+    with pytest.raises(TypeError, match="step failed on a sample without a, .*add it there"):
+        fj.simulate(model, _record().motion)
+
+
+def test_custom_fields_print_their_declared_units_not_fricjax_symbols():
+    """A user's `C` (a damping) printed GMS's unit; undeclared fields now print bare, `units` is the hook."""
+    model = _ScalarForce(jnp.asarray(1.0), jnp.asarray(30.0))
+    assert str(model).splitlines()[1:] == ["  Fc = 1", "  C = 30"]
+
+    class Declared(_ScalarForce):
+        units: ClassVar[dict[str, str]] = {"Fc": "N", "C": "N s/m"}
+
+    assert "C = 30 [N s/m]" in str(Declared(jnp.asarray(1.0), jnp.asarray(30.0)))
+    assert "C = 20 [N/s]" in str(fj.GMS(fj.ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3), k=[1e4], alpha=[1.0], C=20.0))
+
+
+def test_continuation_refuses_a_rising_width_and_a_model_without_smoothing():
+    with pytest.raises(ValueError, match="`eps_start` \\(1e-06\\) must be at least `eps_end` \\(0.001\\)"):
+        fj.Continuation(1e-6, 1e-3, 3)
+    model = _ScalarForce(jnp.asarray(0.5), jnp.asarray(0.0))
+    with pytest.raises(ValueError, match="_ScalarForce has no smoothing field"):
+        fj.fit(model, _record(), steps=2, continuation=fj.Continuation(1e-3, 1e-5, 2))
+
+
+def test_sweep_names_the_field_that_differs_and_asks_for_an_optimiser_factory():
+    data = _record()
+    exact, smooth = fj.CoulombViscous(1.0, 30.0), fj.CoulombViscous(1.0, 30.0, smoothing=fj.Smooth(1e-4))
+    with pytest.raises(ValueError, match="at model.smoothing \\(Exact against Smooth\\)"):
+        fj.sweep([exact, smooth], data, steps=2)
+    with pytest.raises(TypeError, match="an optimiser already built"):
+        fj.sweep([smooth, smooth], data, steps=2, optimiser=optax.adam(1e-2))
+
+
+def test_a_model_file_whose_class_moved_module_says_so(tmp_path):
+    model = _ScalarForce(jnp.asarray(1.0), jnp.asarray(0.0))
+    path = tmp_path / "m.eqx"
+    fj.save_model(path, model)
+    moved = type("_ScalarForce", (_ScalarForce,), {"__module__": "mymodels", "__qualname__": "_ScalarForce"})
+    with pytest.raises(ValueError, match="`classes` has mymodels._ScalarForce, from another module"):
+        fj.load_model(path, classes=(moved,))
+    assert fj.load_model(path, classes=(_ScalarForce,)) == model
+
+
+def test_an_unknown_required_signal_is_refused():
+    class Misspelt(_ScalarForce):
+        requires: ClassVar[frozenset[str]] = frozenset({"velocity"})
+
+    with pytest.raises(ValueError, match="requires names 'velocity', not a signal"):
+        fj.simulate(Misspelt(jnp.asarray(1.0), jnp.asarray(0.0)), _record().motion)

@@ -34,6 +34,7 @@ class SpringSlider(fj.AbstractFrictionModel):
     smoothing: fj.AbstractSmoothing  # Exact() for evaluation, Smooth(eps) for training; eps in newtons here
 
     requires: ClassVar[frozenset[str]] = frozenset({"x", "v"})  # step reads dx (from x) and v
+    units: ClassVar[dict[str, str]] = {"k": "N/m", "Fc": "N", "c": "N s/m"}  # printed beside the parameters
 
     def __init__(self, k, Fc, c=0.0, *, smoothing=fj.Exact()):  # noqa: B008 - Exact() is immutable, as in fricjax's own models
         self.k = fj.Positive(k, name="k")

@@ -306,9 +306,18 @@ def parameter_units(tree: Any) -> dict[str, str]:
             else:  # a flattened index of another container: the field above it names the array
                 break
         table = getattr(type(owner), "units", None)
-        table = PARAMETER_UNITS if table is None else table
+        if table is None:  # the literature symbols, for fields a fricjax class declares (a user's `C` is not GMS's)
+            table = PARAMETER_UNITS if name is not None and _declared_by_fricjax(type(owner), name) else {}
         out[jax.tree_util.keystr(path).lstrip(".")] = table.get(name, "") if name is not None else ""
     return out
+
+
+def _declared_by_fricjax(cls: type, name: str) -> bool:
+    """Whether the class that declares field `name` (the first in the MRO that annotates it) is fricjax's own."""
+    for klass in cls.__mro__:
+        if name in vars(klass).get("__annotations__", {}):
+            return klass.__module__.split(".")[0] == "fricjax"
+    return cls.__module__.split(".")[0] == "fricjax"
 
 
 def parameter_line(path: str, value: Any, std: Any = None, unit: str = "") -> str:

@@ -40,9 +40,14 @@ class FrictionData(eqx.Module):
                 fix = "flatten the column (`np.ravel(force)`)"
             else:
                 fix = "give one force sample per motion sample"
+            samples = (
+                f"{motion.length} samples"
+                if len(shape) < 2
+                else f"read as {shape[0]} motions of {motion.length} samples: time is the last axis"
+            )
             raise ValueError(
-                f"FrictionData: `force` has shape {force.shape} but the motion's signals have {shape} "
-                f"({motion.length} samples); {fix}."
+                f"FrictionData: `force` has shape {force.shape} but the motion's signals have {shape} ({samples}); "
+                f"{fix}."
             )
         if is_concrete(force) and not bool(np.all(np.isfinite(np.asarray(force)))):
             bad = int(np.flatnonzero(~np.isfinite(np.asarray(force)))[0])

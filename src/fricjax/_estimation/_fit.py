@@ -127,8 +127,8 @@ def fit(
     - `tolerance`: a stopping rule for any solver: the fit ends as converged (`successful`) when the training
       loss of the best start falls by less than this fraction over one check (`eval_every` steps; optimistix
       solvers and fricjax's LM then run in chunks of that many steps, by default an eighth of the budget and at
-      least 5: a trust-region solver rejects runs of trial steps, which leave the loss unchanged). Default: none (optax runs its budget; optimistix stops
-      by its own `rtol` / `atol`).
+      least 5: a trust-region solver rejects runs of trial steps, which leave the loss unchanged). Default: none
+      (optax runs its budget; optimistix stops by its own `rtol` / `atol`).
     - `progress`: show a tqdm progress bar. `seed`: for the multi-start draws (results are deterministic).
     - `compute_std`: Gauss-Newton standard deviations of the trained physical parameters (a dense Jacobian
       over them: for physical models, not for networks with thousands of weights).

@@ -451,6 +451,14 @@ def _build_module(node: dict, allowed: dict[tuple[str, str], type], where: str, 
     children = _field(node, "fields", dict, where, path)
     cls = allowed.get((module_name, qualname))
     if cls is None:
+        moved = [c for (m, q), c in allowed.items() if q == qualname and m.split(".")[0] != "fricjax"]
+        if len(moved) == 1:  # a class passed in `classes` that has moved (a notebook's __main__ -> a module)
+            raise ValueError(
+                f"load_model: {path} holds a {module_name}.{qualname} (at `{where}`); `classes` has "
+                f"{moved[0].__module__}.{qualname}, from another module. The file names its class by module: "
+                f"pass the class from {module_name!r}, or load it there and save it again from "
+                f"{moved[0].__module__!r}."
+            )
         raise ValueError(
             f"load_model: {path} holds a {module_name}.{qualname} (at `{where}`), which is neither a fricjax Module "
             f"nor in `classes`; if you trust the file, pass the class: "

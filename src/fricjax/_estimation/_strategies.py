@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._constraints import AbstractUnwrappable, Positive
-from .._smoothing import Smooth, is_concrete, on_host, with_smoothing
+from .._smoothing import AbstractSmoothing, Smooth, is_concrete, on_host, with_smoothing
 from .._validation import nonnegative_float, positive_float, positive_int
 
 
@@ -177,8 +177,22 @@ class Continuation(AbstractStrategy):
         object.__setattr__(self, "eps_start", positive_float(self.eps_start, "eps_start", "Continuation"))
         object.__setattr__(self, "eps_end", positive_float(self.eps_end, "eps_end", "Continuation"))
         object.__setattr__(self, "stages", positive_int(self.stages, "stages", "Continuation"))
+        if self.eps_start < self.eps_end:
+            raise ValueError(
+                f"Continuation: the width is annealed from the smoothest model to the sharpest, so `eps_start` "
+                f"({self.eps_start:g}) must be at least `eps_end` ({self.eps_end:g}); swap them."
+            )
 
     def prepare(self, plan: FitPlan) -> FitPlan:
+        has_smoothing = any(
+            isinstance(leaf, AbstractSmoothing)
+            for leaf in jax.tree_util.tree_leaves(plan.model, is_leaf=lambda n: isinstance(n, AbstractSmoothing))
+        )
+        if not has_smoothing:
+            raise ValueError(
+                f"Continuation: {type(plan.model).__name__} has no smoothing field (fj.Exact() / fj.Smooth(eps)) to "
+                "anneal; drop `continuation`, or give the model a `smoothing` field."
+            )
         # smooth from the start, so that every stage shares one tree structure
         model = with_smoothing(plan.model, Smooth(jnp.asarray(self.eps_start, dtype=float)))
         return dataclasses.replace(plan, model=model, stages=tuple(float(eps) for eps in self.schedule()))

@@ -41,10 +41,13 @@ def stack_models(models: Sequence[Any]) -> Any:
     first = jax.tree_util.tree_structure(models[0])
     for i, model in enumerate(models[1:], start=1):
         if jax.tree_util.tree_structure(model) != first:  # type: ignore[operator]
+            where = _first_difference(models[0], model)
             raise ValueError(
-                f"stack_models: model {i} differs in structure from model 0 (class, static fields such as the "
-                "number of lags, or None fields); build every configuration at one maximal shape and switch "
-                "lags and units off with masks (NARXRegressors(input_mask=, output_mask=), unit_mask=)."
+                f"stack_models: model {i} differs in structure from model 0"
+                + (f" at {where}" if where else "")
+                + " (class, static fields such as the number of lags or the smoothing, or None fields); build every "
+                "configuration at one maximal shape and switch lags and units off with masks "
+                "(NARXRegressors(input_mask=, output_mask=), unit_mask=)."
             )
         for (path, a), b in zip(
             jax.tree_util.tree_leaves_with_path(models[0]), jax.tree_util.tree_leaves(model), strict=True
@@ -55,6 +58,38 @@ def stack_models(models: Sequence[Any]) -> Any:
                     f"{np.shape(a)}; use one maximal shape and masks."
                 )
     return jax.tree_util.tree_map(lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]), *models)
+
+
+def _first_difference(a: Any, b: Any, path: str = "model") -> str:
+    """Where two models first differ in structure (a class, a static value, a container's length or keys), as
+    `"model.smoothing (Exact against Smooth)"`; "" where only array values differ."""
+    if type(a) is not type(b):
+        return f"{path} ({type(a).__name__} against {type(b).__name__})"
+    if isinstance(a, eqx.Module):
+        for field in dataclasses.fields(a):
+            found = _first_difference(
+                getattr(a, field.name, None), getattr(b, field.name, None), f"{path}.{field.name}"
+            )
+            if found:
+                return found
+        return ""
+    if isinstance(a, (list, tuple)):
+        if len(a) != len(b):
+            return f"{path} (length {len(a)} against {len(b)})"
+        return next(
+            (d for i, (x, y) in enumerate(zip(a, b, strict=True)) if (d := _first_difference(x, y, f"{path}[{i}]"))), ""
+        )
+    if isinstance(a, dict):
+        if set(a) != set(b):
+            return f"{path} (keys {sorted(map(str, a))} against {sorted(map(str, b))})"
+        return next((d for k in a if (d := _first_difference(a[k], b[k], f"{path}[{k!r}]"))), "")
+    if a is None or eqx.is_array(a) or isinstance(a, (int, float, complex, np.generic)) and not isinstance(a, bool):
+        return ""  # array values (and Python numbers, which are leaves) may differ
+    try:
+        same = bool(a == b)
+    except Exception:  # values that do not compare to one bool: leave them to the structure check's message
+        same = True
+    return "" if same else f"{path} ({a!r} against {b!r})"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,6 +173,11 @@ def sweep(
     if len(sizes) != 1:
         raise ValueError("sweep: `models` must be a list of models or a stack of them (one leading batch axis).")
     count = sizes.pop()
+    if not callable(optimiser):
+        raise TypeError(
+            f"sweep: `optimiser` must be an optax optimiser factory taking `learning_rate` (e.g. optax.adam), got "
+            f"{type(optimiser).__name__}, an optimiser already built; the rates come from `learning_rate`."
+        )
     rates = np.asarray(learning_rate, dtype=float)
     if rates.ndim == 0 or rates.shape == (1,):
         rates = np.broadcast_to(rates.reshape(()), (count,))

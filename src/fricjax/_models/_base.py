@@ -132,6 +132,9 @@ def feeds_back(model: AbstractModel) -> bool:
     return type(model).feedback is not AbstractModel.feedback
 
 
+MOTION_SIGNALS = frozenset({"x", "v", "dx", "dt", "a", "normal_force"})  # what `requires` may name
+
+
 class AbstractFrictionModel(AbstractModel):
     """A friction model: motion in (`fj.Motion`), friction force [N] out.
 
@@ -161,6 +164,12 @@ class AbstractFrictionModel(AbstractModel):
                 "for a batch of motions use jax.vmap(lambda m: fj.simulate(model, m))(motions)."
             )
         needs = self.requires
+        unknown = sorted(set(needs) - MOTION_SIGNALS)
+        if unknown:
+            raise ValueError(
+                f"simulate: {name}.requires names {', '.join(map(repr, unknown))}, not a signal of a motion sample; "
+                f"use {', '.join(map(repr, sorted(MOTION_SIGNALS)))} (the fields of fj.MotionSample)."
+            )
         if "dt" in needs and inputs.dt is None:
             raise ValueError(
                 f"simulate: {name} integrates in time and needs the sample time; pass Motion(..., dt=...)."

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from .._constraints import unwrap
-from .._models._base import AbstractModel, feeds_back
+from .._models._base import AbstractFrictionModel, AbstractModel, feeds_back
 from .._validation import got_model, positive_int
 from ._parallel import SCANS, parallel_run, uses_parallel
 from ._primal import primal_run
@@ -198,6 +198,8 @@ def run(
     **Returns:** `(final_state, outputs)`, or `(final_state, (outputs, states))` with `return_states=True`
     (the state after every sample, feedback applied).
     """
+    if isinstance(model, AbstractFrictionModel):
+        _check_force_shape(model, samples, state)
     if measured is not None and not feeds_back(model):  # teacher forcing changes nothing: the free run
         measured = None
     if measured is None and uses_parallel(model, samples, scan, _length(samples)):
@@ -210,6 +212,31 @@ def run(
     if free and (model.packed_unroll is not None or batch_minor):
         return primal_run(model, samples, state, unroll, batch_minor)
     return plain_run(model, samples, state, measured, DEFAULT_UNROLL if unroll is None else unroll, return_states)
+
+
+def _check_force_shape(model: AbstractFrictionModel, samples: Any, state: Any) -> None:
+    """A friction model's `step` returns one scalar force per sample; a force of shape (1,) broadcast against the
+    measured (T,) force in the losses and fitted nothing (a custom model's mistake). Checked by shape only, at trace
+    time (`jax.eval_shape` of one step)."""
+    steps, rebuild = split_time_signals(samples)
+    first = rebuild([None if signal is None else signal[0] for signal in steps])
+    try:
+        _, force = jax.eval_shape(model.step, state, first)
+    except TypeError as err:  # a signal read that `requires` does not name arrives as None
+        missing = (
+            [name for name, value in first._asdict().items() if value is None] if hasattr(first, "_asdict") else []
+        )
+        if "NoneType" not in str(err) or not missing:
+            raise
+        raise TypeError(
+            f"{type(model).__name__}.step failed on a sample without {', '.join(missing)} ({err}): a signal that "
+            f"`requires` ({', '.join(sorted(model.requires))}) does not name is None in the sample; add it there."
+        ) from None
+    if jnp.shape(force) != ():
+        raise ValueError(
+            f"{type(model).__name__}.step returned a force of shape {jnp.shape(force)}; a friction model's step "
+            "returns one scalar force [N] per sample (e.g. `jnp.reshape(force, ())`)."
+        )
 
 
 def _k_step(model: AbstractModel, samples: Any, state0: Any, measured: Any, k: int, unroll: int | None) -> Any:
