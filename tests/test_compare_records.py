@@ -91,7 +91,7 @@ def test_records_that_do_not_go_together_are_refused_in_one_line(records, tmp_pa
     in_kilonewton = _write(tmp_path / "kn.csv", 1e-3, 1.0, 600, 0.0, 4, scale=1e-3)  # forces in kN, header says N
     cases = [
         (["--data", str(folder / "char_0.csv"), str(other_dt)], "slow.csv: sampled at dt = 0.002 s"),
-        (["--data", str(folder / "char_0.csv"), str(in_kilonewton)], "kn.csv: its force spread is"),
+        (["--data", str(folder / "char_0.csv"), str(in_kilonewton)], "kn.csv (in SI units): check the units of both"),
         (["--data", str(tmp_path / "none_*.csv")], "the pattern matches no file"),
         (["--data", str(folder / "char_0.csv"), str(folder / "char_1.csv")], "name the records to test on"),
         (["--data", str(folder / "char_*.csv"), "--test", str(test), "--models", "mlp"], "fitted by the physics"),

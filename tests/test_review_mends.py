@@ -284,9 +284,10 @@ def test_a_custom_step_returning_a_force_of_shape_1_is_refused_with_the_fix():
     """It broadcast against the (T,) force: Adam drove Fc to 1e-5 silently; LM failed in a concatenate."""
     data = _record()
     bad = _ScalarForce(jnp.asarray(0.5), jnp.asarray(0.0), shape=(1,))
+    assert fj.simulate(bad, data.motion).shape == (data.length, 1)  # simulate runs any output (diagnostics)
     for call in (
-        lambda: fj.simulate(bad, data.motion),
         lambda: fj.fit(bad, data, steps=2, solver=optax.adam(1e-1)),
+        lambda: fj.fit(bad, [data, data], steps=2),
         lambda: fj.fit(bad, data, steps=2, solver=fj.levenberg_marquardt()),
     ):
         with pytest.raises(ValueError, match="_ScalarForce.step returned a force of shape \\(1,\\)"):

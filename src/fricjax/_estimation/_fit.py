@@ -23,6 +23,7 @@ import optax
 from .._data._record import FrictionData
 from .._metrics import scaled_std
 from .._models._base import AbstractModel
+from .._simulate import check_force_shape
 from .._smoothing import Smooth, exact, is_concrete, with_smoothing
 from .._validation import got_model, nonnegative_float, nonnegative_int, optional, positive_int, seed_value
 from ._loop import Search, run_stage, start_losses
@@ -455,6 +456,7 @@ def _check_records(model: Any, data: Any, validation: Any, loss: Any) -> None:
         for record in (data, validation):
             if isinstance(record, FrictionData):
                 model.check_inputs(record.motion)
+                check_force_shape(model, record.motion)
     for name, record in (("data", data), ("validation", validation)):
         if isinstance(record, FrictionData) and getattr(loss, "normalise", False) and is_concrete(record.force):
             if not float(scaled_std(np.asarray(record.force))) > 0:  # scaled: 1e-200 N is not constant

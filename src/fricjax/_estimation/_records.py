@@ -29,7 +29,7 @@ from .._data._record import FrictionData
 from .._inputs import Motion
 from .._metrics import scaled_std
 from .._models._base import AbstractModel, feeds_back
-from .._simulate import run
+from .._simulate import check_force_shape, run
 from ._losses import AbstractLoss, JacobianGroups, OneStepLoss, SimulationLoss, leading_groups
 
 __all__ = [
@@ -209,6 +209,8 @@ def as_record_batch(value: Any, model: Any, argument: str, score_from: Sequence[
             if isinstance(record, FrictionData):
                 try:
                     model.check_inputs(record.motion)
+                    if index == 0:
+                        check_force_shape(model, record.motion)
                 except ValueError as err:  # which record: "simulate: ..." says only what is missing
                     label = repr(names[index]) if names is not None else f"record {index}"
                     raise ValueError(f"fit: {label} of `{argument}`: {str(err).removeprefix('simulate: ')}") from None

@@ -157,6 +157,7 @@ def _simulate(
     scan: str = "auto",
 ) -> Any:
     model = unwrap(model)
+    check_force_shape(model, inputs, scalar=False)  # at trace time only
     samples = model.samples(inputs)
     length = _length(samples)
     if measured is not None:
@@ -198,8 +199,6 @@ def run(
     **Returns:** `(final_state, outputs)`, or `(final_state, (outputs, states))` with `return_states=True`
     (the state after every sample, feedback applied).
     """
-    if isinstance(model, AbstractFrictionModel):
-        _check_force_shape(model, samples, state)
     if measured is not None and not feeds_back(model):  # teacher forcing changes nothing: the free run
         measured = None
     if measured is None and uses_parallel(model, samples, scan, _length(samples)):
@@ -214,10 +213,16 @@ def run(
     return plain_run(model, samples, state, measured, DEFAULT_UNROLL if unroll is None else unroll, return_states)
 
 
-def _check_force_shape(model: AbstractFrictionModel, samples: Any, state: Any) -> None:
-    """A friction model's `step` returns one scalar force per sample; a force of shape (1,) broadcast against the
-    measured (T,) force in the losses and fitted nothing (a custom model's mistake). Checked by shape only, at trace
-    time (`jax.eval_shape` of one step)."""
+def check_force_shape(model: Any, motion: Any, *, scalar: bool = True) -> None:
+    """A friction model fitted to a measured force must return one scalar force per sample; a force of shape (1,)
+    broadcast against the measured (T,) force in the losses and fitted nothing (a custom model's mistake). By shape
+    only (`jax.eval_shape` of one step); `fit` and `sweep` check it, `simulate` does not (a model may return more
+    than the force, for diagnostics). A signal that `step` reads but `requires` does not name is named here too
+    (`scalar=False`: only that, as `simulate` does when it traces)."""
+    if not isinstance(model, AbstractFrictionModel):
+        return
+    model = unwrap(model)
+    samples, state = model.samples(motion), model.init_state()
     steps, rebuild = split_time_signals(samples)
     first = rebuild([None if signal is None else signal[0] for signal in steps])
     try:
@@ -232,10 +237,10 @@ def _check_force_shape(model: AbstractFrictionModel, samples: Any, state: Any) -
             f"{type(model).__name__}.step failed on a sample without {', '.join(missing)} ({err}): a signal that "
             f"`requires` ({', '.join(sorted(model.requires))}) does not name is None in the sample; add it there."
         ) from None
-    if jnp.shape(force) != ():
+    if scalar and jnp.shape(force) != ():
         raise ValueError(
-            f"{type(model).__name__}.step returned a force of shape {jnp.shape(force)}; a friction model's step "
-            "returns one scalar force [N] per sample (e.g. `jnp.reshape(force, ())`)."
+            f"{type(model).__name__}.step returned a force of shape {jnp.shape(force)}; fitted to a measured force, "
+            "a friction model's step returns one scalar force [N] per sample (e.g. `jnp.reshape(force, ())`)."
         )
 
 
