@@ -162,6 +162,7 @@ def test_the_table_flags_a_row_with_notes_and_lists_them_below():
     assert lines[-1] == "note 1, LuGre: Fs < Fc; x"
 
 
+@pytest.mark.slow  # a whole compare run (~18 s)
 def test_a_fit_worse_than_a_constant_force_is_noted_in_the_table(tmp_path, capsys):
     """A static law on a pre-sliding record (NMSE above 100 %) was printed without a word beside its result."""
     argv = ["compare", "--data", "tribometer:presliding:duration=1", "--models", "stribeck", "--steps", "3"]
@@ -226,6 +227,7 @@ def test_a_folder_given_as_a_record_is_named_with_the_glob(tmp_path, capsys):
     assert "a folder; name its records, e.g. with a quoted glob" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # a whole compare run (~18 s)
 def test_compare_dedupes_models_and_warns_of_unused_loads_and_of_testing_on_training_data(tmp_path, capsys):
     """`--models lugre lugre` fitted twice and then failed to write its files; a test record that is a training
     record, and unused columns that hold the damper's normal load, passed without a word."""
