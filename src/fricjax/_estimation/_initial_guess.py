@@ -500,8 +500,8 @@ def element_count(
     6-element GMS that benchmarks/held_out_compare.py uses (there GMS(4) scores 2.8-16x the true model's error on
     held-out records, GMS(5) 1.5-10x, GMS(6) 1.0-1.7x). `fricjax compare` therefore keeps more than 4 GMS elements only
     where the validation part prefers them significantly. Counts below the truth are read too, where the record does
-    not load every element apart (a user's trial, 2026-11-28: a GMS(2) truth read 3, a GMS(4) truth on a pre-sliding
-    record 3): the count is a start for a model choice, not an estimate of the truth.
+    not load every element apart (a user's trial, 2026-11-28: a GMS(4) truth on a pre-sliding record read 3; GMS(2)
+    and GMS(3) truths read 3-6): the count is a start for a model choice, not an estimate of the truth.
     """
     fewest, most = positive_int(fewest, "fewest", "element_count"), positive_int(most, "most", "element_count")
     tolerance = nonnegative_float(tolerance, "tolerance", "element_count")
