@@ -221,13 +221,19 @@ def check_force_shape(model: Any, motion: Any, *, scalar: bool = True) -> None:
     (`scalar=False`: only that, as `simulate` does when it traces)."""
     if not isinstance(model, AbstractFrictionModel):
         return
-    model = unwrap(model)
-    samples, state = model.samples(motion), model.init_state()
-    steps, rebuild = split_time_signals(samples)
-    first = rebuild([None if signal is None else signal[0] for signal in steps])
-    try:
-        _, force = jax.eval_shape(model.step, state, first)
+
+    def first_sample(model: Any, motion: Any) -> Any:
+        steps, rebuild = split_time_signals(unwrap(model).samples(motion))
+        return rebuild([None if signal is None else signal[0] for signal in steps])
+
+    def one_step(model: Any, motion: Any) -> Any:
+        plain = unwrap(model)
+        return plain.step(plain.init_state(), first_sample(model, motion))[1]
+
+    try:  # traced, never compiled: no program runs here
+        force = jax.eval_shape(one_step, model, motion)
     except TypeError as err:  # a signal read that `requires` does not name arrives as None
+        first = jax.eval_shape(first_sample, model, motion)
         missing = (
             [name for name, value in first._asdict().items() if value is None] if hasattr(first, "_asdict") else []
         )
