@@ -456,7 +456,8 @@ def _check_records(model: Any, data: Any, validation: Any, loss: Any) -> None:
         for record in (data, validation):
             if isinstance(record, FrictionData):
                 model.check_inputs(record.motion)
-                check_force_shape(model, record.motion)
+        if isinstance(data, FrictionData):  # one model, one trace of its step: the data's motion suffices
+            check_force_shape(model, data.motion)
     for name, record in (("data", data), ("validation", validation)):
         if isinstance(record, FrictionData) and getattr(loss, "normalise", False) and is_concrete(record.force):
             if not float(scaled_std(np.asarray(record.force))) > 0:  # scaled: 1e-200 N is not constant

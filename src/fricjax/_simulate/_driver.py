@@ -216,9 +216,9 @@ def run(
 def check_force_shape(model: Any, motion: Any, *, scalar: bool = True) -> None:
     """A friction model fitted to a measured force must return one scalar force per sample; a force of shape (1,)
     broadcast against the measured (T,) force in the losses and fitted nothing (a custom model's mistake). By shape
-    only (`jax.eval_shape` of one step); `fit` and `sweep` check it, `simulate` does not (a model may return more
-    than the force, for diagnostics). A signal that `step` reads but `requires` does not name is named here too
-    (`scalar=False`: only that, as `simulate` does when it traces)."""
+    only (`jax.eval_shape` of one step); `fit` checks it (and `sweep` on several records, through their batch),
+    `simulate` does not (a model may return more than the force, for diagnostics). A signal that `step` reads but
+    `requires` does not name is named here too (`scalar=False`: only that, as `simulate` does when it traces)."""
     if not isinstance(model, AbstractFrictionModel):
         return
 

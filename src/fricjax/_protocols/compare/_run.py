@@ -357,9 +357,8 @@ def run_compare(
         + f"; models: {', '.join(models)}"
     )
     unused_loads = _unused_load_columns(split, training_cards or [training.card])
-    for line in [*_trained_on(data_specs + validation_specs, test_specs), *unused_loads]:
-        print("warning: " + line)
-    for line in statistics_warnings(split, tests, units):
+    trained_on = _trained_on(data_specs + validation_specs, test_specs)
+    for line in [*trained_on, *unused_loads, *statistics_warnings(split, tests, units)]:
         print("warning: " + line)
     started = time.perf_counter()
     rows = fit_and_score(
