@@ -347,3 +347,28 @@ def test_an_unknown_required_signal_is_refused():
 
     with pytest.raises(ValueError, match="requires names 'velocity', not a signal"):
         fj.simulate(Misspelt(jnp.asarray(1.0), jnp.asarray(0.0)), _record().motion)
+
+
+def test_selections_that_would_be_silently_ignored_are_refused():
+    """`patience` without validation data, a path in both `train` and `freeze`, and a smoothing width in `train`
+    used to pass (patience never fired; the last said only "nothing to train")."""
+    data = _record(300)
+    start = fj.CoulombViscous(0.5, 10.0, smoothing=fj.Smooth(1e-4))
+    with pytest.raises(ValueError, match="`patience`.*no `validation`"):
+        fj.fit(start, data, steps=5, patience=3)
+    with pytest.raises(ValueError, match="'Fc' is in both `train` and `freeze`"):
+        fj.fit(start, data, steps=5, train="Fc", freeze="Fc")
+    with pytest.raises(ValueError, match="'smoothing.eps' in `train`.*Continuation"):
+        fj.fit(start, data, steps=5, train=["Fc", "smoothing.eps"])
+    narrowed = fj.fit(start, data, steps=5, train=lambda m: (m.Fc, m.Fv), freeze="Fv")  # freeze narrows train
+    fitted = fj.unwrap(narrowed.model)
+    assert float(fitted.Fv) == pytest.approx(10.0) and float(fitted.Fc) != pytest.approx(0.5)
+
+
+def test_the_history_records_the_models_own_width_without_continuation():
+    data = _record(300)
+    start = fj.CoulombViscous(0.5, 10.0, smoothing=fj.Smooth(2e-4))
+    history = fj.fit(start, data, steps=10, eval_every=5).history
+    np.testing.assert_allclose(history["eps"], 2e-4)
+    exact_history = fj.fit(fj.exact(start), data, steps=10, eval_every=5).history
+    assert np.isnan(exact_history["eps"]).all()

@@ -24,7 +24,7 @@ from .._data._record import FrictionData
 from .._metrics import scaled_std
 from .._models._base import AbstractModel
 from .._simulate import check_force_shape
-from .._smoothing import Smooth, exact, is_concrete, with_smoothing
+from .._smoothing import AbstractSmoothing, Smooth, exact, is_concrete, with_smoothing
 from .._validation import got_model, nonnegative_float, nonnegative_int, optional, positive_int, seed_value
 from ._loop import Search, run_stage, start_losses
 from ._losses import AbstractLoss, SimulationLoss
@@ -212,6 +212,13 @@ def fit(
     for strategy in strategies:
         plan = strategy.prepare(plan)
     model, separable, tolerance, patience = plan.model, plan.separable, plan.tolerance, plan.patience
+    if patience is not None and validation is None:
+        raise ValueError(
+            "fit: `patience` (fj.EarlyStopping) stops on the validation loss, and no `validation` record was passed; "
+            "pass `validation=` (a record not trained on) or drop `patience` (for a stop on the training loss: "
+            "`tolerance=`)."
+        )
+    own_width = _smoothing_width(model)  # the history's `eps` of a stage that keeps the model's own width
     spec, linear_spec = parameter_specs(model, train, freeze, separable, loss, data)
     params0, static = eqx.partition(model, spec)
     plan = dataclasses.replace(plan, params0=params0, starts=MultiStart(1, 0.0).draw(params0, seed))
@@ -278,7 +285,7 @@ def fit(
                     check_every=min(check_every, part),
                     tolerance=tolerance,
                     patience=patience if validation is not None else None,
-                    eps=eps,
+                    eps=own_width if eps is None else eps,
                 )
                 if outcome.stop is not None or screening is None:
                     break
@@ -375,6 +382,18 @@ def _burn_in_loss(loss: AbstractLoss, burn_in: Any) -> SimulationLoss:
     if isinstance(loss, SimulationLoss):
         return SimulationLoss(burn_in=burn_in, derivatives=loss.derivatives, batching=loss.batching)
     return SimulationLoss(burn_in=burn_in)
+
+
+def _smoothing_width(model: Any) -> float:
+    """The width of the model's smoothing when every strategy in it is `Smooth` with one scalar width; else NaN
+    (exact, no smoothing, or differing widths)."""
+    found = jax.tree_util.tree_leaves(model, is_leaf=lambda leaf: isinstance(leaf, AbstractSmoothing))
+    widths = {
+        float(np.asarray(leaf.eps)) if isinstance(leaf, Smooth) and np.size(leaf.eps) == 1 else np.nan
+        for leaf in found
+        if isinstance(leaf, AbstractSmoothing)
+    }
+    return widths.pop() if len(widths) == 1 else float("nan")
 
 
 def _keyword_strategies(

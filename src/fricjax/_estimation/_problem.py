@@ -83,6 +83,14 @@ def _wrapped_path(model: Any, label: str) -> str:
     return ""
 
 
+def _labels(selector: Any) -> list[str]:
+    """The dotted paths among a selector's items (callables are not compared)."""
+    if selector is None:
+        return []
+    items = [selector] if isinstance(selector, str) or callable(selector) else list(selector)
+    return [item for item in items if isinstance(item, str)]
+
+
 def _set_spec(spec: Any, model: Any, selector: Any, value: bool, argument: str) -> Any:
     for _, where in _where(selector, model, argument):
         spec = eqx.tree_at(where, spec, replace_fn=lambda sub: jax.tree_util.tree_map(lambda _: value, sub))
@@ -164,7 +172,23 @@ def parameter_specs(model: Any, train: Any, freeze: Any, separable: Sequence[str
     """Which leaves the optimiser moves (`spec`) and which are solved by least squares (`linear_spec`)."""
     spec = trainable_filter(model)
     if train is not None:
-        selected = _set_spec(jax.tree_util.tree_map(lambda _: False, spec), model, train, True, "train")
+        both = sorted(set(_labels(train)) & set(_labels(freeze)))
+        if both:
+            raise ValueError(
+                f"fit: {', '.join(map(repr, both))} is in both `train` and `freeze`; name a parameter in one of them "
+                "(`freeze` narrows `train`: train='stribeck', freeze='stribeck.vs')."
+            )
+        nothing = jax.tree_util.tree_map(lambda _: False, spec)
+        for label, where in _where(train, model, "train"):
+            selected = _set_spec(nothing, model, where, True, "train")
+            if not any(
+                jax.tree_util.tree_leaves(jax.tree_util.tree_map(lambda a, b: bool(a) and bool(b), spec, selected))
+            ):
+                raise ValueError(
+                    f"fit: {label!r} in `train` selects only fields that are never trained: smoothing widths (a "
+                    "setting: vary it with `continuation=fj.Continuation(eps_start, eps_end)`) or `fj.Fixed` fields."
+                )
+        selected = _set_spec(nothing, model, train, True, "train")
         spec = jax.tree_util.tree_map(lambda a, b: bool(a) and bool(b), spec, selected)
     spec = _set_spec(spec, model, freeze, False, "freeze")
     linear_spec = None

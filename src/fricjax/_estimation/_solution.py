@@ -74,8 +74,9 @@ class Solution:
     - `model`: the fitted model (smoothing as at the end of the fit); `exact_model` is `fj.exact(model)`.
     - `result`: a `fj.RESULTS` item (`code` is its name: `successful`, `max_steps`, `early_stopped`, `diverged`,
       `solver_failed`); `message`: one sentence saying why the fit stopped and which stage produced the model.
-    - `history`: dict of NumPy arrays `step`, `train_loss`, `val_loss` (NaN without validation), `eps`, and
-      `time` (seconds since the call started, compilation included).
+    - `history`: dict of NumPy arrays `step`, `train_loss`, `val_loss` (NaN without validation), `eps` (the
+      smoothing width in force at each check: the continuation stage's, else the model's own; NaN for an exact
+      model or differing widths), and `time` (seconds since the call started, compilation included).
     - `train_loss`, `val_loss`: final losses of the returned model (validation in free-run simulation);
       `exact_val_loss`: the same with the exact model (NaN without validation data).
     - `evaluations`: solver steps per start; `wall_time` [s]; `num_starts`; `best_start`.
