@@ -372,3 +372,27 @@ def test_the_history_records_the_models_own_width_without_continuation():
     np.testing.assert_allclose(history["eps"], 2e-4)
     exact_history = fj.fit(fj.exact(start), data, steps=10, eval_every=5).history
     assert np.isnan(exact_history["eps"]).all()
+
+
+def test_every_test_record_gets_its_figures_and_a_short_label(tmp_path, capsys):
+    """With several --test records compare drew only the first one, and labelled the records by their full
+    paths; now each record has its error and loop figures, `test_records.png` shows each model on each record,
+    and the table's legend names the records by the shortest label that keeps them apart."""
+    for folder, seed in (("a", 1), ("b", 2)):
+        data = fj.make_tribometer("mixed", seed=seed, duration=1.0)
+        (tmp_path / folder).mkdir()
+        t = np.arange(data.full.length) * float(data.full.motion.dt)
+        np.savez(
+            tmp_path / folder / "run.npz", t=t, x=np.asarray(data.full.motion.x), force=np.asarray(data.full.force)
+        )
+    out = tmp_path / "o"
+    argv = ["compare", "--data", "tribometer:mixed:duration=1", "--models", "stribeck", "--steps", "1", "--test"]
+    argv += [str(tmp_path / "a" / "run.npz"), str(tmp_path / "b" / "run.npz"), "--out", str(out), "--no-progress"]
+    assert fj.main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "test records: 1 = a/run.npz; 2 = b/run.npz" in printed, printed
+    for name in ("test_errors", "hysteresis_loops"):
+        for suffix in ("", "_2"):
+            assert (out / f"{name}{suffix}.png").stat().st_size > 10_000, name + suffix
+    assert (out / "test_records.png").stat().st_size > 10_000
+    assert "test_records.png" in printed

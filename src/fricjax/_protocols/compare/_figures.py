@@ -1,5 +1,6 @@
-"""The figures of `compare`: prediction errors on a test record per model (`plot_prediction_errors`) and measured
-vs predicted friction-displacement loops of the best models (`plot_test_loops`)."""
+"""The figures of `compare`: prediction errors on a test record per model (`plot_prediction_errors`), measured
+vs predicted friction-displacement loops of the best models (`plot_test_loops`), and with several test records
+each model's NMSE on each (`plot_test_records`)."""
 
 from __future__ import annotations
 
@@ -23,11 +24,13 @@ def _stride(n: int, limit: int = 20_000) -> int:
     return max(1, -(-n // limit))
 
 
-def plot_prediction_errors(rows: Sequence[Any], test: Any, path: Any, *, units: Any = None) -> None:
+def plot_prediction_errors(
+    rows: Sequence[Any], test: Any, path: Any, *, units: Any = None, label: str | None = None
+) -> None:
     """Prediction errors on a test record per model, one panel each with its own error scale (parlitz2004 Fig. 6
     layout). `rows`: scored models with `label`, `nmse`, `max_error`, `prediction` (offset-corrected, on the
     scored part); `test`: the `fj.compare.TestRecord` (or a `Split`: its test part); `units`: the record's units
-    (forces are shown in them)."""
+    (forces are shown in them); `label`: the record's name in the title (default: its file name)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -43,7 +46,7 @@ def plot_prediction_errors(rows: Sequence[Any], test: Any, path: Any, *, units: 
     fig, axes = plt.subplots(len(ordered) + 1, 1, figsize=(10, 1.4 * (len(ordered) + 1)), sharex=True)
     axes[0].plot(t[::step], f_scale * measured[::step], "k", lw=0.7)
     axes[0].set_ylabel(f"F [{f_unit}]")
-    name = pathlib.PurePath(test.name).name or test.name  # a file record by its file name: a path overflows
+    name = label or pathlib.PurePath(test.name).name or test.name  # a file record by its file name: a path overflows
     axes[0].set_title(f"{name}: measured force (top) and prediction errors e = F_hat - F (each its own scale)")
     for ax, r in zip(axes[1:], ordered, strict=True):
         error = f_scale * (np.asarray(r.prediction) - measured)
@@ -60,10 +63,10 @@ def plot_prediction_errors(rows: Sequence[Any], test: Any, path: Any, *, units: 
     plt.close(fig)
 
 
-def plot_test_loops(rows: Sequence[Any], test: Any, path: Any, *, units: Any = None) -> None:
+def plot_test_loops(rows: Sequence[Any], test: Any, path: Any, *, units: Any = None, label: str | None = None) -> None:
     """Measured vs predicted friction-displacement loops on a test record's scored part: the four best distinct
     models (`distinct_models`: the ensembles, whose predictions are near-identical mixtures of the best single
-    model, count as one)."""
+    model, count as one); `label`: the record's name in the title (default: its file name)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -82,6 +85,33 @@ def plot_test_loops(rows: Sequence[Any], test: Any, path: Any, *, units: Any = N
         ax.plot(x[::step], f_scale * np.asarray(r.prediction)[::step], "r", lw=0.6, label="predicted")
         ax.set(title=f"{r.label}\nNMSE {r.nmse:.3g} %", xlabel=f"x [{x_unit}]", ylabel=f"F [{f_unit}]")
     axes[0][0].legend(fontsize=8, loc="lower right", framealpha=0.9)
+    fig.suptitle(f"{label or pathlib.PurePath(test.name).name or test.name}: friction-displacement loops", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_test_records(rows: Sequence[Any], labels: Sequence[str], path: Any) -> None:
+    """Each model's free-run NMSE on every test record (log scale), one line per model in the table's order: how
+    each model carries over to records it was not fitted on. `rows`: scored models with `label` and `tests` (the
+    `Score` on each test record, in order); `labels`: the test records' names."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    ordered = sorted(rows, key=lambda r: (not np.isfinite(r.nmse), np.nan_to_num(r.nmse)))
+    positions = np.arange(len(labels))
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(labels) + 3.0), 4.2))
+    for r in ordered:
+        values = np.array([score.nmse for score in r.tests.values()], dtype=float)
+        values = np.where(np.isfinite(values) & (values > 0), values, np.nan)
+        ax.plot(positions, values, "o-", lw=1.0, ms=4, label=r.label)
+    ax.set_yscale("log")
+    ax.set_xticks(positions, [str(label) for label in labels], rotation=30, ha="right", fontsize=8)
+    ax.set(ylabel="free-run NMSE [%]", title="test NMSE of each model on each test record")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -6,6 +6,8 @@ tribometer records or CSV / NPZ files; `expand_record_specs`: file globs)."""
 from __future__ import annotations
 
 import dataclasses
+import os
+import pathlib
 from collections.abc import Sequence
 from typing import Any
 
@@ -55,6 +57,25 @@ class TestRecord:
     @property
     def scored_start(self) -> int:
         return self.start + self.init_window
+
+
+def short_labels(names: Sequence[str]) -> list[str]:
+    """Labels of records named by file paths, as short as keeps them apart: the file names when they differ, else
+    the paths below their common folder (`a/run1.csv`, `b/run1.csv`); a name that is not a path is kept."""
+    paths = [pathlib.PurePath(name) for name in names]
+    is_path = [len(p.parts) > 1 for p in paths]
+    short = [p.name if flag else name for p, flag, name in zip(paths, is_path, names, strict=True)]
+    if len(set(short)) == len(short):
+        return short
+    folders = [str(p.parent) for p, flag in zip(paths, is_path, strict=True) if flag]
+    try:
+        common = pathlib.PurePath(os.path.commonpath(folders)) if folders else None
+    except ValueError:  # absolute and relative paths together: no common folder
+        return list(names)
+    out = []
+    for p, flag, name in zip(paths, is_path, names, strict=True):
+        out.append(str(p.relative_to(common)) if flag and common is not None and common.parts else name)
+    return out
 
 
 def default_init_window(samples: int) -> int:

@@ -16,7 +16,7 @@ from ..._smoothing import exact
 from ..._version import fricjax_version
 from ._names import NEURAL_MODELS
 from ._output import versions
-from ._records import LoadedRecord, Split, TestRecord, TrainingRecords
+from ._records import LoadedRecord, Split, TestRecord, TrainingRecords, short_labels
 from ._scoring import ModelScore, Score
 from ._settings import RESULT_CODES, FitSettings
 
@@ -68,7 +68,7 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
             f"{(first.max_error if first else float('nan')):9.3f}"
         )
     if several:
-        lines.append("test records: " + "; ".join(f"{i + 1} = {n}" for i, n in enumerate(names)))
+        lines.append("test records: " + "; ".join(f"{i + 1} = {n}" for i, n in enumerate(short_labels(names))))
     codes = sorted({r.result for r in rows if r.result in RESULT_CODES})
     legend = dict(RESULT_CODES)
     if any(r.result == "max_steps" and r.name in NEURAL_MODELS for r in rows):  # their budget is --neural-steps

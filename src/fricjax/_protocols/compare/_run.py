@@ -24,7 +24,7 @@ from ..._validation import nonnegative_int
 from ..._version import fricjax_version
 from ._emps_table import emps_table
 from ._ensembles import add_ensembles
-from ._figures import plot_prediction_errors, plot_test_loops
+from ._figures import plot_prediction_errors, plot_test_loops, plot_test_records
 from ._output import (
     Staging,
     check_writable,
@@ -40,6 +40,7 @@ from ._records import (
     TrainingRecords,
     expand_record_specs,
     load_record_spec,
+    short_labels,
     split_record,
     statistics_warnings,
 )
@@ -52,6 +53,7 @@ from ._scoring import (
     free_run,
     predict_test_record,
     reference_scores,
+    rows_on_test,
     score_row,
 )
 from ._settings import CompareError, DataScales, FitSettings
@@ -381,8 +383,18 @@ def run_compare(
     with staging:
         for row in rows:
             staging.write(f"models/{row.name}.eqx", functools.partial(save_model, model=row.model))
-        staging.write("test_errors.png", lambda path: plot_prediction_errors(rows, tests[0], path, units=units))
-        staging.write("hysteresis_loops.png", lambda path: plot_test_loops(rows, tests[0], path, units=units))
+        labels = short_labels([t.name for t in tests])
+        figures = []
+        for k, (test, label) in enumerate(zip(tests, labels, strict=True)):
+            scored = rows if k == 0 else rows_on_test(rows, test)
+            suffix = "" if k == 0 else f"_{k + 1}"  # the first test record's keep their names
+            for stem, plot in (("test_errors", plot_prediction_errors), ("hysteresis_loops", plot_test_loops)):
+                name = f"{stem}{suffix}.png"
+                staging.write(name, functools.partial(_draw, plot, scored, test, units=units, label=label))
+                figures.append(name)
+        if len(tests) > 1:
+            staging.write("test_records.png", functools.partial(plot_test_records, rows, labels))
+            figures.append("test_records.png")
         report = compare_report(
             data=data,
             seed=seed,
@@ -398,11 +410,21 @@ def run_compare(
         )
         staging.write("report.json", lambda path: path.write_text(strict_json(report)))  # the report last
         staging.publish()
-    print(
-        f"\nreport: {out / 'report.json'}; figures: {out / 'test_errors.png'}, {out / 'hysteresis_loops.png'}"
-        + (f" (test record 1, {tests[0].name})" if len(tests) > 1 else "")
-        + f"; models: {out / 'models'} ({time.perf_counter() - started:.0f} s)"
+    shown = (
+        f"{out / 'test_errors.png'}, {out / 'hysteresis_loops.png'}"
+        if len(tests) == 1
+        else f"{out}/test_errors[_K].png and hysteresis_loops[_K].png for test records 1-{len(tests)} (no _K: record "
+        f"1, {labels[0]}), {out / 'test_records.png'} (each model's NMSE on each)"
     )
+    print(
+        f"\nreport: {out / 'report.json'}; figures: {shown}; models: {out / 'models'} "
+        f"({time.perf_counter() - started:.0f} s)"
+    )
+
+
+def _draw(plot: Any, rows: Any, test: Any, path: Any, *, units: Any, label: str) -> None:
+    """`plot(rows, test, path, ...)` with the path last, as `Staging.write` calls it."""
+    plot(rows, test, path, units=units, label=label)
 
 
 def _unused_load_columns(split: Any, cards: Sequence[dict[str, Any]]) -> list[str]:

@@ -224,3 +224,17 @@ def _worse_than_constant(validation_nmse: float, scores: dict[str, Score]) -> li
         if score.nmse > 100:
             parts.append(f"test{f' {i + 1}' if several else ''} {score.nmse:.0f} %")
     return [f"NMSE above 100 % ({', '.join(parts)}): worse than a constant force"] if parts else []
+
+
+def rows_on_test(rows: list[ModelScore], test: TestRecord) -> list[ModelScore]:
+    """The rows as scored on `test` (one of their test records): `nmse`, `max_error` and the offset-corrected
+    `prediction` on its scored part, for the figures of a test record other than the first."""
+    return [
+        dataclasses.replace(
+            r,
+            nmse=r.tests[test.name].nmse,
+            max_error=r.tests[test.name].max_error,
+            prediction=score_prediction(r.test_predictions[test.name], test)[1],
+        )
+        for r in rows
+    ]
