@@ -186,6 +186,8 @@ def test_fit_argument_errors(record):
         fit_emps_hybrid(record, TRUTH, steps=-1)
     with pytest.raises(TypeError, match="EMPSPlant"):
         fit_emps_hybrid(record, TRUTH.friction)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="`patience`.*early_stopping=True"):
+        fit_emps_hybrid(record, TRUTH, patience=5)  # watched only with early stopping
 
 
 # --- ensembles ----------------------------------------------------------------------------------------------------

@@ -3,6 +3,7 @@ public API and the command line."""
 
 from __future__ import annotations
 
+import json
 import warnings
 from typing import ClassVar
 
@@ -222,6 +223,24 @@ def test_two_training_records_in_units_10x_apart_are_refused_naming_both(tmp_pat
     assert "force spread is" in err and "good.csv" in err and "bad.csv" in err and "check the units of both" in err
 
 
+def test_of_three_records_the_one_in_other_units_is_named(tmp_path, capsys):
+    """Of spreads 1 : 1 : 100, the first record's others' median (50.5) named the first, a sound record."""
+    paths = [_damper_like(tmp_path / f"r{i}.csv", scale=scale) for i, scale in enumerate((1.0, 1.0, 100.0))]
+    argv = ["compare", "--data", *paths, "--test", paths[0], "--models", "stribeck", "--no-progress"]
+    assert fj.main([*argv, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "r2.csv: its force spread is 100x the other records' median" in err, err
+
+
+def test_several_records_train_a_path_the_fit_holds_per_record():
+    """`train=['Fc', 'offset']` with several records was refused as 'in both train and freeze' (the offsets a fit
+    to several records estimates per record are frozen in the shared model, not by the user)."""
+    records = [_record(300), _record(400)]
+    start = fj.CoulombViscous(0.5, 10.0, smoothing=fj.Smooth(1e-4))
+    solution = fj.fit(start, records, train=["Fc", "offset"], steps=5)
+    assert float(fj.unwrap(solution.model).Fc) != pytest.approx(0.5)
+
+
 def test_a_folder_given_as_a_record_is_named_with_the_glob(tmp_path, capsys):
     assert fj.main(["compare", "--data", str(tmp_path), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
     assert "a folder; name its records, e.g. with a quoted glob" in capsys.readouterr().err
@@ -331,6 +350,27 @@ def test_sweep_names_the_field_that_differs_and_asks_for_an_optimiser_factory():
         fj.sweep([smooth, smooth], data, steps=2, optimiser=optax.adam(1e-2))
 
 
+class _Lagged(fj.AbstractFrictionModel):
+    """A model with a static integer (as the NARX regressors' lags): `Fc tanh(v / 1e-4)`, `lags` unused."""
+
+    Fc: jax.Array
+    lags: int = eqx.field(static=True, default=1)
+    requires: ClassVar[frozenset[str]] = frozenset({"v"})
+
+    def init_state(self):
+        return jnp.zeros(())
+
+    def step(self, state, sample):
+        return state, self.Fc * jnp.tanh(sample.v / 1e-4)
+
+
+def test_sweep_names_a_static_number_that_differs():
+    """Static Python numbers were taken for array values that may differ: models differing only in their lags got
+    the structure message with no place named."""
+    with pytest.raises(ValueError, match="at model.lags \\(1 against 2\\)"):
+        fj.sweep([_Lagged(jnp.asarray(1.0)), _Lagged(jnp.asarray(1.0), lags=2)], _record(), steps=2)
+
+
 def test_a_model_file_whose_class_moved_module_says_so(tmp_path):
     model = _ScalarForce(jnp.asarray(1.0), jnp.asarray(0.0))
     path = tmp_path / "m.eqx"
@@ -396,3 +436,14 @@ def test_every_test_record_gets_its_figures_and_a_short_label(tmp_path, capsys):
             assert (out / f"{name}{suffix}.png").stat().st_size > 10_000, name + suffix
     assert (out / "test_records.png").stat().st_size > 10_000
     assert "test_records.png" in printed
+    report = json.loads((out / "report.json").read_text())
+    assert report["figures"] == [
+        "test_errors.png", "hysteresis_loops.png", "test_errors_2.png", "hysteresis_loops_2.png", "test_records.png"
+    ]  # fmt: skip
+    assert fj.compare.short_labels(["run.csv", "old/run.csv"]) == ["run.csv", "old/run.csv"]  # never two alike
+
+
+def test_a_table_passed_as_one_motion_signal_is_named_with_the_fix():
+    motion = fj.Motion.from_position(np.zeros((100, 2)), dt=DT)
+    with pytest.raises(ValueError, match="looks like a table's columns.*table\\[:, 0\\]"):
+        fj.FrictionData(motion, np.zeros(100))

@@ -10,7 +10,8 @@ exact-mode scoring
 `paired_validation_gain`: whether a neural model's output-error stage improved on its least-squares start, and
 whether more GMS elements predict the validation part better), ensembles of
 the fitted models (`add_ensembles`) and the comparison table (`format_table`). Figures:
-`plot_prediction_errors`, `plot_test_loops` (the best distinct models: `distinct_models`).
+`plot_prediction_errors`, `plot_test_loops` (the best distinct models: `distinct_models`) on one test record (another
+than the first: `rows_on_test`), `plot_test_records` (each model's NMSE on each; `short_labels`: the records' names).
 
 ```python
 >>> import fricjax as fj
@@ -24,6 +25,7 @@ from ._protocols.compare._ensembles import add_ensembles as add_ensembles
 from ._protocols.compare._figures import distinct_models as distinct_models
 from ._protocols.compare._figures import plot_prediction_errors as plot_prediction_errors
 from ._protocols.compare._figures import plot_test_loops as plot_test_loops
+from ._protocols.compare._figures import plot_test_records as plot_test_records
 from ._protocols.compare._plausibility import implausible as implausible
 from ._protocols.compare._recipes import ModelSpec as ModelSpec
 from ._protocols.compare._records import LoadedRecord as LoadedRecord
@@ -33,6 +35,7 @@ from ._protocols.compare._records import TrainingRecords as TrainingRecords
 from ._protocols.compare._records import default_init_window as default_init_window
 from ._protocols.compare._records import load_record_spec as load_record_spec
 from ._protocols.compare._records import load_split as load_split
+from ._protocols.compare._records import short_labels as short_labels
 from ._protocols.compare._records import split_record as split_record
 from ._protocols.compare._records import statistics_warnings as statistics_warnings
 from ._protocols.compare._registry import LINEAR_MODELS as LINEAR_MODELS
@@ -49,6 +52,7 @@ from ._protocols.compare._scoring import free_run as free_run
 from ._protocols.compare._scoring import paired_validation_gain as paired_validation_gain
 from ._protocols.compare._scoring import predict_test_record as predict_test_record
 from ._protocols.compare._scoring import reference_scores as reference_scores
+from ._protocols.compare._scoring import rows_on_test as rows_on_test
 from ._protocols.compare._scoring import score as score
 from ._protocols.compare._scoring import score_prediction as score_prediction
 from ._protocols.compare._settings import RESULT_CODES as RESULT_CODES

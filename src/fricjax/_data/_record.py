@@ -38,6 +38,11 @@ class FrictionData(eqx.Module):
         if force.shape != shape:
             if force.size == motion.length and force.ndim == 2 and 1 in force.shape:
                 fix = "flatten the column (`np.ravel(force)`)"
+            elif len(shape) == 2 and shape[0] == force.size:  # columns of a table passed as one signal
+                fix = (
+                    "the motion's signal looks like a table's columns (samples along the first axis): pass one "
+                    "signal a column, e.g. fj.Motion.from_position(table[:, 0], dt)"
+                )
             else:
                 fix = "give one force sample per motion sample"
             samples = (

@@ -39,6 +39,7 @@ from ._problem import (
     nonnegative_mask,
     offset_paths,
     parameter_specs,
+    selector_paths,
 )
 from ._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch, record_nuisances
 from ._sharding import shard_batch
@@ -177,6 +178,12 @@ def fit(
     loss = SimulationLoss() if loss is None else loss
     if not isinstance(loss, AbstractLoss):
         raise TypeError(f"fit: `loss` must be a fricjax loss (fj.SimulationLoss(), ...), got {type(loss).__name__}.")
+    both = sorted(set(selector_paths(train)) & set(selector_paths(freeze))) if train is not None else []
+    if both:  # the user's own freeze: the nuisances a fit to several records holds per record are not theirs
+        raise ValueError(
+            f"fit: {', '.join(map(repr, both))} is in both `train` and `freeze`; name a parameter in one of them "
+            "(`freeze` narrows `train`: train='stribeck', freeze='stribeck.vs')."
+        )
     if isinstance(data, (list, tuple, dict, RecordBatch)):  # several records: shared parameters, per-record nuisances
         data, validation, loss, freeze = _several_records(
             model, data, validation, validation_burn_in, loss, nuisances, freeze

@@ -83,7 +83,7 @@ def _wrapped_path(model: Any, label: str) -> str:
     return ""
 
 
-def _labels(selector: Any) -> list[str]:
+def selector_paths(selector: Any) -> list[str]:
     """The dotted paths among a selector's items (callables are not compared)."""
     if selector is None:
         return []
@@ -172,12 +172,6 @@ def parameter_specs(model: Any, train: Any, freeze: Any, separable: Sequence[str
     """Which leaves the optimiser moves (`spec`) and which are solved by least squares (`linear_spec`)."""
     spec = trainable_filter(model)
     if train is not None:
-        both = sorted(set(_labels(train)) & set(_labels(freeze)))
-        if both:
-            raise ValueError(
-                f"fit: {', '.join(map(repr, both))} is in both `train` and `freeze`; name a parameter in one of them "
-                "(`freeze` narrows `train`: train='stribeck', freeze='stribeck.vs')."
-            )
         nothing = jax.tree_util.tree_map(lambda _: False, spec)
         for label, where in _where(train, model, "train"):
             selected = _set_spec(nothing, model, where, True, "train")
@@ -186,7 +180,8 @@ def parameter_specs(model: Any, train: Any, freeze: Any, separable: Sequence[str
             ):
                 raise ValueError(
                     f"fit: {label!r} in `train` selects only fields that are never trained: smoothing widths (a "
-                    "setting: vary it with `continuation=fj.Continuation(eps_start, eps_end)`) or `fj.Fixed` fields."
+                    "setting: vary it with `continuation=fj.Continuation(eps_start, eps_end)`), `fj.Fixed` fields "
+                    "or integer arrays."
                 )
         selected = _set_spec(nothing, model, train, True, "train")
         spec = jax.tree_util.tree_map(lambda a, b: bool(a) and bool(b), spec, selected)

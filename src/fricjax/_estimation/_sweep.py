@@ -67,9 +67,16 @@ def _first_difference(a: Any, b: Any, path: str = "model") -> str:
         return f"{path} ({type(a).__name__} against {type(b).__name__})"
     if isinstance(a, eqx.Module):
         for field in dataclasses.fields(a):
-            found = _first_difference(
-                getattr(a, field.name, None), getattr(b, field.name, None), f"{path}.{field.name}"
-            )
+            x, y = getattr(a, field.name, None), getattr(b, field.name, None)
+            if field.metadata.get("static", False):  # a static field (lags, degree): part of the structure
+                try:
+                    same = bool(x == y)
+                except Exception:  # values that do not compare to one bool
+                    same = True
+                if not same:
+                    return f"{path}.{field.name} ({x!r} against {y!r})"
+                continue
+            found = _first_difference(x, y, f"{path}.{field.name}")
             if found:
                 return found
         return ""

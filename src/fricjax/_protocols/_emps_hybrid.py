@@ -158,7 +158,8 @@ def fit_emps_hybrid(
     - `eps`: the smoothing width of the law during training [m/s] (1e-4, the end of `fit_emps_open_loop`'s
       continuation).
     - `loss`: an `EMPSOpenLoopLoss` (default: window 20, cubic initial state, one step per sample).
-    - `fit_options`: passed on to both `fit` calls (`patience`, `eval_every`, `progress`, ...).
+    - `fit_options`: passed on to both `fit` calls (`eval_every`, `progress`, ...; `patience` with
+      `early_stopping=True`).
 
     **Returns:** an `EMPSHybridFit(plant, result, refined, start, val_rmse_mm)`.
 
@@ -180,6 +181,11 @@ def fit_emps_hybrid(
     steps = nonnegative_int(steps, "steps", "fit_emps_hybrid", hint="(solver steps)")
     lm_steps = nonnegative_int(lm_steps, "lm_steps", "fit_emps_hybrid", hint="(solver steps)")
     train, val = _split(record, validation, loss.init_window)
+    if "patience" in fit_options and not (early_stopping and val is not None):
+        raise ValueError(
+            "fit_emps_hybrid: `patience` stops on the held-out error, which is watched only with "
+            "`early_stopping=True` and a `validation` part; pass both, or drop `patience`."
+        )
     smooth: Any = with_smoothing(physics, Smooth(eps))
     start = emps_hybrid_start(smooth, train, inputs, width, key=jax.random.PRNGKey(seed))
     freeze = _frozen(start, freeze_physics)

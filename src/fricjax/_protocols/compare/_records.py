@@ -75,7 +75,7 @@ def short_labels(names: Sequence[str]) -> list[str]:
     out = []
     for p, flag, name in zip(paths, is_path, names, strict=True):
         out.append(str(p.relative_to(common)) if flag and common is not None and common.parts else name)
-    return out
+    return out if len(set(out)) == len(out) else list(names)  # a bare name beside a path of the same file name
 
 
 def default_init_window(samples: int) -> int:

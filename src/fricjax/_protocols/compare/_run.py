@@ -288,9 +288,8 @@ def run_compare(
             + ": use --test-drift window or none"
         )
     data = data_specs[0] if not several else " ".join(data_specs)
-    check_writable(
-        out, ("report.json",) if data == "emps" else ("test_errors.png", "hysteresis_loops.png", "report.json")
-    )
+    figures = [f"{stem}{'' if k == 1 else f'_{k}'}.png" for k in range(1, len(test or ()) + 2) for stem in FIGURES]
+    check_writable(out, ("report.json",) if data == "emps" else (*figures, "test_records.png", "report.json"))
     lock_output(out)  # until this run ends: a second run into `out` fails here, at once, naming this one
     remove_stale_staging(out)
     if data == "emps":
@@ -385,12 +384,12 @@ def run_compare(
             staging.write(f"models/{row.name}.eqx", functools.partial(save_model, model=row.model))
         labels = short_labels([t.name for t in tests])
         figures = []
-        for k, (test, label) in enumerate(zip(tests, labels, strict=True)):
-            scored = rows if k == 0 else rows_on_test(rows, test)
+        for k, (record, label) in enumerate(zip(tests, labels, strict=True)):
+            scored = rows if k == 0 else rows_on_test(rows, record)
             suffix = "" if k == 0 else f"_{k + 1}"  # the first test record's keep their names
-            for stem, plot in (("test_errors", plot_prediction_errors), ("hysteresis_loops", plot_test_loops)):
+            for stem, plot in zip(FIGURES, (plot_prediction_errors, plot_test_loops), strict=True):
                 name = f"{stem}{suffix}.png"
-                staging.write(name, functools.partial(_draw, plot, scored, test, units=units, label=label))
+                staging.write(name, functools.partial(_draw, plot, scored, record, units=units, label=label))
                 figures.append(name)
         if len(tests) > 1:
             staging.write("test_records.png", functools.partial(plot_test_records, rows, labels))
@@ -408,6 +407,7 @@ def run_compare(
             started=started,
             training_cards=training_cards,
         )
+        report["figures"] = figures
         staging.write("report.json", lambda path: path.write_text(strict_json(report)))  # the report last
         staging.publish()
     shown = (
@@ -420,6 +420,9 @@ def run_compare(
         f"\nreport: {out / 'report.json'}; figures: {shown}; models: {out / 'models'} "
         f"({time.perf_counter() - started:.0f} s)"
     )
+
+
+FIGURES = ("test_errors", "hysteresis_loops")  # each test record's figures: NAME.png for the first, NAME_K.png
 
 
 def _draw(plot: Any, rows: Any, test: Any, path: Any, *, units: Any, label: str) -> None:
@@ -473,19 +476,20 @@ def _check_together(records: Sequence[Any]) -> None:
         (force, "force spread", 10.0, "--force-unit"),
         (travel, "travel", 100.0, "--x-unit"),
     ):
-        fix = f"(a unit in the column header, e.g. 'force [kN]', or {option} for files without one)"
-        for i, (record, value) in enumerate(zip(records, values, strict=True)):
-            # against the others' median: a record's own value would pull it (of two records, half-way)
-            others = [v for j, v in enumerate(values) if j != i]
-            middle = float(np.median(others))
-            if not (middle > 0 and not 1 / limit < value / middle < limit):
-                continue
-            if len(records) == 2:
-                raise CompareError(
-                    f"{record.name}: its {what} is {value / middle:.3g}x that of {records[1 - i].name} (in SI "
-                    f"units): check the units of both {fix}"
-                )
+        fix = f"(a unit in the column header, e.g. 'force [kN]'; {option} sets the unit of every record)"
+        # each against the others' median (a record's own value would pull it: of two records, half-way); the most
+        # distant one is named (of three, an outlier drags the others' median of the two sound ones towards it)
+        middles = [float(np.median([v for j, v in enumerate(values) if j != i])) for i in range(len(values))]
+        ratios = [value / middle if middle > 0 else 1.0 for value, middle in zip(values, middles, strict=True)]
+        i = int(np.argmax([abs(np.log(r)) if r > 0 else np.inf for r in ratios]))
+        record, ratio = records[i], ratios[i]
+        if 1 / limit < ratio < limit:
+            continue
+        if len(records) == 2:
             raise CompareError(
-                f"{record.name}: its {what} is {value / middle:.3g}x the other records' median (in SI units): check "
-                f"its units {fix}"
+                f"{record.name}: its {what} is {ratio:.3g}x that of {records[1 - i].name} (in SI "
+                f"units): check the units of both {fix}"
             )
+        raise CompareError(
+            f"{record.name}: its {what} is {ratio:.3g}x the other records' median (in SI units): check its units {fix}"
+        )
