@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import warnings
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -447,3 +447,30 @@ def test_a_table_passed_as_one_motion_signal_is_named_with_the_fix():
     motion = fj.Motion.from_position(np.zeros((100, 2)), dt=DT)
     with pytest.raises(ValueError, match="looks like a table's columns.*table\\[:, 0\\]"):
         fj.FrictionData(motion, np.zeros(100))
+
+
+class _WithActivation(fj.AbstractFrictionModel):
+    """A model holding a function (as an MLP holds its activation): `Fc * activation(v / 1e-4)`."""
+
+    Fc: jax.Array
+    activation: Any = jax.nn.tanh
+    requires: ClassVar[frozenset[str]] = frozenset({"v"})
+
+    def init_state(self):
+        return jnp.zeros(())
+
+    def step(self, state, sample):
+        return state, self.Fc * self.activation(sample.v / 1e-4)
+
+
+def test_models_holding_functions_pass_the_shape_checks():
+    """The force-shape and state checks traced the model with `jax.eval_shape`, which takes no function leaves:
+    every fit of an MLP-NARX failed before its first step (the CI of 2026-11-28 caught it in the slow tier)."""
+    data = _record(300)
+    model = _WithActivation(jnp.asarray(0.5))
+    solution = fj.fit(model, data, steps=3)
+    assert np.isfinite(solution.train_loss)
+    force = fj.simulate(model, data.motion, state0=model.init_state())
+    assert force.shape == (300,)
+    with pytest.raises(ValueError, match="`state0` must be shaped as _WithActivation"):
+        fj.simulate(model, data.motion, state0=(jnp.zeros(()), jnp.zeros(())))

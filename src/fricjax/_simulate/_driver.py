@@ -131,7 +131,7 @@ def simulate(
 def _check_state(model: AbstractModel, state0: Any) -> None:
     """`state0` of the structure and shapes of `model.init_state()`: one line naming both where not (inside the
     model's step a wrong state fails with an error about tracers)."""
-    expected = jax.eval_shape(lambda m: unwrap(m).init_state(), model)
+    expected = eqx.filter_eval_shape(lambda m: unwrap(m).init_state(), model)
     structure, given = jax.tree_util.tree_structure(expected), jax.tree_util.tree_structure(state0)
     shapes = [jnp.shape(leaf) for leaf in jax.tree_util.tree_leaves(expected)]
     got = [jnp.shape(leaf) for leaf in jax.tree_util.tree_leaves(state0)]
@@ -216,9 +216,10 @@ def run(
 def check_force_shape(model: Any, motion: Any, *, scalar: bool = True) -> None:
     """A friction model fitted to a measured force must return one scalar force per sample; a force of shape (1,)
     broadcast against the measured (T,) force in the losses and fitted nothing (a custom model's mistake). By shape
-    only (`jax.eval_shape` of one step); `fit` checks it (and `sweep` on several records, through their batch),
-    `simulate` does not (a model may return more than the force, for diagnostics). A signal that `step` reads but
-    `requires` does not name is named here too (`scalar=False`: only that, as `simulate` does when it traces)."""
+    only (`eqx.filter_eval_shape` of one step: a model may hold functions, such as an MLP's activation); `fit`
+    checks it (and `sweep` on several records, through their batch), `simulate` does not (a model may return more
+    than the force, for diagnostics). A signal that `step` reads but `requires` does not name is named here too
+    (`scalar=False`: only that, as `simulate` does when it traces)."""
     if not isinstance(model, AbstractFrictionModel):
         return
 
@@ -231,9 +232,9 @@ def check_force_shape(model: Any, motion: Any, *, scalar: bool = True) -> None:
         return plain.step(plain.init_state(), first_sample(model, motion))[1]
 
     try:  # traced, never compiled: no program runs here
-        force = jax.eval_shape(one_step, model, motion)
+        force = eqx.filter_eval_shape(one_step, model, motion)
     except TypeError as err:  # a signal read that `requires` does not name arrives as None
-        first = jax.eval_shape(first_sample, model, motion)
+        first = eqx.filter_eval_shape(first_sample, model, motion)
         missing = (
             [name for name, value in first._asdict().items() if value is None] if hasattr(first, "_asdict") else []
         )
