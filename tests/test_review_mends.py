@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+import optimistix as optx
 import pytest
 
 import fricjax as fj
@@ -465,7 +466,8 @@ class _WithActivation(fj.AbstractFrictionModel):
 
 def test_models_holding_functions_pass_the_shape_checks():
     """The force-shape and state checks traced the model with `jax.eval_shape`, which takes no function leaves:
-    every fit of an MLP-NARX failed before its first step (the CI of 2026-11-28 caught it in the slow tier)."""
+    every fit of an MLP-NARX failed before its first step (the CI of 2026-11-28 caught it in the slow tier); so
+    did optimistix solvers' start and sweeps (their configurations' functions were stacked as arrays)."""
     data = _record(300)
     model = _WithActivation(jnp.asarray(0.5))
     solution = fj.fit(model, data, steps=3)
@@ -474,3 +476,9 @@ def test_models_holding_functions_pass_the_shape_checks():
     assert force.shape == (300,)
     with pytest.raises(ValueError, match="`state0` must be shaped as _WithActivation"):
         fj.simulate(model, data.motion, state0=(jnp.zeros(()), jnp.zeros(())))
+    optimistix = fj.fit(model, data, solver=optx.LevenbergMarquardt(1e-8, 1e-8), steps=5)  # its init traced `args`
+    assert np.isfinite(optimistix.train_loss)
+    swept = fj.sweep([model, _WithActivation(jnp.asarray(0.7))], data, steps=5)  # functions shared, not stacked
+    assert swept.train_loss.shape == (2,) and np.isfinite(swept.train_loss).all()
+    with pytest.raises(ValueError, match="holds another .* at .activation than model 0"):
+        fj.stack_models([model, _WithActivation(jnp.asarray(0.7), activation=jax.nn.relu)])

@@ -31,16 +31,26 @@ from ._sharding import shard_batch
 from ._solution import RESULTS
 from ._solvers import AbstractSolver, tree_finite
 
+MAPPED = eqx.if_array(0)  # a batch's arrays along axis 0; its other leaves (a model's functions) shared
 
-def _in_axes(batched_args: bool) -> tuple[int, int, int | None]:
-    return 0, 0, (0 if batched_args else None)
+
+def _args_axis(batched_args: bool) -> Any:
+    """How `args` are mapped: a sweep's (one model a configuration, `batched_args`) by their arrays; else shared."""
+    return MAPPED if batched_args else None
+
+
+def _first(tree: Any) -> Any:
+    """The first entry of a batch: each array's row 0, other leaves as they are."""
+    return jax.tree_util.tree_map(lambda leaf: leaf[0] if eqx.is_array(leaf) else leaf, tree)
 
 
 @eqx.filter_jit
 def init_states(solver: AbstractSolver, problem: Any, ys: Any, args: Any, batched_args: bool = False) -> Any:
     """The solver state of every start, in a program of its own (so `run_steps` compiles once per fit for solvers
     whose state lives across checks)."""
-    return jax.vmap(lambda y, a: solver.init(problem, y, a), in_axes=(0, 0 if batched_args else None))(ys, args)
+    return eqx.filter_vmap(lambda y, a: solver.init(problem, y, a), in_axes=(MAPPED, _args_axis(batched_args)))(
+        ys, args
+    )
 
 
 @eqx.filter_jit
@@ -79,13 +89,13 @@ def run_steps(
         carry = (jnp.asarray(0), y, dynamic, done, result, jnp.asarray(False))
         return jax.lax.while_loop(cond, body, carry)
 
-    in_axes = (0, None if arrays is None else 0, 0 if batched_args else None)
+    in_axes = (MAPPED, None if arrays is None else MAPPED, _args_axis(batched_args))
     if _batch_size(ys) == 1:  # one start: the unbatched program (vmap of a batch of one compiles ~2x longer)
-        squeeze = lambda tree, axis: tree if axis is None else jax.tree_util.tree_map(lambda leaf: leaf[0], tree)  # noqa: E731
+        squeeze = lambda tree, axis: tree if axis is None else _first(tree)  # noqa: E731
         out = one(*(squeeze(tree, axis) for tree, axis in zip((ys, arrays, args), in_axes, strict=True)))
         steps, ys, states, done, result, bad = jax.tree_util.tree_map(lambda leaf: jnp.asarray(leaf)[None], out)
         return ys, eqx.combine(states, static_out[0]), steps, done, result, bad
-    steps, ys, states, done, result, bad = jax.vmap(one, in_axes=in_axes)(ys, arrays, args)
+    steps, ys, states, done, result, bad = eqx.filter_vmap(one, in_axes=in_axes)(ys, arrays, args)
     states = eqx.combine(states, static_out[0])
     return ys, states, steps, done, result, bad
 
@@ -103,9 +113,9 @@ def evaluate_starts(
         return jax.flatten_util.ravel_pytree(y)[0].astype(row.dtype), products, loss
 
     if flat.shape[0] == 1:  # one start: the unbatched program, as `run_steps`
-        out = one(flat[0], jax.tree_util.tree_map(lambda leaf: leaf[0], args) if batched_args else args)
+        out = one(flat[0], _first(args) if batched_args else args)
         return jax.tree_util.tree_map(lambda leaf: leaf[None], out)
-    return jax.vmap(one, in_axes=(0, 0 if batched_args else None))(flat, args)
+    return eqx.filter_vmap(one, in_axes=(MAPPED, _args_axis(batched_args)))(flat, args)
 
 
 def _unravel(flat: Any, structure: Any) -> Any:
@@ -180,10 +190,9 @@ def batched_losses(problem: Any, ys: Any, args: Any, batched_args: bool) -> tupl
         return problem.objective(y, a), problem.val_objective(y, a)
 
     if _batch_size(ys) == 1:  # one start: the unbatched program, as `run_steps`
-        one = jax.tree_util.tree_map(lambda leaf: leaf[0], ys)
-        losses = both(one, jax.tree_util.tree_map(lambda leaf: leaf[0], args) if batched_args else args)
+        losses = both(_first(ys), _first(args) if batched_args else args)
         return jax.tree_util.tree_map(lambda leaf: leaf[None], losses)
-    return jax.vmap(both, in_axes=(0, 0 if batched_args else None))(ys, args)
+    return eqx.filter_vmap(both, in_axes=(MAPPED, _args_axis(batched_args)))(ys, args)
 
 
 def start_losses(solver: Any, problem: Any, ys: Any, args: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -150,7 +150,7 @@ class OptimistixSolver(AbstractSolver):
 
     def init(self, problem: Any, y: Any, args: Any) -> Any:
         fn = self._fn(problem)
-        f_struct, aux_struct = jax.eval_shape(fn, y, args)
+        f_struct, aux_struct = eqx.filter_eval_shape(fn, y, args)  # `args` may hold functions (an activation)
         inner = self.solver.init(fn, y, args, {}, f_struct, aux_struct, frozenset())
         done, result = self.solver.terminate(fn, y, args, {}, inner, frozenset())
         result = optx.RESULTS.where(tree_finite(y), result, optx.RESULTS.nonfinite)

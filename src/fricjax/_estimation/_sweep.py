@@ -52,12 +52,26 @@ def stack_models(models: Sequence[Any]) -> Any:
         for (path, a), b in zip(
             jax.tree_util.tree_leaves_with_path(models[0]), jax.tree_util.tree_leaves(model), strict=True
         ):
+            if not _stackable(a):  # a function (an MLP's activation) or another object: shared, not stacked
+                if a is not b:
+                    raise ValueError(
+                        f"stack_models: model {i} holds another {type(b).__name__} at {jax.tree_util.keystr(path)} "
+                        "than model 0; configurations share their functions (only arrays and numbers are stacked)."
+                    )
+                continue
             if np.shape(a) != np.shape(b):
                 raise ValueError(
                     f"stack_models: model {i} has shape {np.shape(b)} at {jax.tree_util.keystr(path)}, model 0 has "
                     f"{np.shape(a)}; use one maximal shape and masks."
                 )
-    return jax.tree_util.tree_map(lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]), *models)
+    return jax.tree_util.tree_map(
+        lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]) if _stackable(leaves[0]) else leaves[0], *models
+    )
+
+
+def _stackable(leaf: Any) -> bool:
+    """Arrays and numbers are stacked along the configurations; other leaves (functions) are shared."""
+    return isinstance(leaf, (jax.Array, np.ndarray, np.generic, int, float, complex))
 
 
 def _first_difference(a: Any, b: Any, path: str = "model") -> str:
