@@ -250,3 +250,19 @@ def test_several_records_each_get_their_own_force_offset(three_records):
         fj.initial_guess(fj.LuGre, [])
     with pytest.raises(TypeError, match="non-empty list of them"):
         fj.RecordScales.from_data([a, a.motion])
+
+
+@pytest.mark.parametrize("maker", ["gms", "lugre"])
+def test_the_sliding_level_is_read_where_the_record_slides_not_where_it_is_fastest(maker):
+    """On mixed tribometer records the fastest 30 % of the samples are mostly pre-sliding: the line through them read
+    `Fc` 0.15-0.44 N and `Fv` 450-925 N s/m off a GMS with `Fc` 1 N and `Fv` 10 N s/m. The line is fitted where the
+    displacement has travelled 3 breakaway displacements since its last reversal; a record that never travels so
+    far reads the level held at its reversals (on pre-sliding records the force never reaches `Fc`)."""
+    truth = None
+    if maker == "lugre":
+        truth = fj.LuGre(fj.ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3), 1e6, 300.0, 10.0)
+    for regime, factor in (("mixed", 1.35), ("sliding", 1.35), ("presliding", 3.0)):
+        scales = fj.RecordScales.from_data(fj.make_tribometer(regime, seed=1, model=truth).train)
+        assert _within(scales.Fc, 1.0, factor), (regime, scales)
+        assert scales.Fv <= 300.0, (regime, scales)
+        assert _within(scales.Fs, 1.4, 3.0), (regime, scales)

@@ -42,7 +42,12 @@ class RecordScales:
     """Scales of a friction record, read before any fit.
 
     `force` [N]: half the 1-99 % range of the force about its median; `Fc` [N], `Fv` [N·s/m], `offset` [N]: the
-    least-squares fit of `offset + Fc sign(v) + Fv v` to the fastest 30 % of the samples (`Fv >= 0`); `Fs` [N]: the
+    least-squares fit of `offset + Fc sign(v) + Fv v` to the fastest 30 % of the samples (`Fv >= 0`), or to the
+    faster half of the sliding samples (`SLIDING_TRAVEL` breakaway displacements past a reversal) where the
+    fastest ones give below half their `Fc` (a record that passes pre-sliding quickly: on the mixed tribometer
+    records of a GMS with `Fc` 1 N, `Fv` 10 N s/m, the fastest read `Fc` 0.15-0.44 N and `Fv` 450-925 N s/m, the
+    sliding ones 1.14-1.19 N, the Stribeck level at their speed, and 0); on a record that never slides at least
+    the level |F - offset| holds at its reversals (90 % level; the force never reaches `Fc` there); `Fs` [N]: the
     99.5 % level of |F - offset| (at least 1.05 Fc); `vs` [m/s]: the 30 % level of |v|; `stiffness` [N/m]: the 90 %
     level of |dF/dx| over 3-sample windows that move (pre-sliding after reversals); `breakaway` [m] = Fs /
     stiffness; `dx` [m]: the median step; `duration` [s]; `v_fast` [m/s]: the 90 % level of |v|; `slip` [m]: half
@@ -76,15 +81,20 @@ class RecordScales:
         centred = np.concatenate([f - np.median(f) for f in force_of])
         scale = 0.5 * float(np.percentile(centred, 99) - np.percentile(centred, 1))
         fast = np.abs(v) > np.percentile(np.abs(v), 70)
+        sliding = _sliding_samples(x_of, force_of, centred)
         group = _record_of_each_sample([len(f) for f in force_of])
         offsets = np.array([float(np.median(f)) for f in force_of]) if len(records) > 1 else np.zeros(1)
         if fast.sum() >= 3:
-            Fc, Fv, offsets = _sliding_line(force[fast], v[fast], group[fast], offsets)
-            for i in sorted(set(range(len(records))) - set(group[fast])):  # a slow record: its own fastest samples
-                own = np.abs(v_of[i]) > np.percentile(np.abs(v_of[i]), 70)
-                if own.any():
-                    line = Fc * np.sign(v_of[i][own]) + Fv * v_of[i][own]
-                    offsets[i] = float(np.mean(force_of[i][own] - line))
+            Fc, Fv, offsets = _sliding_line(force[fast], v[fast], group[fast], offsets, v_of, force_of)
+            if sliding is not None:  # the fastest samples may not slide (a record passing pre-sliding quickly)
+                sliding &= np.abs(v) >= np.median(np.abs(v[sliding]))  # their faster half
+                line = _sliding_line(force[sliding], v[sliding], group[sliding], offsets, v_of, force_of)
+                if Fc < 0.5 * line[0]:
+                    Fc, Fv, offsets = line
+            else:  # a record that never slides: the level its reversals hold, if above the line's
+                held = _held_at_reversals(x_of, force_of, offsets)
+                if held > Fc:
+                    Fc, Fv = held, 0.0
         else:
             Fc, Fv = scale, 0.0
         if not Fc > 0:
@@ -111,6 +121,47 @@ class RecordScales:
     def thresholds(self, elements: int) -> np.ndarray:
         """`elements` element thresholds [m], geometrically spread from 5 % of the slip distance to it."""
         return max(self.slip, self.breakaway) * np.geomspace(0.05, 1.0, elements)
+
+
+SLIDING_TRAVEL = 3.0  # breakaway displacements from a reversal beyond which a sample counts as sliding
+
+
+def _sliding_samples(
+    x_of: Sequence[np.ndarray], force_of: Sequence[np.ndarray], centred: np.ndarray
+) -> np.ndarray | None:
+    """The samples (all records' one after another) more than `SLIDING_TRAVEL` breakaway displacements from the last
+    displacement reversal, where the force is the sliding friction (a breakaway displacement read as the 99.5 %
+    level of the force about its median, `centred`, over the median reversal secant slope); None where fewer than
+    1 % of the samples (or 50) are: the record hardly slides."""
+    level = float(np.percentile(np.abs(centred), 99.5))
+    stiffness = _presliding_stiffness(x_of, force_of, level) if level > 0 else None
+    if stiffness is None or not stiffness > 0:
+        return None
+    breakaway = level / stiffness
+    travel = np.concatenate([_travel_since_reversal(x, 0.2 * breakaway) for x in x_of])
+    sliding = travel > SLIDING_TRAVEL * breakaway
+    return sliding if sliding.sum() >= max(50, 0.01 * sliding.size) else None
+
+
+def _held_at_reversals(x_of: Sequence[np.ndarray], force_of: Sequence[np.ndarray], offsets: np.ndarray) -> float:
+    """The 90 % level of |F - the record's offset| [N] at the displacement's turning points (beyond 1 % of its
+    range), over the records: the friction a record that never slides holds (0 without turning points)."""
+    held = [
+        np.abs(force[turns] - offsets[i] if offsets.size > 1 else force[turns] - offsets[0])
+        for i, (x, force) in enumerate(zip(x_of, force_of, strict=True))
+        if (turns := _turning_points(x, 0.01 * float(np.ptp(x)) if x.size else 0.0))
+    ]
+    return float(np.percentile(np.concatenate(held), 90)) if held else 0.0
+
+
+def _travel_since_reversal(x: np.ndarray, threshold: float) -> np.ndarray:
+    """|x - x at the last turning point| [m] at each sample (`_turning_points` with `threshold`; from the first
+    sample before the first one)."""
+    starts = np.zeros(len(x), dtype=int)
+    turns = _turning_points(x, threshold)
+    if turns:
+        starts[np.asarray(turns)] = np.asarray(turns)
+    return np.abs(x - x[np.maximum.accumulate(starts)])
 
 
 def _presliding_stiffness(
@@ -226,16 +277,28 @@ def _crossing(travelled: np.ndarray, rising: np.ndarray, level: float) -> float:
 
 
 def _sliding_line(
-    force: np.ndarray, v: np.ndarray, group: np.ndarray, offsets: np.ndarray
+    force: np.ndarray,
+    v: np.ndarray,
+    group: np.ndarray,
+    offsets: np.ndarray,
+    v_of: Sequence[np.ndarray],
+    force_of: Sequence[np.ndarray],
 ) -> tuple[float, float, np.ndarray]:
-    """Least squares of `force ~ offset[group] + Fc sign(v) + Fv v` with `Fv >= 0` (`group`: each sample's record):
-    `(Fc, Fv, offsets)`, each record's offset [N]; a record without samples here keeps its entry of `offsets`."""
+    """Least squares of `force ~ offset[group] + Fc sign(v) + Fv v` with `Fv >= 0` on the chosen samples (`group`:
+    each one's record): `(Fc, Fv, offsets)`, each record's offset [N]; a record with none of the chosen samples: the
+    mean residual of its own fastest 30 % (`v_of`, `force_of`: every record's velocity and force) from the line,
+    or its entry of `offsets` when it does not move."""
     present = np.unique(group)
     columns = np.concatenate([_indicator(group, len(offsets))[:, present], np.sign(v)[:, None]], axis=1)
     coef = _with_viscous_slope(columns, v, force)
     offsets = np.array(offsets, dtype=float)
     offsets[present] = coef[: len(present)]
-    return float(coef[len(present)]), float(coef[-1]), offsets
+    Fc, Fv = float(coef[len(present)]), float(coef[-1])
+    for i in sorted(set(range(len(offsets))) - set(present.tolist())):
+        own = np.abs(v_of[i]) > np.percentile(np.abs(v_of[i]), 70)
+        if own.any():
+            offsets[i] = float(np.mean(force_of[i][own] - Fc * np.sign(v_of[i][own]) - Fv * v_of[i][own]))
+    return Fc, Fv, offsets
 
 
 def _host_signals(record: FrictionData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
