@@ -266,3 +266,22 @@ def test_the_sliding_level_is_read_where_the_record_slides_not_where_it_is_faste
         assert _within(scales.Fc, 1.0, factor), (regime, scales)
         assert scales.Fv <= 300.0, (regime, scales)
         assert _within(scales.Fs, 1.4, 3.0), (regime, scales)
+
+
+def test_a_record_that_slides_briefly_keeps_its_sliding_line():
+    """Stop-and-go moves between long holds (a tribometer protocol), and a sliding record pooled with a long
+    pre-sliding one: few samples are far past a reversal, yet the record slides; the level held at the reversals
+    (near `Fs`) must not replace the line (a first version read `Fc` 1.25 N and `Fv` 0 off the stop-and-go record)."""
+
+    def stribeck(v):
+        return (1.0 + np.exp(-((v / 2e-3) ** 2))) * np.sign(v) + 10.0 * v
+
+    move, position, segments = np.linspace(0.0, 1e-2, 200)[1:], 0.0, []
+    for cycle in range(6):
+        segments.append(position + (1 if cycle % 2 == 0 else -1) * move)
+        position = segments[-1][-1]
+        segments.append(np.full(20_000, position))
+    x = np.concatenate(segments)
+    record = fj.FrictionData(fj.Motion.from_position(x, dt=1e-3), stribeck(np.gradient(x, 1e-3)))
+    scales = fj.RecordScales.from_data(record)
+    assert scales.Fc == pytest.approx(1.0, rel=0.05) and scales.Fv == pytest.approx(10.0, rel=0.2)

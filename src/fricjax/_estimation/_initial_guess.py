@@ -43,11 +43,12 @@ class RecordScales:
 
     `force` [N]: half the 1-99 % range of the force about its median; `Fc` [N], `Fv` [N·s/m], `offset` [N]: the
     least-squares fit of `offset + Fc sign(v) + Fv v` to the fastest 30 % of the samples (`Fv >= 0`), or to the
-    faster half of the sliding samples (`SLIDING_TRAVEL` breakaway displacements past a reversal) where the
-    fastest ones give below half their `Fc` (a record that passes pre-sliding quickly: on the mixed tribometer
-    records of a GMS with `Fc` 1 N, `Fv` 10 N s/m, the fastest read `Fc` 0.15-0.44 N and `Fv` 450-925 N s/m, the
-    sliding ones 1.14-1.19 N, the Stribeck level at their speed, and 0); on a record that never slides at least
-    the level |F - offset| holds at its reversals (90 % level; the force never reaches `Fc` there); `Fs` [N]: the
+    faster half of the sliding samples (`SLIDING_TRAVEL` breakaway displacements past a reversal; at least
+    `MIN_SLIDING_SAMPLES`) where the fastest ones give below half their `Fc` (a record that passes pre-sliding
+    quickly: on the mixed tribometer records of a GMS with `Fc` 1 N, `Fv` 10 N s/m, the fastest read `Fc`
+    0.15-0.44 N and `Fv` 450-925 N s/m, the sliding ones 1.14-1.19 N, the Stribeck level at their speed, and 0);
+    where fewer slide, the level |F - offset| held at the reversals (90 % level; the force never reaches `Fc`
+    there) where the line's `Fc` is below half of it; `Fs` [N]: the
     99.5 % level of |F - offset| (at least 1.05 Fc); `vs` [m/s]: the 30 % level of |v|; `stiffness` [N/m]: the 90 %
     level of |dF/dx| over 3-sample windows that move (pre-sliding after reversals); `breakaway` [m] = Fs /
     stiffness; `dx` [m]: the median step; `duration` [s]; `v_fast` [m/s]: the 90 % level of |v|; `slip` [m]: half
@@ -72,8 +73,9 @@ class RecordScales:
     def from_data(cls, data: FrictionData | Sequence[FrictionData]) -> RecordScales:
         """The scales of `data` (a `fj.FrictionData`, or several records of one device as a list: the readings pooled
         over the records, each read on its own, so that neither their order nor the seams between them count; each
-        record its own force offset in the sliding line (a record with none of the pooled fastest samples: the mean
-        residual of its own fastest 30 % from the pooled line), `offset` their mean weighted by length)."""
+        record its own force offset in the sliding line (a record with none of the pooled samples the line is
+        fitted through: the mean residual of its own fastest 30 % from the pooled line), `offset` their mean weighted
+        by length)."""
         records = as_records(data, "RecordScales.from_data")
         signals = [_host_signals(r) for r in records]
         x_of, v_of, force_of = ([item[i] for item in signals] for i in range(3))
@@ -86,14 +88,15 @@ class RecordScales:
         offsets = np.array([float(np.median(f)) for f in force_of]) if len(records) > 1 else np.zeros(1)
         if fast.sum() >= 3:
             Fc, Fv, offsets = _sliding_line(force[fast], v[fast], group[fast], offsets, v_of, force_of)
-            if sliding is not None:  # the fastest samples may not slide (a record passing pre-sliding quickly)
+            count = 0 if sliding is None else int(sliding.sum())
+            if sliding is not None and count >= MIN_SLIDING_SAMPLES:  # the fastest samples may not slide
                 sliding &= np.abs(v) >= np.median(np.abs(v[sliding]))  # their faster half
                 line = _sliding_line(force[sliding], v[sliding], group[sliding], offsets, v_of, force_of)
                 if Fc < 0.5 * line[0]:
                     Fc, Fv, offsets = line
-            else:  # a record that never slides: the level its reversals hold, if above the line's
-                held = _held_at_reversals(x_of, force_of, offsets)
-                if held > Fc:
+            else:  # (almost) no sample slides: the level the reversals hold, where the line's Fc is below half
+                held = _held_at_reversals(x_of, force_of, offsets)  # of it, as above
+                if Fc < 0.5 * held:
                     Fc, Fv = held, 0.0
         else:
             Fc, Fv = scale, 0.0
@@ -124,6 +127,7 @@ class RecordScales:
 
 
 SLIDING_TRAVEL = 3.0  # breakaway displacements from a reversal beyond which a sample counts as sliding
+MIN_SLIDING_SAMPLES = 50  # sliding samples (all records together) the sliding line is fitted through
 
 
 def _sliding_samples(
@@ -131,16 +135,15 @@ def _sliding_samples(
 ) -> np.ndarray | None:
     """The samples (all records' one after another) more than `SLIDING_TRAVEL` breakaway displacements from the last
     displacement reversal, where the force is the sliding friction (a breakaway displacement read as the 99.5 %
-    level of the force about its median, `centred`, over the median reversal secant slope); None where fewer than
-    1 % of the samples (or 50) are: the record hardly slides."""
+    level of the force about its median, `centred`, over the median reversal secant slope); None where no reversal
+    gives the slope (every one too small to span the pre-sliding range, or none at all)."""
     level = float(np.percentile(np.abs(centred), 99.5))
     stiffness = _presliding_stiffness(x_of, force_of, level) if level > 0 else None
     if stiffness is None or not stiffness > 0:
         return None
     breakaway = level / stiffness
     travel = np.concatenate([_travel_since_reversal(x, 0.2 * breakaway) for x in x_of])
-    sliding = travel > SLIDING_TRAVEL * breakaway
-    return sliding if sliding.sum() >= max(50, 0.01 * sliding.size) else None
+    return travel > SLIDING_TRAVEL * breakaway
 
 
 def _held_at_reversals(x_of: Sequence[np.ndarray], force_of: Sequence[np.ndarray], offsets: np.ndarray) -> float:
@@ -287,7 +290,8 @@ def _sliding_line(
     """Least squares of `force ~ offset[group] + Fc sign(v) + Fv v` with `Fv >= 0` on the chosen samples (`group`:
     each one's record): `(Fc, Fv, offsets)`, each record's offset [N]; a record with none of the chosen samples: the
     mean residual of its own fastest 30 % (`v_of`, `force_of`: every record's velocity and force) from the line,
-    or its entry of `offsets` when it does not move."""
+    or its entry of `offsets` when none of its samples is faster than its own 70 % level (it does not move, or moves
+    at one speed)."""
     present = np.unique(group)
     columns = np.concatenate([_indicator(group, len(offsets))[:, present], np.sign(v)[:, None]], axis=1)
     coef = _with_viscous_slope(columns, v, force)
