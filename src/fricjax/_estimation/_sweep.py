@@ -52,7 +52,7 @@ def stack_models(models: Sequence[Any]) -> Any:
         for (path, a), b in zip(
             jax.tree_util.tree_leaves_with_path(models[0]), jax.tree_util.tree_leaves(model), strict=True
         ):
-            if not _stackable(a):  # a function (an MLP's activation) or another object: shared, not stacked
+            if not (_stackable(a) and _stackable(b)):  # a function (an MLP's activation): shared, not stacked
                 if a is not b:
                     raise ValueError(
                         f"stack_models: model {i} holds another {type(b).__name__} at {jax.tree_util.keystr(path)} "
@@ -71,7 +71,7 @@ def stack_models(models: Sequence[Any]) -> Any:
 
 def _stackable(leaf: Any) -> bool:
     """Arrays and numbers are stacked along the configurations; other leaves (functions) are shared."""
-    return isinstance(leaf, (jax.Array, np.ndarray, np.generic, int, float, complex))
+    return isinstance(leaf, (jax.Array, np.ndarray, np.number, np.bool_, int, float, complex))
 
 
 def _first_difference(a: Any, b: Any, path: str = "model") -> str:
