@@ -415,6 +415,7 @@ def test_the_history_records_the_models_own_width_without_continuation():
     assert np.isnan(exact_history["eps"]).all()
 
 
+@pytest.mark.slow  # a whole compare run (~25 s): the fast tier stays under 5 minutes
 def test_every_test_record_gets_its_figures_and_a_short_label(tmp_path, capsys):
     """With several --test records compare drew only the first one, and labelled the records by their full
     paths; now each record has its error and loop figures, `test_records.png` shows each model on each record,
