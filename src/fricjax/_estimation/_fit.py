@@ -39,6 +39,7 @@ from ._problem import (
     nonnegative_mask,
     offset_paths,
     parameter_specs,
+    selector_items,
     selector_paths,
 )
 from ._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch, record_nuisances
@@ -463,8 +464,7 @@ def _several_records(
         *(initial_state_paths(model) if nuisances.initial_state else []),
     ]
     if held:
-        items = [freeze] if isinstance(freeze, str) or callable(freeze) else list(freeze or ())
-        freeze = (*items, *held)
+        freeze = (*selector_items(freeze), *held)
     return batch, validation, RecordsLoss(loss, nuisances), freeze
 
 

@@ -150,7 +150,7 @@ def _held_at_reversals(x_of: Sequence[np.ndarray], force_of: Sequence[np.ndarray
     """The 90 % level of |F - the record's offset| [N] at the displacement's turning points (beyond 1 % of its
     range), over the records: the friction a record that never slides holds (0 without turning points)."""
     held = [
-        np.abs(force[turns] - offsets[i] if offsets.size > 1 else force[turns] - offsets[0])
+        np.abs(force[turns] - offsets[i if offsets.size > 1 else 0])
         for i, (x, force) in enumerate(zip(x_of, force_of, strict=True))
         if (turns := _turning_points(x, 0.01 * float(np.ptp(x)) if x.size else 0.0))
     ]

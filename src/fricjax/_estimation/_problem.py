@@ -36,11 +36,8 @@ Selector = str | Callable[[Any], Any] | Sequence[str]
 def _where(selector: Any, model: Any, argument: str) -> list[tuple[str, Callable[[Any], Any]]]:
     """`(label, where)` pairs for a selector: a dotted path, a `where` callable, or a sequence of paths /
     callables. Each is checked against `model`: it must address nodes holding arrays."""
-    if selector is None:
-        return []
-    items = [selector] if isinstance(selector, str) or callable(selector) else list(selector)
     out = []
-    for item in items:
+    for item in selector_items(selector):
         if callable(item):
             label, where = getattr(item, "__name__", "where"), item
         elif isinstance(item, str):
@@ -83,12 +80,16 @@ def _wrapped_path(model: Any, label: str) -> str:
     return ""
 
 
-def selector_paths(selector: Any) -> list[str]:
-    """The dotted paths among a selector's items (callables are not compared)."""
+def selector_items(selector: Any) -> list[Any]:
+    """A selector's items: one path or callable, a sequence of them, or none (`None`)."""
     if selector is None:
         return []
-    items = [selector] if isinstance(selector, str) or callable(selector) else list(selector)
-    return [item for item in items if isinstance(item, str)]
+    return [selector] if isinstance(selector, str) or callable(selector) else list(selector)
+
+
+def selector_paths(selector: Any) -> list[str]:
+    """The dotted paths among a selector's items (callables are not compared)."""
+    return [item for item in selector_items(selector) if isinstance(item, str)]
 
 
 def _set_spec(spec: Any, model: Any, selector: Any, value: bool, argument: str) -> Any:
@@ -172,19 +173,18 @@ def parameter_specs(model: Any, train: Any, freeze: Any, separable: Sequence[str
     """Which leaves the optimiser moves (`spec`) and which are solved by least squares (`linear_spec`)."""
     spec = trainable_filter(model)
     if train is not None:
-        nothing = jax.tree_util.tree_map(lambda _: False, spec)
+        both = lambda a, b: bool(a) and bool(b)  # noqa: E731
+        selected = jax.tree_util.tree_map(lambda _: False, spec)
         for label, where in _where(train, model, "train"):
-            selected = _set_spec(nothing, model, where, True, "train")
-            if not any(
-                jax.tree_util.tree_leaves(jax.tree_util.tree_map(lambda a, b: bool(a) and bool(b), spec, selected))
-            ):
+            item = _set_spec(jax.tree_util.tree_map(lambda _: False, spec), model, where, True, "train")
+            if not any(jax.tree_util.tree_leaves(jax.tree_util.tree_map(both, spec, item))):
                 raise ValueError(
                     f"fit: {label!r} in `train` selects only fields that are never trained: smoothing widths (a "
                     "setting: vary it with `continuation=fj.Continuation(eps_start, eps_end)`), `fj.Fixed` fields "
                     "or integer arrays."
                 )
-        selected = _set_spec(nothing, model, train, True, "train")
-        spec = jax.tree_util.tree_map(lambda a, b: bool(a) and bool(b), spec, selected)
+            selected = jax.tree_util.tree_map(lambda a, b: bool(a) or bool(b), selected, item)
+        spec = jax.tree_util.tree_map(both, spec, selected)
     spec = _set_spec(spec, model, freeze, False, "freeze")
     linear_spec = None
     if separable:

@@ -83,11 +83,7 @@ def _first_difference(a: Any, b: Any, path: str = "model") -> str:
         for field in dataclasses.fields(a):
             x, y = getattr(a, field.name, None), getattr(b, field.name, None)
             if field.metadata.get("static", False):  # a static field (lags, degree): part of the structure
-                try:
-                    same = bool(x == y)
-                except Exception:  # values that do not compare to one bool
-                    same = True
-                if not same:
+                if not _same(x, y):
                     return f"{path}.{field.name} ({x!r} against {y!r})"
                 continue
             found = _first_difference(x, y, f"{path}.{field.name}")
@@ -106,11 +102,15 @@ def _first_difference(a: Any, b: Any, path: str = "model") -> str:
         return next((d for k in a if (d := _first_difference(a[k], b[k], f"{path}[{k!r}]"))), "")
     if a is None or eqx.is_array(a) or isinstance(a, (int, float, complex, np.generic)) and not isinstance(a, bool):
         return ""  # array values (and Python numbers, which are leaves) may differ
+    return "" if _same(a, b) else f"{path} ({a!r} against {b!r})"
+
+
+def _same(a: Any, b: Any) -> bool:
+    """`a == b` as one bool; True for values that do not compare to one (left to the structure check's message)."""
     try:
-        same = bool(a == b)
-    except Exception:  # values that do not compare to one bool: leave them to the structure check's message
-        same = True
-    return "" if same else f"{path} ({a!r} against {b!r})"
+        return bool(a == b)
+    except Exception:
+        return True
 
 
 @dataclasses.dataclass(frozen=True)

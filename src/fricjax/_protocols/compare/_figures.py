@@ -46,8 +46,9 @@ def plot_prediction_errors(
     fig, axes = plt.subplots(len(ordered) + 1, 1, figsize=(10, 1.4 * (len(ordered) + 1)), sharex=True)
     axes[0].plot(t[::step], f_scale * measured[::step], "k", lw=0.7)
     axes[0].set_ylabel(f"F [{f_unit}]")
-    name = label or pathlib.PurePath(test.name).name or test.name  # a file record by its file name: a path overflows
-    axes[0].set_title(f"{name}: measured force (top) and prediction errors e = F_hat - F (each its own scale)")
+    axes[0].set_title(
+        f"{_record_name(test, label)}: measured force (top) and prediction errors e = F_hat - F (each its own scale)"
+    )
     for ax, r in zip(axes[1:], ordered, strict=True):
         error = f_scale * (np.asarray(r.prediction) - measured)
         ax.plot(t[::step], error[::step], lw=0.6)
@@ -85,7 +86,7 @@ def plot_test_loops(rows: Sequence[Any], test: Any, path: Any, *, units: Any = N
         ax.plot(x[::step], f_scale * np.asarray(r.prediction)[::step], "r", lw=0.6, label="predicted")
         ax.set(title=f"{r.label}\nNMSE {r.nmse:.3g} %", xlabel=f"x [{x_unit}]", ylabel=f"F [{f_unit}]")
     axes[0][0].legend(fontsize=8, loc="lower right", framealpha=0.9)
-    fig.suptitle(f"{label or pathlib.PurePath(test.name).name or test.name}: friction-displacement loops", fontsize=10)
+    fig.suptitle(f"{_record_name(test, label)}: friction-displacement loops", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -131,6 +132,11 @@ def distinct_models(rows: Sequence[Any], count: int) -> list[Any]:
         if len(out) == count:
             break
     return out
+
+
+def _record_name(test: Any, label: str | None) -> str:
+    """A test record's name in a title: `label`, else its file name (a path overflows), else its name."""
+    return label or pathlib.PurePath(test.name).name or test.name
 
 
 def _as_test(test: Any) -> Any:

@@ -288,8 +288,8 @@ def run_compare(
             + ": use --test-drift window or none"
         )
     data = data_specs[0] if not several else " ".join(data_specs)
-    figures = [f"{stem}{'' if k == 1 else f'_{k}'}.png" for k in range(1, len(test or ()) + 2) for stem in FIGURES]
-    check_writable(out, ("report.json",) if data == "emps" else (*figures, "test_records.png", "report.json"))
+    expected = [_figure(stem, k) for k in range(len(test or ()) + 1) for stem in FIGURES]
+    check_writable(out, ("report.json",) if data == "emps" else (*expected, "test_records.png", "report.json"))
     lock_output(out)  # until this run ends: a second run into `out` fails here, at once, naming this one
     remove_stale_staging(out)
     if data == "emps":
@@ -386,11 +386,9 @@ def run_compare(
         figures = []
         for k, (record, label) in enumerate(zip(tests, labels, strict=True)):
             scored = rows if k == 0 else rows_on_test(rows, record)
-            suffix = "" if k == 0 else f"_{k + 1}"  # the first test record's keep their names
             for stem, plot in zip(FIGURES, (plot_prediction_errors, plot_test_loops), strict=True):
-                name = f"{stem}{suffix}.png"
-                staging.write(name, functools.partial(_draw, plot, scored, record, units=units, label=label))
-                figures.append(name)
+                staging.write(_figure(stem, k), functools.partial(plot, scored, record, units=units, label=label))
+                figures.append(_figure(stem, k))
         if len(tests) > 1:
             staging.write("test_records.png", functools.partial(plot_test_records, rows, labels))
             figures.append("test_records.png")
@@ -425,9 +423,9 @@ def run_compare(
 FIGURES = ("test_errors", "hysteresis_loops")  # each test record's figures: NAME.png for the first, NAME_K.png
 
 
-def _draw(plot: Any, rows: Any, test: Any, path: Any, *, units: Any, label: str) -> None:
-    """`plot(rows, test, path, ...)` with the path last, as `Staging.write` calls it."""
-    plot(rows, test, path, units=units, label=label)
+def _figure(stem: str, k: int) -> str:
+    """The file of figure `stem` for test record `k` (from 0): the first record's keep their names."""
+    return f"{stem}.png" if k == 0 else f"{stem}_{k + 1}.png"
 
 
 def _unused_load_columns(split: Any, cards: Sequence[dict[str, Any]]) -> list[str]:
