@@ -105,6 +105,62 @@ def reference_nmse(truth: fj.GMS, path: pathlib.Path) -> float:
     return score_prediction(predict_test_record(truth, test), test)[0].nmse
 
 
+def truth_started_fit(truth: fj.GMS, files: dict[str, tuple[pathlib.Path, float]], compare_gms: pathlib.Path) -> None:
+    """The mixed-only scenario's gross-sliding point, a search failure or the record's own limit? GMS fitted on the
+    same training part (compare's split: the first 80 %, validated on the rest; a linear drift; compare's smoothing
+    width and sigma2 scaling) by Levenberg-Marquardt from the **true parameters**, beside compare's fitted GMS
+    (`compare_gms`, read by one LM step, which only evaluates its start). One JSON line: each fit's training and
+    validation losses (mean squares [N^2]), Stribeck parameters and test NMSE ratio to the true model on every
+    test record. Where both fits reach the same losses but extrapolate differently, no search on this record can
+    tell them apart."""
+    from fricjax._estimation._levenberg_marquardt import levenberg_marquardt
+    from fricjax._estimation._strategies import ParameterScaling
+    from fricjax._protocols.compare._records import split_record
+    from fricjax._protocols.compare._settings import DataScales
+    from fricjax.compare import TestRecord, load_record_spec, predict_test_record, score_prediction
+
+    split = split_record(load_record_spec(str(files["train_mixed"][0])), tested_elsewhere=True)
+    scales = DataScales.from_data(split.train_records)
+    tests = {n: TestRecord.whole(load_record_spec(str(p))) for n, (p, _) in files.items() if not n.startswith("train")}
+    reference = {n: score_prediction(predict_test_record(truth, t), t)[0].nmse for n, t in tests.items()}
+    true = fj.unwrap(truth)
+    law = fj.unwrap(true.stribeck)
+    start = fj.GMS(
+        fj.ExponentialStribeck(Fc=float(law.Fc), Fs=float(law.Fs), vs=float(law.vs), delta=float(law.delta)),
+        k=np.asarray(true.k),
+        alpha=np.asarray(true.alpha),
+        C=float(true.C),
+        sigma2=float(true.sigma2),
+        smoothing=fj.Smooth(max(1e-3 * scales.dx, 1e-12)),  # compare's GMS smoothing width
+    )
+    fits = {}
+    for name, (model, steps) in {
+        "compare": (fj.load_model(compare_gms), 1),
+        "truth_started": (fj.SensorDrift(start, rate=0.0), 200),
+    }.items():
+        train, records = split.fit_arguments(model)
+        scaling = ParameterScaling({"model.sigma2": 0.1 * scales.Fc / scales.v_fast})
+        result = fj.fit(
+            model, train, scaling=scaling, solver=levenberg_marquardt(), steps=steps, tolerance=1e-6, **records
+        )
+        gms = fj.unwrap(fj.exact(result.model.model))
+        fitted = fj.unwrap(gms.stribeck)
+        fits[name] = {
+            "train_loss": float(result.train_loss),  # LM's first step evaluates its start: compare's losses
+            "validation_loss": float(result.val_loss),
+            "Fc": float(fitted.Fc),
+            "Fs": float(fitted.Fs),
+            "vs": float(fitted.vs),
+            "delta": float(fitted.delta),
+            "sigma2": float(gms.sigma2),
+            "ratio_to_true": {
+                n: score_prediction(predict_test_record(gms, t), t)[0].nmse / reference[n] for n, t in tests.items()
+            },
+            "result": result.message,
+        }
+    print(json.dumps({"benchmark": "held_out_compare_truth_started", "training": "mixed", **fits, **environment()}))
+
+
 def lugre_made_record(seed: int, out: str | None, sigma0: float = 1e5, regime: str = "mixed") -> None:
     """A record made by an exact LuGre (5000 samples, force noise 1 % of its range; bristle stiffness `sigma0`
     [N/m]; breakaway displacement `Fs / sigma0` = 1.4 N / sigma0, to which the tribometer scales the amplitude)
@@ -149,6 +205,16 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="compare's output folder (default: a temporary one)")
     parser.add_argument("--records", default=None, help="folder to write the records into (default: a temporary one)")
     parser.add_argument(
+        "--truth-start",
+        action="store_true",
+        help="also fit GMS from the true parameters on the mixed record (its losses against compare's GMS)",
+    )
+    parser.add_argument(
+        "--truth-start",
+        action="store_true",
+        help="also fit GMS from the true parameters on the mixed record (its losses against compare's GMS)",
+    )
+    parser.add_argument(
         "--lugre", action="store_true", help="instead: a LuGre-made record, GMS's test NMSE against LuGre's (issue 30)"
     )
     parser.add_argument(
@@ -188,6 +254,8 @@ def main() -> None:
             wall = time.perf_counter() - start
             report = json.loads((out / "report.json").read_text())
             _print_scores(truth, files, tests, report, scenario, wall, args.seed)
+            if args.truth_start and scenario == "mixed":
+                truth_started_fit(truth, files, out / "models" / "gms.eqx")
 
 
 def _print_scores(

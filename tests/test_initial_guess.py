@@ -161,6 +161,28 @@ def _gms_with_breakaways(breakaways_um: list[float], alphas: list[float]) -> fj.
     return fj.exact(fj.GMS(fj.ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3), k, alpha, 20.0, 10.0))
 
 
+def test_gms_start_spreads_its_elements_over_the_true_breakaways():
+    """A GMS whose four elements break away at 12.5, 25, 50 and 100 um, on a record quantised to 2 nm as
+    benchmarks/global_search.py makes them: every start element holds at least 2 % of the force and breaks away
+    within 1.5x of a true element. The merge of before kept an element of 0.5 % at 0.2 um (a spike near the
+    reversals) and put the others at 11-44 um; the fit from it kept that element dead (1.6x the true model's held-out
+    error, 40 % success over ten such records; now 90 %)."""
+    t = np.arange(6000) * 1e-3
+    x = 2e-3 * (0.01 + 0.99 * (t / t[-1]) ** 2) * np.sin(2 * np.pi * t)
+    x = x + np.cumsum(np.random.default_rng(4000).normal(size=t.size)) * 2e-6
+    motion = fj.Motion.from_position(np.round(x / 2e-9) * 2e-9, dt=1e-3)
+    breakaways = np.array([12.5, 25.0, 50.0, 100.0]) * 1e-6
+    alpha = np.array([0.4, 0.3, 0.2, 0.1])
+    truth = fj.GMS(fj.ExponentialStribeck(Fc=1.8, Fs=2.8, vs=4e-3), alpha * 2.8 / breakaways, alpha, 58.0, 34.0)
+    force = np.asarray(fj.simulate(truth, motion))
+    data = fj.FrictionData(motion, force + 0.01 * np.ptp(force) * np.random.default_rng(4).normal(size=t.size))
+    start = fj.unwrap(fj.initial_guess(fj.GMS, data, elements=4))
+    shares = np.asarray(start.alpha)
+    assert shares.min() >= 0.02, shares
+    found = np.sort(shares * float(start.stribeck.Fs) / np.asarray(start.k))
+    assert np.all((found > breakaways / 1.5) & (found < breakaways * 1.5)), found
+
+
 @pytest.mark.slow  # fast tier trimmed (2026-11-27): the element guesses are checked fast
 def test_element_count_reads_the_true_number_of_elements_off_a_record():
     """`fj.element_count` on mixed tribometer records of GMS models with 4 and 6 elements (breakaway displacements
