@@ -210,11 +210,6 @@ def main() -> None:
         help="also fit GMS from the true parameters on the mixed record (its losses against compare's GMS)",
     )
     parser.add_argument(
-        "--truth-start",
-        action="store_true",
-        help="also fit GMS from the true parameters on the mixed record (its losses against compare's GMS)",
-    )
-    parser.add_argument(
         "--lugre", action="store_true", help="instead: a LuGre-made record, GMS's test NMSE against LuGre's (issue 30)"
     )
     parser.add_argument(

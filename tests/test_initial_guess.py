@@ -181,6 +181,28 @@ def test_gms_start_spreads_its_elements_over_the_true_breakaways():
     assert shares.min() >= 0.02, shares
     found = np.sort(shares * float(start.stribeck.Fs) / np.asarray(start.k))
     assert np.all((found > breakaways / 1.5) & (found < breakaways * 1.5)), found
+    replaced = fj.unwrap(fj.initial_guess(fj.GMS, data, elements=4, without_small_elements=True))
+    np.testing.assert_array_equal(np.asarray(replaced.k), np.asarray(start.k))  # nothing small to replace
+
+
+def test_gms_start_without_small_elements_replaces_the_faint_ones():
+    """A GMS whose elements all break away at one displacement (stiffnesses proportional to the force shares, as
+    benchmarks/global_search.py's `gms` family): the regression's start keeps two elements of about 1 % of the force
+    near the reversals, which a fit keeps dead (18x the true model's held-out error on one such record);
+    `without_small_elements=True` splits the largest element instead: four elements, each of at least 2 %."""
+    t = np.arange(6000) * 1e-3
+    x = 2e-3 * (0.01 + 0.99 * (t / t[-1]) ** 2) * np.sin(2 * np.pi * t)
+    x = x + np.cumsum(np.random.default_rng(7000).normal(size=t.size)) * 2e-6
+    motion = fj.Motion.from_position(np.round(x / 2e-9) * 2e-9, dt=1e-3)
+    alpha = np.array([0.4, 0.3, 0.2, 0.1])
+    truth = fj.GMS(fj.ExponentialStribeck(Fc=1.19, Fs=2.22, vs=2.9e-3), 68000 * alpha, alpha, 38.0, 67.0)
+    force = np.asarray(fj.simulate(truth, motion))
+    data = fj.FrictionData(motion, force + 0.01 * np.ptp(force) * np.random.default_rng(7).normal(size=t.size))
+    assert np.asarray(fj.unwrap(fj.initial_guess(fj.GMS, data, elements=4)).alpha).min() < 0.02
+    replaced = fj.unwrap(fj.initial_guess(fj.GMS, data, elements=4, without_small_elements=True))
+    assert np.shape(replaced.k) == (4,) and np.asarray(replaced.alpha).min() >= 0.02, replaced.alpha
+    with pytest.raises(TypeError, match="without_small_elements"):
+        fj.initial_guess(fj.LuGre, data, without_small_elements=True)
 
 
 @pytest.mark.slow  # fast tier trimmed (2026-11-27): the element guesses are checked fast
