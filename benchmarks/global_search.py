@@ -13,7 +13,8 @@ loss kept, as `fricjax compare` does with its validation part) and runs Levenber
 linear parameters) with `--starts` starts (`--screen 0`: screened by their loss at the start, the best `--keep`
 fitted); a fit succeeds when its exact free run's NMSE on the test record is within `--tolerance` (1.2) times the
 true model's NMSE on the same measured input. Prints one JSON line per family and start count (success rate, median
-ratio, wall time per fit, the start's time included) and one per fit with `--verbose`.
+ratio, wall time per fit, the start's time included, how many fits stopped at their step budget: not converged) and
+one per fit with `--verbose`.
 
 Run: `python benchmarks/global_search.py [--seeds 10] [--starts 1 8] [--screen 0 --keep 4] [--families gms nlr]`.
 """
@@ -171,6 +172,7 @@ def main() -> None:
                         "success_rate": float(np.mean([r <= cfg.tolerance for r in ratios])),
                         "median_ratio": statistics.median(ratios),
                         "worst_ratio": max(ratios),
+                        "stopped_at_budget": sum(run["result"] == "max_steps" for run in runs),  # not converged
                         "median_wall_s": statistics.median(run["wall_s"] for run in runs),
                         **env,
                     }
