@@ -415,7 +415,7 @@ def test_the_history_records_the_models_own_width_without_continuation():
     assert np.isnan(exact_history["eps"]).all()
 
 
-@pytest.mark.slow  # a whole compare run (~25 s): the fast tier stays under 5 minutes
+@pytest.mark.slow  # two whole compare runs (~40 s): the fast tier stays under 5 minutes
 def test_every_test_record_gets_its_figures_and_a_short_label(tmp_path, capsys):
     """With several --test records compare drew only the first one, and labelled the records by their full
     paths; now each record has its error and loop figures, `test_records.png` shows each model on each record,
@@ -442,6 +442,15 @@ def test_every_test_record_gets_its_figures_and_a_short_label(tmp_path, capsys):
     assert report["figures"] == [
         "test_errors.png", "hysteresis_loops.png", "test_errors_2.png", "hysteresis_loops_2.png", "test_records.png"
     ]  # fmt: skip
+    # a later run with one test record into the same folder removes the figures it no longer draws (those the
+    # earlier report listed), and leaves a file of the user's with a figure-like name alone
+    (out / "test_errors_9.png").write_bytes(b"mine")
+    argv = argv[: argv.index("--test") + 1] + [str(tmp_path / "a" / "run.npz"), "--out", str(out), "--no-progress"]
+    assert fj.main(argv) == 0
+    for name in ("test_errors_2.png", "hysteresis_loops_2.png", "test_records.png"):
+        assert not (out / name).exists(), name
+    assert (out / "test_errors.png").exists() and (out / "test_errors_9.png").read_bytes() == b"mine"
+    assert json.loads((out / "report.json").read_text())["figures"] == ["test_errors.png", "hysteresis_loops.png"]
     assert fj.compare.short_labels(["run.csv", "old/run.csv"]) == ["run.csv", "old/run.csv"]  # never two alike
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import json
 import os
 import pathlib
 import re
@@ -407,7 +408,9 @@ def run_compare(
         )
         report["figures"] = figures
         staging.write("report.json", lambda path: path.write_text(strict_json(report)))  # the report last
+        earlier = _earlier_figures(out)
         staging.publish()
+    _remove_stale_figures(out, earlier, figures)
     shown = (
         f"{out / 'test_errors.png'}, {out / 'hysteresis_loops.png'}"
         if len(tests) == 1
@@ -421,6 +424,27 @@ def run_compare(
 
 
 FIGURES = ("test_errors", "hysteresis_loops")  # each test record's figures: NAME.png for the first, NAME_K.png
+_FIGURE_NAME = re.compile(r"(test_errors|hysteresis_loops)(_[0-9]+)?\.png|test_records\.png")
+
+
+def _earlier_figures(out: pathlib.Path) -> list[str]:
+    """The figures an earlier run's `report.json` in `out` lists (none where there is no readable report)."""
+    try:
+        listed = json.loads((out / "report.json").read_text()).get("figures", [])
+    except (OSError, ValueError, AttributeError):
+        return []
+    return [name for name in listed if isinstance(name, str) and _FIGURE_NAME.fullmatch(name)]
+
+
+def _remove_stale_figures(out: pathlib.Path, earlier: list[str], figures: list[str]) -> None:
+    """Remove the figures of an earlier run that this one did not draw (a run with fewer test records): only files
+    the earlier run's own report listed, by compare's figure names, so that no file of the user's is touched. After
+    publishing: a run stopped in between leaves them, as before."""
+    for name in sorted(set(earlier) - set(figures)):
+        try:
+            (out / name).unlink(missing_ok=True)
+        except OSError:
+            pass  # a figure that cannot be removed is left, as it was
 
 
 def _figure(stem: str, k: int) -> str:
