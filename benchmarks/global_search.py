@@ -125,7 +125,7 @@ def one(family: str, seed: int, starts: int, steps: int, screen: float = 0.25, k
         )
         for begin in begins
     ]
-    result = min(fits, key=lambda r: r.train_loss)  # no validation part here: the training loss chooses
+    result = min(fits, key=lambda r: r.train_loss if np.isfinite(r.train_loss) else np.inf)  # no validation part
     wall = time.perf_counter() - began
     fitted = float(fj.nmse(test.force, fj.simulate(fj.exact(result.model), test.motion)))
     reference = float(fj.nmse(test.force, fj.simulate(model, test.motion)))

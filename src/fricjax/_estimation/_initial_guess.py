@@ -484,10 +484,10 @@ def maxwell_slip_elements(
     elements, thresholds spread geometrically from the small steps near reversals to 20x the slip distance, its
     element forces `k_i Delta_i >= 0` and offset by non-negative least squares on the exact element deflections
     (`_dense_elements`); (2) adjacent elements of that model merged, the pair whose merge changes the initial
-    loading curve `sum_i k_i min(delta, Delta_i)` least first (a merged element keeps the pair's stiffness and force
-    capacity), until `elements` are left (the curve fixes the model's response to any displacement history:
-    Masing's rule). On the benchmark records (benchmarks/global_search.py) the start alone is within 1.005x of the
-    true model's held-out error."""
+    loading curve `sum_i k_i min(delta, Delta_i)` least first (a merged element keeps the pair's force capacity, at
+    the stiffness-weighted threshold or at either member's), until `elements` are left (the curve fixes the model's
+    response to any displacement history: Masing's rule). On the NLR records of benchmarks/global_search.py the start
+    alone is within 1.008x of the true model's held-out error."""
     dense = _dense_elements(as_records(data, "maxwell_slip_elements"), scales, viscous=viscous, elements=elements)
     if dense is None:
         return None

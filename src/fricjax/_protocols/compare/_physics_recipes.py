@@ -125,10 +125,18 @@ def _validation_chooses(
         for name, begin in (("the regression's elements", start), ("elements spread to the breakaway", other)):
             result = recipe(begin, split, seed, progress)
             results.append(dataclasses.replace(result, message=f"start: {name}; {result.message}"))
-        best = min(results, key=lambda r: r.val_loss if np.isfinite(r.val_loss) else r.train_loss)
+        best = min(results, key=_choice_key)
         return dataclasses.replace(best, wall_time=sum(r.wall_time for r in results))
 
     return run
+
+
+def _choice_key(result: FitResult) -> tuple[bool, float]:
+    """How fits of one model from different starts are ranked: by validation loss; a fit without a finite one
+    after every fit that has one, by its training loss; a fit with neither finite last."""
+    if np.isfinite(result.val_loss):
+        return False, float(result.val_loss)
+    return True, float(result.train_loss) if np.isfinite(result.train_loss) else np.inf
 
 
 SCREENED_GMS_STARTS = 256  # draws around GMS's data-driven start, screened by their loss at the start
@@ -190,8 +198,9 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
             results.append(
                 dataclasses.replace(result, message=f"{name}, {count} screened starts, LM: {result.message}")
             )
-        best = min(results, key=lambda r: r.val_loss if np.isfinite(r.val_loss) else r.train_loss)
-        return dataclasses.replace(best, wall_time=sum(r.wall_time for r in results))
+        best = min(results, key=_choice_key)
+        note = "; the other start was fitted too and not chosen" if len(results) > 1 else ""
+        return dataclasses.replace(best, message=best.message + note, wall_time=sum(r.wall_time for r in results))
 
     def run(start: Any, split: Split | TrainingRecords, seed: int, progress: bool) -> FitResult:
         result = fit_from(start, split, seed, progress)

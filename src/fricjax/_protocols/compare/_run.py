@@ -424,14 +424,16 @@ def run_compare(
 
 
 FIGURES = ("test_errors", "hysteresis_loops")  # each test record's figures: NAME.png for the first, NAME_K.png
-_FIGURE_NAME = re.compile(r"(test_errors|hysteresis_loops)(_[0-9]+)?\.png|test_records\.png")
+_FIGURE_NAME = re.compile(r"(test_errors|hysteresis_loops)(_([2-9]|[1-9][0-9]+))?\.png|test_records\.png")
 
 
 def _earlier_figures(out: pathlib.Path) -> list[str]:
     """The figures an earlier run's `report.json` in `out` lists (none where there is no readable report)."""
     try:
         listed = json.loads((out / "report.json").read_text()).get("figures", [])
-    except (OSError, ValueError, AttributeError):
+    except (OSError, ValueError, AttributeError, RecursionError):
+        return []
+    if not isinstance(listed, list):
         return []
     return [name for name in listed if isinstance(name, str) and _FIGURE_NAME.fullmatch(name)]
 
