@@ -396,6 +396,22 @@ def initial_guess(
     2.0
     ```
     """
+    return initial_guesses(
+        model, data, elements=elements, smoothing=smoothing, without_small_elements=without_small_elements
+    )[-1]
+
+
+def initial_guesses(
+    model: Any,
+    data: FrictionData | Sequence[FrictionData] | dict[str, FrictionData] | RecordBatch,
+    *,
+    elements: int | str | None = None,
+    smoothing: AbstractSmoothing | None = None,
+    without_small_elements: bool = False,
+) -> list[Any]:
+    """`initial_guess`'s starts from one reading of `data`: one start, or for GMS with `without_small_elements` the
+    default start and, where replacing its small elements changes it, that one too (`initial_guess` returns the
+    last). `fricjax compare` fits GMS from each."""
     cls = model if isinstance(model, type) else type(model)
     if not issubclass(cls, GUESSABLE):
         names = ", ".join(f"fj.{c.__name__}" for c in GUESSABLE)
@@ -418,53 +434,68 @@ def initial_guess(
             "force column, or build the start by hand."
         )
     if cls is Coulomb:
-        return Coulomb(Fc=s.Fc, offset=s.offset, smoothing=smoothing)
+        return [Coulomb(Fc=s.Fc, offset=s.offset, smoothing=smoothing)]
     if cls is CoulombViscous:
-        return CoulombViscous(Fc=s.Fc, Fv=s.Fv, offset=s.offset, smoothing=smoothing)
+        return [CoulombViscous(Fc=s.Fc, Fv=s.Fv, offset=s.offset, smoothing=smoothing)]
     if cls is Tustin:
-        return Tustin(Fc=s.Fc, Fs=s.Fs, vs=s.vs, Fv=s.Fv, offset=s.offset, smoothing=smoothing)
+        return [Tustin(Fc=s.Fc, Fs=s.Fs, vs=s.vs, Fv=s.Fv, offset=s.offset, smoothing=smoothing)]
     if cls is BoPavelescu:
-        return BoPavelescu(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0, Fv=s.Fv, offset=s.offset, smoothing=smoothing)
+        return [BoPavelescu(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0, Fv=s.Fv, offset=s.offset, smoothing=smoothing)]
     stribeck = ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0)
     if cls is LuGre:
-        return LuGre(stribeck, sigma0=s.stiffness, sigma1=0.0, sigma2=s.Fv, offset=s.offset, smoothing=smoothing)
+        return [LuGre(stribeck, sigma0=s.stiffness, sigma1=0.0, sigma2=s.Fv, offset=s.offset, smoothing=smoothing)]
     if cls is LuGreBacklash:
         gap, sigma0 = _linkage_gap(records, s)
-        return LuGreBacklash(
-            stribeck, sigma0=sigma0, sigma1=0.0, sigma2=s.Fv, gap=gap, offset=s.offset, smoothing=smoothing
-        )
+        return [
+            LuGreBacklash(
+                stribeck, sigma0=sigma0, sigma1=0.0, sigma2=s.Fv, gap=gap, offset=s.offset, smoothing=smoothing
+            )
+        ]
     if cls is GMS:
         found = maxwell_slip_elements(records, s, elements, viscous=True)
         if found is not None:  # the elements of a Maxwell-slip model of the record: stiffness and force shares
             thresholds, k, offset, Fv = found
-            if without_small_elements:
-                thresholds, k = _without_small_elements(thresholds, k)
-            capacity = k * thresholds
-            guess = GMS(
-                stribeck, k=k, alpha=capacity / capacity.sum(), C=10.0 * s.Fs, sigma2=Fv, offset=offset,
-                smoothing=smoothing,
-            )  # fmt: skip
-            return _screen_gms_sliding_law(guess, records)
+            sets = [(thresholds, k)]
+            if without_small_elements:  # a second start where replacing the small elements changes the first
+                replaced = _without_small_elements(thresholds, k)
+                sets += [] if np.array_equal(replaced[1], k) else [replaced]
+            return [
+                _screen_gms_sliding_law(
+                    GMS(
+                        stribeck,
+                        k=k_i,
+                        alpha=t_i * k_i / np.sum(t_i * k_i),
+                        C=10.0 * s.Fs,
+                        sigma2=Fv,
+                        offset=offset,
+                        smoothing=smoothing,
+                    ),
+                    records,
+                )  # fmt: skip
+                for t_i, k_i in sets
+            ]
         shares = np.arange(elements, 0, -1, dtype=float)  # stiffer elements first
-        return GMS(
-            stribeck,
-            k=s.stiffness * shares / shares.sum(),
-            alpha=np.full(elements, 1.0 / elements),
-            C=10.0 * s.Fs,
-            sigma2=s.Fv,
-            offset=s.offset,
-            smoothing=smoothing,
-        )
+        return [
+            GMS(
+                stribeck,
+                k=s.stiffness * shares / shares.sum(),
+                alpha=np.full(elements, 1.0 / elements),
+                C=10.0 * s.Fs,
+                sigma2=s.Fv,
+                offset=s.offset,
+                smoothing=smoothing,
+            )
+        ]
     if cls is Dahl:
-        return Dahl(sigma0=s.stiffness, Fc=s.Fc, offset=s.offset, smoothing=smoothing)
+        return [Dahl(sigma0=s.stiffness, Fc=s.Fc, offset=s.offset, smoothing=smoothing)]
     found = maxwell_slip_elements(records, s, elements)
     if found is None:  # no motion to regress on: the elements share the static level
         thresholds = s.thresholds(elements)
-        return MaxwellSlip.nlr(
-            k=s.Fs / elements / thresholds, thresholds=thresholds, offset=s.offset, smoothing=smoothing
-        )
+        return [
+            MaxwellSlip.nlr(k=s.Fs / elements / thresholds, thresholds=thresholds, offset=s.offset, smoothing=smoothing)
+        ]
     thresholds, k, offset, _ = found
-    return MaxwellSlip.nlr(k=k, thresholds=thresholds, offset=offset, smoothing=smoothing)
+    return [MaxwellSlip.nlr(k=k, thresholds=thresholds, offset=offset, smoothing=smoothing)]
 
 
 GRID_ELEMENTS = 48  # the dense LR model of `maxwell_slip_elements`

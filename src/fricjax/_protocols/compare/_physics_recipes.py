@@ -15,7 +15,13 @@ import numpy as np
 
 from ..._constraints import unwrap
 from ..._estimation._fit import fit
-from ..._estimation._initial_guess import RecordScales, element_count, initial_guess, maxwell_slip_elements
+from ..._estimation._initial_guess import (
+    RecordScales,
+    element_count,
+    initial_guess,
+    initial_guesses,
+    maxwell_slip_elements,
+)
 from ..._estimation._levenberg_marquardt import levenberg_marquardt
 from ..._estimation._solution import FitResult
 from ..._estimation._strategies import MultiStart, ParameterScaling
@@ -172,14 +178,13 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         scales = DataScales.from_data(split.train_records)
         eps = max(1e-3 * scales.dx, 1e-12)
         prefix = wrapper_prefix(start)
-        guess = initial_guess(friction_of(start), split.train_records, smoothing=Smooth(eps))
-        replaced = initial_guess(guess, split.train_records, without_small_elements=True)
+        guesses = initial_guesses(
+            friction_of(start), split.train_records, smoothing=Smooth(eps), without_small_elements=True
+        )
         count = max(SCREENED_GMS_STARTS, settings.starts)
-        starts = {"data-driven start": guess}
-        if not np.array_equal(np.asarray(unwrap(replaced).k), np.asarray(unwrap(guess).k)):
-            starts["data-driven start, its small elements replaced"] = replaced
+        names = ("data-driven start", "data-driven start, its small elements replaced")
         results = []
-        for name, begin in starts.items():
+        for name, begin in zip(names, guesses, strict=False):
             result = fit(
                 with_friction(start, begin),
                 train,

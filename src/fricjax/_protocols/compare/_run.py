@@ -388,8 +388,9 @@ def run_compare(
         for k, (record, label) in enumerate(zip(tests, labels, strict=True)):
             scored = rows if k == 0 else rows_on_test(rows, record)
             for stem, plot in zip(FIGURES, (plot_prediction_errors, plot_test_loops), strict=True):
-                staging.write(_figure(stem, k), functools.partial(plot, scored, record, units=units, label=label))
-                figures.append(_figure(stem, k))
+                name = _figure(stem, k)
+                staging.write(name, functools.partial(plot, scored, record, units=units, label=label))
+                figures.append(name)
         if len(tests) > 1:
             staging.write("test_records.png", functools.partial(plot_test_records, rows, labels))
             figures.append("test_records.png")
