@@ -24,8 +24,11 @@ on its own split: GMS's test NMSE against LuGre's (issue 30: within 3x); `--sigm
 sweeps the bristle stiffness (breakaway displacement 14, 1.4, 0.14 um) and the regime, one record each (compare's
 output of each in `OUT/REGIME-SIGMA0` with `--out OUT`).
 
-Run: `python benchmarks/held_out_compare.py [--seed 0] [--out DIR] [--records DIR] [--lugre]` (2 training scenarios:
-about 4 minutes on 2 cores).
+`--floor` (with `--lugre`): also the least NMSE a GMS reaches on each record's noise-free force; `--masing-probe`: a
+GMS built to follow LuGre's reversal curve, run on a LuGre-made record (what no GMS can follow).
+
+Run: `python benchmarks/held_out_compare.py [--seed 0] [--out DIR] [--records DIR] [--lugre [--floor]]
+[--masing-probe]` (2 training scenarios: about 4 minutes on 2 cores).
 """
 
 from __future__ import annotations
@@ -161,12 +164,67 @@ def truth_started_fit(truth: fj.GMS, files: dict[str, tuple[pathlib.Path, float]
     print(json.dumps({"benchmark": "held_out_compare_truth_started", "training": "mixed", **fits, **environment()}))
 
 
-def lugre_made_record(seed: int, out: str | None, sigma0: float = 1e5, regime: str = "mixed") -> None:
+def gms_floor(data: fj.TribometerData, elements: int, steps: int = 400) -> dict[str, Any]:
+    """The least NMSE [%] a GMS reached on the **noise-free** force of a record (the same measured displacement):
+    Levenberg-Marquardt from `fj.initial_guess` with `elements` elements, smoothing 1 nm, on the whole record.
+    A local search: what the best effort reaches, not a proof that no GMS does better; with the record's noise
+    NMSE `n` the least ratio to a model at the noise floor is about `(floor + n) / n`."""
+    clean = np.asarray(data.clean_force)
+    target = fj.FrictionData(data.full.motion, clean)
+    start = fj.initial_guess(fj.GMS, target, elements=elements, smoothing=fj.Smooth(1e-9))
+    result = fj.fit(start, target, solver=fj.levenberg_marquardt(), steps=steps, tolerance=1e-8)
+    free = np.asarray(fj.simulate(fj.exact(result.model), data.full.motion))
+    return {
+        "elements": elements,
+        "nmse_percent": float(100 * np.mean((free - clean) ** 2) / np.var(clean)),
+        "result": result.message,
+    }
+
+
+def masing_probe(seed: int, elements: int = 16) -> None:
+    """Why no GMS follows a LuGre: a GMS built by hand to reproduce LuGre's reversal curve from saturation, run on a
+    LuGre-made sliding record (noise-free; LuGre with `Fs = Fc`, `sigma1 = 0`, so that its reversal from saturation
+    is exactly `2 F (1 - exp(-s sigma0 / F))` at force level F, which Masing's rule turns into the virgin curve `F (1 -
+    exp(-2 u sigma0 / F))`, drawn by `elements` Maxwell-slip elements at breakpoints 0.05-8 in units of `F / (2
+    sigma0)`). One JSON line: its NMSE [%] and the sample where it is farthest from LuGre (GMS closes the minor loop
+    of a dip in the motion, LuGre restarts from it)."""
+    sigma0 = 1e5
+    stribeck = fj.ExponentialStribeck(Fc=1.0, Fs=1.0001, vs=1e-3)
+    truth = fj.exact(fj.LuGre(stribeck, sigma0=sigma0, sigma1=0.0, sigma2=10.0))
+    data = fj.make_tribometer("sliding", seed=seed, model=truth, duration=2.5, noise=False)
+    clean, motion = np.asarray(data.clean_force), data.full.motion
+    q = np.geomspace(0.05, 8.0, elements)  # breakpoints of the virgin curve, in units of F / (2 sigma0)
+    curve = np.concatenate([[0.0], 1.0 - np.exp(-q)])
+    slope = np.diff(curve) / np.diff(np.concatenate([[0.0], q]))
+    alpha = (slope - np.concatenate([slope[1:], [0.0]])) * q  # each element's share of the force
+    alpha = alpha / alpha.sum()
+    gms = fj.exact(fj.GMS(stribeck, k=alpha * 2 * sigma0 / q, alpha=alpha, C=1e4, sigma2=10.0))
+    force = np.asarray(fj.simulate(gms, motion))
+    worst = int(np.argmax(np.abs(force - clean)))
+    x = np.asarray(motion.x)
+    line = {
+        "benchmark": "held_out_compare_masing_probe",
+        "elements": elements,
+        "gms_nmse_percent": float(100 * np.mean((force - clean) ** 2) / np.var(clean)),
+        "worst_sample": worst,
+        "lugre_force_N": float(clean[worst]),
+        "gms_force_N": float(force[worst]),
+        "velocity_mm_s": float(1e3 * np.asarray(motion.v)[worst]),
+        "dip_before_um": float(1e6 * (np.max(x[max(worst - 40, 0) : worst]) - np.min(x[max(worst - 40, 0) : worst]))),
+        "seed": seed,
+    }
+    print(json.dumps({**line, **environment()}), flush=True)
+
+
+def lugre_made_record(
+    seed: int, out: str | None, sigma0: float = 1e5, regime: str = "mixed", floor: bool = False
+) -> None:
     """A record made by an exact LuGre (5000 samples, force noise 1 % of its range; bristle stiffness `sigma0`
     [N/m]; breakaway displacement `Fs / sigma0` = 1.4 N / sigma0, to which the tribometer scales the amplitude)
     fitted by `fricjax compare` on its own 60 / 20 / 20 split: GMS's test NMSE against LuGre's (issue 30: within
     3x). `sigma1` keeps the damping ratio of the default record (300 N s/m at 1e5 N/m: `sigma1 = 300 sqrt(sigma0 /
-    1e5)`)."""
+    1e5)`). `floor`: also the least NMSE a GMS (8 and 16 elements) reached on the record's noise-free force
+    (`gms_floor`), and the ratio to LuGre that it implies at the record's noise level."""
     sigma1 = 300.0 * float(np.sqrt(sigma0 / 1e5))
     stribeck = fj.ExponentialStribeck(Fc=1.0, Fs=1.4, vs=1e-3)
     truth = fj.exact(fj.LuGre(stribeck, sigma0=sigma0, sigma1=sigma1, sigma2=10.0))
@@ -196,6 +254,16 @@ def lugre_made_record(seed: int, out: str | None, sigma0: float = 1e5, regime: s
         "compare_wall_s": round(time.perf_counter() - start, 1),
         "seed": seed,
     }
+    if floor:
+        clean = np.asarray(data.clean_force)
+        noise_percent = 100 * noise**2 / float(np.var(clean))
+        floors = [gms_floor(data, elements) for elements in (8, 16)]
+        least = min(f["nmse_percent"] for f in floors)
+        line |= {
+            "noise_nmse_percent": noise_percent,
+            "gms_floor_clean": floors,
+            "least_gms_over_noise": (least + noise_percent) / noise_percent,
+        }
     print(json.dumps({**line, **environment()}), flush=True)
 
 
@@ -213,6 +281,16 @@ def main() -> None:
         "--lugre", action="store_true", help="instead: a LuGre-made record, GMS's test NMSE against LuGre's (issue 30)"
     )
     parser.add_argument(
+        "--masing-probe",
+        action="store_true",
+        help="instead: a GMS built to follow LuGre's reversal curve, run on a LuGre-made record (why GMS cannot)",
+    )
+    parser.add_argument(
+        "--floor",
+        action="store_true",
+        help="--lugre: also the least NMSE a GMS reaches on the record's noise-free force (8 and 16 elements)",
+    )
+    parser.add_argument(
         "--sigma0",
         type=float,
         nargs="+",
@@ -228,11 +306,14 @@ def main() -> None:
     )
     args = parser.parse_args()
     warnings.simplefilter("ignore")  # the window warnings of fj.initialise on pre-sliding windows
+    if args.masing_probe:
+        masing_probe(args.seed)
+        return
     if args.lugre:
         for regime in args.regime:
             for sigma0 in args.sigma0:
                 out = None if args.out is None else f"{args.out}/{regime}-{sigma0:g}"
-                lugre_made_record(args.seed, out, sigma0, regime)
+                lugre_made_record(args.seed, out, sigma0, regime, args.floor)
         return
     truth = six_element_truth()
     with tempfile.TemporaryDirectory() as scratch:
