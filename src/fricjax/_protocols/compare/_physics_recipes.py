@@ -163,10 +163,11 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
     choosing between the two (benchmarks/README.md, "Global search, round 6").
 
     On the records of benchmarks/global_search.py this reaches 1.2x of the true model's held-out error for 10 of 10
-    random GMS models of both families with the polish below, 9 of 10 without it (the former recipe, Adam with smoothing continuation from both ends of the Stribeck velocity
-    range then an LM polish, compiled two more programs and cost twice the time; on the default mixed record it
-    lost to this start on validation). The viscous coefficient moves on the scale `0.1 Fc / v_fast` (a viscous force
-    of 10 % of the Coulomb level at the fast end), not 1 N s/m; the offset is fitted with the other parameters.
+    random GMS models of both families with the polish below, 9 of 10 without it (the former recipe, Adam with
+    smoothing continuation from both ends of the Stribeck velocity range then an LM polish, compiled two more
+    programs and cost twice the time; on the default mixed record it lost to this start on validation). The viscous
+    coefficient moves on the scale `0.1 Fc / v_fast` (a viscous force of 10 % of the Coulomb level at the fast end),
+    not 1 N s/m; the offset is fitted with the other parameters.
 
     The budget is `GMS_STEP_FACTOR` x `--steps`, so the tolerance, judged over an eighth of the budget, spans
     `--steps / 4` steps (10), not the `--steps / 8` (5) of the other fits: GMS's LM rejects runs of 5 steps in a
