@@ -186,7 +186,10 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         result: FitResult, train: Any, records: dict[str, Any], scaling: ParameterScaling, eps: float, progress: bool
     ) -> FitResult:
         """`result` polished by LM through a two-stage smoothing continuation back to `eps` [m], where the validation
-        part prefers the polished model (else `result`, saying so)."""
+        part prefers the polished model (else `result`, saying so); a fit without a finite training loss is left as
+        it is."""
+        if not np.isfinite(result.train_loss):
+            return result
         polished = fit(
             result.model,
             train,
