@@ -10,13 +10,13 @@ different amplitude and frequency (both from pre-sliding into sliding), the forc
 range) and the displacement quantised (2 nm) as a sensor gives them. Each fit starts from `fj.initial_guess` (the
 true element count; GMS also from its start with the small elements replaced, where that differs, the lower training
 loss kept, as `fricjax compare` does with its validation part; each GMS fit then polished by LM through a two-stage
-smoothing continuation, 10x the width then 1x, kept where its training loss is lower, as compare does; `--no-polish`
-leaves it out) and runs Levenberg-Marquardt (smooth model, separable
-linear parameters) with `--starts` starts (`--screen 0`: screened by their loss at the start, the best `--keep`
-fitted); a fit succeeds when its exact free run's NMSE on the test record is within `--tolerance` (1.2) times the
-true model's NMSE on the same measured input. Prints one JSON line per family and start count (success rate, median
-ratio, wall time per fit, the start's time included, how many fits stopped at their step budget: not converged) and
-one per fit with `--verbose`.
+smoothing continuation, 10x the width then 1x, kept where its training loss is lower (compare: its validation
+loss); `--no-polish` leaves it out) and runs Levenberg-Marquardt (smooth model, separable linear parameters) with
+`--starts` starts (`--screen 0`: screened by their loss at the start, the best `--keep` fitted); a fit succeeds
+when its exact free run's NMSE on the test record is within `--tolerance` (1.2) times the true model's NMSE on the
+same measured input. Prints one JSON line per family and start count (success rate, median ratio, wall time per fit,
+the start's time included, how many fits stopped at their step budget: not converged) and one per fit with
+`--verbose`.
 
 Run: `python benchmarks/global_search.py [--seeds 10] [--starts 1 8] [--screen 0 --keep 4] [--families gms nlr]`.
 """

@@ -306,6 +306,8 @@ def main() -> None:
     )
     args = parser.parse_args()
     warnings.simplefilter("ignore")  # the window warnings of fj.initialise on pre-sliding windows
+    if args.floor and not args.lugre:
+        parser.error("--floor goes with --lugre (the least GMS error on a LuGre-made record)")
     if args.masing_probe:
         masing_probe(args.seed)
         return
