@@ -201,7 +201,7 @@ def masing_probe(seed: int, elements: int = 16) -> None:
     gms = fj.exact(fj.GMS(stribeck, k=alpha * 2 * sigma0 / q, alpha=alpha, C=1e4, sigma2=10.0))
     force = np.asarray(fj.simulate(gms, motion))
     worst = int(np.argmax(np.abs(force - clean)))
-    x = np.asarray(motion.x)
+    before = np.asarray(motion.x)[max(worst - 40, 0) : worst]  # the 40 samples before it
     line = {
         "benchmark": "held_out_compare_masing_probe",
         "elements": elements,
@@ -210,7 +210,7 @@ def masing_probe(seed: int, elements: int = 16) -> None:
         "lugre_force_N": float(clean[worst]),
         "gms_force_N": float(force[worst]),
         "velocity_mm_s": float(1e3 * np.asarray(motion.v)[worst]),
-        "dip_before_um": float(1e6 * (np.max(x[max(worst - 40, 0) : worst]) - np.min(x[max(worst - 40, 0) : worst]))),
+        "dip_before_um": float(1e6 * np.ptp(before)),
         "seed": seed,
     }
     print(json.dumps({**line, **environment()}), flush=True)

@@ -181,27 +181,15 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
     global_search.py, `gms-spread` seed 7: stalled 15 % above the truth-started training loss, polished to it;
     benchmarks/README.md, "Global search, round 7")."""
 
-    def polish(
-        result: FitResult, train: Any, records: dict[str, Any], scaling: ParameterScaling, eps: float, progress: bool
-    ) -> FitResult:
+    def polish(result: FitResult, train: Any, lm: dict[str, Any], eps: float) -> FitResult:
         """`result` polished by LM through a two-stage smoothing continuation back to `eps` [m], where the validation
         part prefers the polished model (else `result`, saying so); a fit without a finite training loss is left as
         it is. The polish starts from `result`'s model; with several training records each record's nuisances
-        (offset, drift, initial state) start again from their least-squares start, as in any `fj.fit`."""
+        (offset, drift, initial state) start again from their least-squares start, as in any `fj.fit`. `lm`: the
+        screened fit's own arguments (scaling, solver, budget, tolerance, records)."""
         if not np.isfinite(result.train_loss):
             return result
-        polished = fit(
-            result.model,
-            train,
-            scaling=scaling,
-            solver=levenberg_marquardt(),
-            steps=GMS_STEP_FACTOR * settings.steps,
-            tolerance=settings.tolerance,
-            continuation=Continuation(GMS_POLISH_WIDTH * eps, eps, stages=2),
-            progress=progress,
-            compute_std=True,
-            **records,
-        )
+        polished = fit(result.model, train, continuation=Continuation(GMS_POLISH_WIDTH * eps, eps, stages=2), **lm)
         wall_time = result.wall_time + polished.wall_time
         if _choice_key(polished) < _choice_key(result):
             how = f"polished by a smoothing continuation ({GMS_POLISH_WIDTH:g}x the width, then 1x)"
@@ -231,26 +219,21 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         )
         count = max(SCREENED_GMS_STARTS, settings.starts)
         names = ("data-driven start", "data-driven start, its small elements replaced")
-        scaling = ParameterScaling({f"{prefix}sigma2": 0.1 * scales.Fc / scales.v_fast})
+        lm = {  # the arguments of the screened fits and of their polish
+            "scaling": ParameterScaling({f"{prefix}sigma2": 0.1 * scales.Fc / scales.v_fast}),
+            "solver": levenberg_marquardt(),
+            "steps": GMS_STEP_FACTOR * settings.steps,
+            "tolerance": settings.tolerance,
+            "progress": progress,
+            "compute_std": True,
+            **records,
+        }
+        multistart = MultiStart(count, spread=1.0, distribution="log-uniform", keep=SCREENED_GMS_KEEP, screen=0.0)
         results = []
         for name, begin in zip(names, guesses, strict=False):
-            result = fit(
-                with_friction(start, begin),
-                train,
-                scaling=scaling,
-                solver=levenberg_marquardt(),
-                steps=GMS_STEP_FACTOR * settings.steps,
-                tolerance=settings.tolerance,
-                multistart=MultiStart(
-                    count, spread=1.0, distribution="log-uniform", keep=SCREENED_GMS_KEEP, screen=0.0
-                ),
-                seed=seed,
-                progress=progress,
-                compute_std=True,
-                **records,
-            )
+            result = fit(with_friction(start, begin), train, multistart=multistart, seed=seed, **lm)
             result = dataclasses.replace(result, message=f"{name}, {count} screened starts, LM: {result.message}")
-            results.append(polish(result, train, records, scaling, eps, progress))
+            results.append(polish(result, train, lm, eps))
         best = min(results, key=_choice_key)
         note = "; the other start was fitted too and not chosen" if len(results) > 1 else ""
         return dataclasses.replace(best, message=best.message + note, wall_time=sum(r.wall_time for r in results))
