@@ -297,6 +297,12 @@ SMOOTH_CASES = {
     # the play only (dimensionless eps, a fraction of gap / 2), around an exact model; the motion (3e-4 m peak to
     # peak) crosses the 5e-5 m gap at every reversal
     "backlash": (lambda: fj.Backlash(fj.Dahl(1e4, 1.0), 5e-5), [1e-1, 3e-2, 1e-2, 3e-3, 1e-3], 2e-4),
+    # LuGre behind a gap of 5e-5 m (the motion crosses it at every reversal); eps on |v| as LuGre's
+    "lugre-backlash-asym": (
+        lambda: fj.LuGreBacklash(asym_stribeck(), 1e5, 300.0, 0.4, gap=5e-5),
+        [1e-3, 1e-4, 1e-5, 1e-6, 1e-7],
+        1e-4,
+    ),
 }
 
 

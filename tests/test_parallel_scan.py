@@ -219,3 +219,34 @@ def test_fit_device_choice_on_cpu():
     if not [d for d in jax.devices() if d.platform != "cpu"]:
         with pytest.raises(ValueError, match="sees only CPU devices"):
             fj.fit(start, data, device="gpu")
+
+
+def _has_loop(fun, *args) -> bool:
+    """Whether the program of `fun(*args)` holds a sequential loop (a scan or while primitive, at any depth)."""
+    text = str(jax.make_jaxpr(fun)(*args))
+    return " scan[" in text or " while[" in text
+
+
+def test_auto_choices_when_the_default_device_is_an_accelerator(monkeypatch):
+    """What `scan="auto"` and `fj.fit(device="auto")` choose on a GPU / TPU, run here with JAX's default backend
+    reported as "gpu": the parallel form (no loop: an accelerator unrolls its rounds) from 256 samples on for a
+    model that has one, the sequential scan below that and for a model without one; a single fit of a model
+    without the form moves to the host CPU and says so, a multi-start one stays. Lengths not used elsewhere in
+    this file, so that no program traced for the CPU is reused."""
+    lugre = MODELS["lugre"]
+    gms = fj.GMS(fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3), k=[1e4, 5e3], alpha=[0.5, 0.5], C=20.0)
+    long, short = _motion(2999, seed=11), _motion(211, seed=12)
+    sequential = fj.simulate(lugre, long, scan="sequential")
+    assert _has_loop(lambda m: fj.simulate(m, long, scan="sequential"), lugre)  # the probe sees a scan
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert not _has_loop(lambda m: fj.simulate(m, long), lugre)
+    assert _relative(fj.simulate(lugre, long), sequential) < 1e-12
+    assert _has_loop(lambda m: fj.simulate(m, short), lugre)  # below PARALLEL_MIN_LENGTH
+    assert _has_loop(lambda m: fj.simulate(m, long), gms)  # no parallel form
+
+    dahl = fj.Dahl(1e5, 1.0)  # its exponent trained: no parallel form
+    data = fj.FrictionData(short, fj.simulate(dahl, short))
+    single = fj.fit(dahl, data, solver=fj.levenberg_marquardt(), steps=2)
+    assert "on cpu: sequential work on the host CPU (no time-parallel form" in single.message
+    several = fj.fit(dahl, data, solver=fj.levenberg_marquardt(), steps=2, multistart=2)
+    assert "on cpu" not in several.message

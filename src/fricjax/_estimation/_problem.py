@@ -98,8 +98,9 @@ def _set_spec(spec: Any, model: Any, selector: Any, value: bool, argument: str) 
     return spec
 
 
-def physical_spec(model: Any, spec: Any) -> Any:
-    """The trainable spec mapped onto `unwrap(model)` (a wrapper becomes one leaf: trained if any raw leaf is)."""
+def physical_spec(spec: Any) -> Any:
+    """The trainable spec of a model mapped onto the leaves of `unwrap(model)`: a wrapper (a bounded or transformed
+    parameter) becomes one leaf, trained if any of its raw leaves is; a `Fixed` one is not trained."""
 
     def is_wrapper(node: Any) -> bool:
         return isinstance(node, AbstractUnwrappable)
@@ -428,7 +429,7 @@ def gauss_newton_std(
     if linear_spec is not None:
         spec = jax.tree_util.tree_map(lambda a, b: bool(a) or bool(b), spec, linear_spec)
     physical = unwrap(model)
-    phys_spec = physical_spec(model, spec)
+    phys_spec = physical_spec(spec)
     params, rest = eqx.partition(physical, phys_spec)
     if not jax.tree_util.tree_leaves(params):
         return None
