@@ -124,9 +124,10 @@ def test_model_names_are_case_insensitive_and_long_labels_keep_the_table_aligned
         fj.compare.ModelScore("b", "short", 0.5, 0.2, 1.0, 4, "successful", None, np.zeros(1)),
     ]
     lines = fj.compare.format_table(rows).splitlines()[:3]  # the header and the rows (a legend follows)
-    assert all(line[60] == " " for line in lines)  # the first column holds the longest label whole
-    assert [line[61:67].strip() for line in lines] == ["params", "4", "3"]  # and the next one stays aligned
-    assert lines[1][:60].rstrip() == "short" and lines[2][:60] == "x" * 60  # sorted by NMSE, labels whole
+    # two columns mark the validation part's choice ("* "), then the longest label whole
+    assert all(line[62] == " " for line in lines)
+    assert [line[63:69].strip() for line in lines] == ["params", "4", "3"]  # and the next one stays aligned
+    assert lines[1][:62].rstrip() == "  short" and lines[2][:62] == "  " + "x" * 60  # sorted by NMSE, labels whole
     assert "MAX/std" in lines[0]
 
 

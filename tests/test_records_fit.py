@@ -275,5 +275,5 @@ def test_initialise_recovers_the_offset_and_state_a_record_starts_in():
     # a window without sliding (a pre-sliding branch) cannot tell the offset from the initial state: it says so
     small = fj.Motion.from_position(2e-6 * np.sin(2 * np.pi * 1.0 * t[:300]), dt=DT)
     presliding = fj.FrictionData(small, np.asarray(fj.simulate(truth, small)) + 0.4)
-    with pytest.warns(UserWarning, match="not determined"):
+    with pytest.warns(UserWarning, match=r"\(LuGre, a window of 100 samples\).*poorly determined"):
         fj.initialise(truth, presliding.slice(0, 100))

@@ -159,8 +159,8 @@ def test_the_table_flags_a_row_with_notes_and_lists_them_below():
     clean = fj.compare.ModelScore("gms", "GMS", 0.5, 0.4, 3.0, 14, "successful", None, np.zeros(1), tests=scores)
     lines = fj.compare.format_table([flagged, clean]).splitlines()
     assert "MAX/std 1" in lines[0]  # the first test record's, as the NMSE the rows are sorted by
-    assert lines[1].startswith("GMS") and lines[1].endswith("successful")
-    assert lines[2].startswith("LuGre") and lines[2].endswith("successful (note 1)")
+    assert lines[1].startswith("  GMS") and lines[1].endswith("successful")
+    assert lines[2].startswith("  LuGre") and lines[2].endswith("successful (note 1)")
     assert lines[-1] == "note 1, LuGre: Fs < Fc; x"
 
 

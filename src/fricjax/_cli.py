@@ -5,6 +5,7 @@ and an exit status."""
 from __future__ import annotations
 
 import argparse
+import difflib
 import os
 import pathlib
 import sys
@@ -41,7 +42,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with stop_on_signals(restore=argv is not None):
         command, out = "fricjax", "the output folder"
         try:
-            args = _parser().parse_args(argv)
+            args = _parse(argv)
             command, out = f"fricjax {args.command}", args.out
             check_interrupt()
             with warnings.catch_warnings():  # a warning as one line among the run's own ("warning: ..."), not
@@ -55,6 +56,20 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _print_warning(message: Warning | str, category: type[Warning], *_: object, **__: object) -> None:
     """`warnings.showwarning` for the command line: `warning: MESSAGE` on stdout, with the run's other lines."""
     print("warning: " + " ".join(str(message).split()), flush=True)
+
+
+def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
+    """The arguments; an unknown option is reported by its command's parser (its usage, not the top level's),
+    with the closest option names (`--modles`: did you mean --models?)."""
+    parser = _parser()
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        command = parser.commands[args.command]  # type: ignore[attr-defined]
+        known = [o for action in command._actions for o in action.option_strings if o.startswith("--")]
+        hints = {u: difflib.get_close_matches(u.split("=")[0], known, n=1) for u in unknown if u.startswith("-")}
+        said = "; ".join(f"did you mean {h[0]} for {u}?" for u, h in hints.items() if h)
+        command.error(f"unrecognized arguments: {' '.join(unknown)}" + (f" ({said})" if said else ""))
+    return args
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -210,6 +225,7 @@ def _parser() -> argparse.ArgumentParser:
         "the host CPU when it has no time-parallel form or its record is short, as fj.fit(device='auto') chooses; "
         "stated in the log) (default: %(default)s)",
     )
+    parser.commands = {"demo": demo, "compare": compare}  # type: ignore[attr-defined]
     return parser
 
 
@@ -255,7 +271,11 @@ def _run(args: argparse.Namespace) -> int:
         run_demo(out, figure=not args.no_figure)
         return 0
     if args.device == "gpu" and not [d for d in jax.devices() if d.platform != "cpu"]:
-        print(f"fricjax compare: --device gpu but JAX sees only CPU devices ({jax.devices()})", file=sys.stderr)
+        print(
+            f"fricjax compare: --device gpu but JAX sees only CPU devices ({jax.devices()}); use --device cpu or auto "
+            "(or install JAX for your accelerator)",
+            file=sys.stderr,
+        )
         return 2
     try:
         run_compare(

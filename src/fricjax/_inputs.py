@@ -179,7 +179,15 @@ def _sample_time(dt: ArrayLike, dtype: Any) -> Array:
 def velocity_from_position(x: Array, dt: Array) -> Array:
     """Central differences (second order inside, first order at the two ends) along the last axis."""
     if x.shape[-1] < 2:
-        raise ValueError("Motion: need at least 2 samples to differentiate a signal.")
+        column = x.ndim == 2 and x.shape[0] > 1  # a column vector: time along the first axis
+        raise ValueError(
+            "Motion: need at least 2 samples to differentiate a signal"
+            + (
+                f"; the signal has shape {tuple(x.shape)} and time is the last axis: pass a 1-D array (np.ravel)."
+                if column
+                else f", got shape {tuple(x.shape)}."
+            )
+        )
     if isinstance(x, np.ndarray):  # on the host (NumPy in, NumPy out)
         return np.gradient(x, axis=-1) / np.asarray(dt, x.dtype)
     return jnp.asarray(jnp.gradient(x, axis=-1)) / dt

@@ -131,6 +131,11 @@ def exact(model: eqx.Module) -> eqx.Module:
 
 def with_smoothing(model: eqx.Module, smoothing: AbstractSmoothing) -> eqx.Module:
     """Return `model` with every smoothing strategy inside it replaced by `smoothing` (e.g. `Smooth(1e-4)`)."""
+    if not isinstance(smoothing, AbstractSmoothing):
+        raise TypeError(
+            f"with_smoothing: `smoothing` must be fj.Smooth(eps) or fj.Exact(), got {smoothing!r}"
+            + (f"; pass fj.Smooth({smoothing!r})." if isinstance(smoothing, (int, float)) else ".")
+        )
     return jax.tree_util.tree_map(
         lambda leaf: smoothing if isinstance(leaf, AbstractSmoothing) else leaf,
         model,

@@ -115,7 +115,8 @@ class RecordInfo:
     name or NPZ key as written in the file (a normal force summed from several columns: their names joined by
     `" + "`); `ignored` lists the columns and keys not used (a velocity column replaced by `velocity="derive"`
     among them); `units` the file's units of displacement and friction force (the data returned with it are
-    SI); `samples` the record length; `dt` the sample time used [s].
+    SI); `samples` the record length; `dt` the sample time used [s]; `assumed_si` the quantities (`"x"`,
+    `"force"`) whose unit neither the file nor an argument gave, read as SI (m, N).
     """
 
     path: str
@@ -124,6 +125,7 @@ class RecordInfo:
     units: Units
     samples: int
     dt: float
+    assumed_si: tuple[str, ...] = ()
 
 
 def load_record(
@@ -349,7 +351,9 @@ def read_record(
                 "velocity='derive' (--velocity derive) to recompute it from the displacement (velocity='file', "
                 "--velocity file, keeps it unchecked)"
             )
-    return record, RecordInfo(str(path), columns, tuple(ignored), units, int(force.size), float(dt))
+    given = {"x": x_unit, "force": force_unit}
+    assumed = tuple(q for q in ("x", "force") if given[q] is None and not declared[q])
+    return record, RecordInfo(str(path), columns, tuple(ignored), units, int(force.size), float(dt), assumed)
 
 
 def _normal_force_names(path: pathlib.Path, names: str | Sequence[str] | None) -> dict[str, str]:
@@ -423,7 +427,10 @@ def _read_table(path: pathlib.Path, named: dict[str, str]) -> tuple[list[tuple[s
         detail = " ".join(str(err).split())  # one line, and short
         detail = detail if len(detail) <= 200 else detail[:197] + "..."
         raise RecordError(f"{path}: cannot read the file ({type(err).__name__}: {detail})") from err
-    raise RecordError(f"{path}: unsupported file type {suffix!r}; use .npz or .csv")
+    hint = (
+        " (the EMPS benchmark's .mat files: fj.load_emps, or `fricjax compare --data emps`)" if suffix == ".mat" else ""
+    )
+    raise RecordError(f"{path}: unsupported file type {suffix!r}; use .npz or .csv{hint}")
 
 
 def _read_npz(path: pathlib.Path) -> tuple[list[tuple[str, np.ndarray | None]], str | None]:

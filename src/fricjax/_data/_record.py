@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -90,7 +91,14 @@ class FrictionData(eqx.Module):
         """
         if not points:
             raise ValueError("FrictionData.split: give at least one split point (a fraction or an index).")
-        indices = [int(round(p * self.length)) if isinstance(p, float) else int(p) for p in points]
+        indices: list[int] = []
+        for p in points:
+            if isinstance(p, (bool, np.bool_)) or not isinstance(p, numbers.Real):
+                raise TypeError(
+                    f"FrictionData.split: split points are fractions in (0, 1) or sample indices, got {p!r}."
+                )
+            integral = isinstance(p, numbers.Integral)
+            indices.append(int(p) if integral else int(round(float(p) * self.length)))
         edges = [0, *indices, self.length]
         if any(b <= a for a, b in zip(edges[:-1], edges[1:], strict=True)):
             raise ValueError(

@@ -21,11 +21,8 @@ import numpy as np
 import optax
 
 from .._data._record import FrictionData
-from .._metrics import scaled_std
-from .._models._base import AbstractModel
-from .._simulate import check_force_shape
-from .._smoothing import AbstractSmoothing, Smooth, exact, is_concrete, with_smoothing
-from .._validation import got_model, nonnegative_float, nonnegative_int, optional, positive_int, seed_value
+from .._smoothing import AbstractSmoothing, Smooth, exact, with_smoothing
+from .._validation import nonnegative_float, nonnegative_int, optional, positive_int, seed_value
 from ._loop import Search, run_stage, start_losses
 from ._losses import AbstractLoss, SimulationLoss
 from ._placement import choose_device, to_device
@@ -42,7 +39,15 @@ from ._problem import (
     selector_items,
     selector_paths,
 )
-from ._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch, record_nuisances
+from ._records import (
+    Nuisances,
+    RecordBatch,
+    RecordsLoss,
+    as_record_batch,
+    check_burn_in,
+    check_records,
+    record_nuisances,
+)
 from ._sharding import shard_batch
 from ._solution import FitFailed, Solution
 from ._solvers import as_solver
@@ -196,7 +201,7 @@ def fit(
         )
     elif isinstance(validation, (list, tuple, dict, RecordBatch)):
         raise ValueError("fit: a list of validation records needs a list of training records as `data`.")
-    _check_records(model, data, validation, loss)
+    check_records(model, data, validation, loss)
     steps = positive_int(steps, "steps", "fit")
     eval_every = optional(positive_int, eval_every, "eval_every", "fit")
     seed = seed_value(seed, "seed", "fit")
@@ -214,6 +219,9 @@ def fit(
             f"fit: the validation burn-in ({getattr(val_loss_fn, 'burn_in', 0)} samples) leaves nothing to score "
             f"in a validation record of {validation.length} samples; lower `validation_burn_in` or pass more data."
         )
+    check_burn_in(loss, data, "data", "fit")
+    if isinstance(validation, RecordBatch):
+        check_burn_in(val_loss_fn, validation, "validation", "fit")
 
     # the plan: each strategy wraps the problem (before and after parameter selection), in the order given
     plan = FitPlan(model=model, seed=seed)
@@ -345,7 +353,13 @@ def fit(
             f"the validation loss of the returned model is not finite ({val_loss}); check the validation data "
             "(NaN, scale) or the model's behaviour on it; " + message
         )
-    if not np.isfinite(train_loss) and code not in ("diverged", "solver_failed"):
+    if not np.isfinite(train_loss) and code == "diverged":  # no finite loss was ever seen: not a divergence
+        message = (
+            f"the training loss is not finite ({train_loss}) at the start already, so no step could improve it: check "
+            "the initial parameters against the data (a force that overflows, the square root or logarithm of a "
+            "negative value in a custom model) and the data (NaN, scale); the initial model is returned"
+        )
+    elif not np.isfinite(train_loss) and code != "solver_failed":
         code, message = "diverged", f"the training loss of the returned model is not finite ({train_loss}); " + message
     std = None
     if compute_std and np.isfinite(train_loss):
@@ -466,31 +480,6 @@ def _several_records(
     if held:
         freeze = (*selector_items(freeze), *held)
     return batch, validation, RecordsLoss(loss, nuisances), freeze
-
-
-def _check_records(model: Any, data: Any, validation: Any, loss: Any) -> None:
-    if not isinstance(model, eqx.Module):
-        raise TypeError(f"fit: `model` must be a fricjax model (an equinox Module), got {got_model(model)}.")
-    data_type = getattr(loss, "data_type", FrictionData)
-    for name, value in (("data", data), ("validation", validation)):
-        if value is not None and not isinstance(value, data_type):
-            raise TypeError(
-                f"fit: `{name}` must be a {data_type.__name__} for {type(loss).__name__}, got {type(value).__name__}"
-                + (" (wrap motion and force as fj.FrictionData(motion, force))." if data_type is FrictionData else ".")
-            )
-    if isinstance(model, AbstractModel):  # the signals the model needs are in the records (dt, x / v, ...)
-        for record in (data, validation):
-            if isinstance(record, FrictionData):
-                model.check_inputs(record.motion)
-        if isinstance(data, FrictionData):  # one model, one trace of its step: the data's motion suffices
-            check_force_shape(model, data.motion)
-    for name, record in (("data", data), ("validation", validation)):
-        if isinstance(record, FrictionData) and getattr(loss, "normalise", False) and is_concrete(record.force):
-            if not float(scaled_std(np.asarray(record.force))) > 0:  # scaled: 1e-200 N is not constant
-                raise ValueError(
-                    f"fit: the measured force of `{name}` is constant (std = 0), so the normalised loss (error / "
-                    "std) is undefined; check the record, or use a loss with normalise=False."
-                )
 
 
 def _survivors(scores: np.ndarray, keep: int, count: int, how: str) -> tuple[np.ndarray, str]:

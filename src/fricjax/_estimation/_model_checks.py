@@ -22,6 +22,7 @@ import functools
 import pathlib
 import types
 import typing
+import warnings
 from typing import Any
 
 import equinox as eqx
@@ -38,26 +39,49 @@ _PARAMETER_MODULES = ("fricjax._models", "fricjax._systems", "fricjax._constrain
 def check_loaded(tree: Any, path: pathlib.Path) -> None:
     """Raise `ValueError` naming `path` and the offending field when `tree` (a loaded model file) breaks an
     invariant of its classes; see the module docstring."""
-    _check(tree, "model", path)
+    problem = _first_problem(tree, "model")
+    if problem:
+        name, where, what = problem
+        raise ValueError(
+            f"load_model: {path} holds an invalid {name} at `{where}`: {what}; the file is damaged or was edited (a "
+            "model built by its constructor cannot hold this), or was saved from a model that held it (save_model "
+            "warned)."
+        )
 
 
-def _check(node: Any, where: str, path: pathlib.Path) -> None:
+def warn_unloadable(tree: Any) -> None:
+    """Warn, as `save_model` writes it, that `load_model` will refuse `tree` (a parameter made non-finite by a
+    diverged update or an edit with `eqx.tree_at`, say): the file is written all the same, nothing is lost."""
+    problem = _first_problem(tree, "model")
+    if problem:
+        name, where, what = problem
+        warnings.warn(
+            f"save_model: `model` holds an invalid {name} at `{where}`: {what}, so load_model will refuse the file; "
+            "save a model with valid parameters (after a fit that diverged: the Solution's model is the best one "
+            "seen).",
+            UserWarning,
+            stacklevel=3,
+        )
+
+
+def _first_problem(node: Any, where: str) -> tuple[str, str, str] | None:
+    """The innermost invalid fricjax Module of `node`: its class name, its place and what is wrong, or None."""
+    children: list[tuple[Any, str]] = []
     if isinstance(node, (tuple, list)):
-        for i, item in enumerate(node):
-            _check(item, f"{where}[{i}]", path)
+        children = [(item, f"{where}[{i}]") for i, item in enumerate(node)]
     elif isinstance(node, dict):
-        for key, value in node.items():
-            _check(value, f"{where}[{key!r}]", path)
+        children = [(value, f"{where}[{key!r}]") for key, value in node.items()]
     elif isinstance(node, eqx.Module):
-        for f in dataclasses.fields(node):
-            _check(getattr(node, f.name), f"{where}.{f.name}", path)  # the innermost problem is named first
-        if type(node).__module__.startswith("fricjax."):
-            problem = _problem(node)
-            if problem:
-                raise ValueError(
-                    f"load_model: {path} holds an invalid {type(node).__name__} at `{where}`: {problem}; the file "
-                    "is damaged or was edited (a model built by its constructor cannot hold this)."
-                )
+        children = [(getattr(node, f.name), f"{where}.{f.name}") for f in dataclasses.fields(node)]
+    for child, place in children:  # the innermost problem is named first
+        problem = _first_problem(child, place)
+        if problem:
+            return problem
+    if isinstance(node, eqx.Module) and type(node).__module__.startswith("fricjax."):
+        what = _problem(node)
+        if what:
+            return type(node).__name__, where, what
+    return None
 
 
 def _problem(module: eqx.Module) -> str | None:

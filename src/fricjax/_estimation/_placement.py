@@ -69,7 +69,9 @@ def check_device(device: Any, where: str = "fit") -> None:
             "(e.g. device='cpu' to run on the host, or jax.devices('gpu')[0])."
         )
     if device in ("gpu", "accelerator") and not on_accelerator() and not _accelerators():
-        raise ValueError(f"{where}: device={device!r} but JAX sees only CPU devices ({jax.devices()}).")
+        raise ValueError(
+            f"{where}: device={device!r} but JAX sees only CPU devices ({jax.devices()}); use device='cpu' or 'auto'."
+        )
 
 
 def _accelerators() -> list[Any]:

@@ -14,6 +14,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .._constraints import unwrap
+from .._data._record import FrictionData
 from .._models.blackbox._polynomial import PolynomialNARX, Terms, evaluate_monomials, monomial_terms
 from .._models.blackbox._regressors import NARXRegressors
 from .._models.combine._sensor import SensorDrift
@@ -106,6 +107,15 @@ def identify_polynomial_narx(
     ```
     """
     where = "identify_polynomial_narx"
+    if not isinstance(data, FrictionData):
+        raise TypeError(
+            f"{where}: `data` must be one fj.FrictionData record, got {type(data).__name__}"
+            + (
+                " (join records end to end with fj.concatenate, or identify on each)."
+                if isinstance(data, (list, tuple))
+                else "."
+            )
+        )
     if regressors is None:
         regressors = NARXRegressors.from_data(data, signals, input_lags, output_lags)
     elif not isinstance(regressors, NARXRegressors):

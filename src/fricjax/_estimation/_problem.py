@@ -22,6 +22,7 @@ from .._smoothing import on_host
 from ._covariance import parameter_std
 from ._losses import AbstractLoss, SimulationLoss
 from ._lstsq import lstsq
+from ._records import RecordsLoss
 from ._solvers import dense_gauss_newton
 from ._strategies import submodels, where_from_path
 
@@ -190,6 +191,12 @@ def parameter_specs(model: Any, train: Any, freeze: Any, separable: Sequence[str
     linear_spec = None
     if separable:
         if not isinstance(loss, SimulationLoss):
+            if isinstance(loss, RecordsLoss):  # a list of records: one offset per record is solved already
+                raise ValueError(
+                    "fit: `separable` solves parameters of one record's simulated force; a fit to several records "
+                    "already solves each record's offset (fj.Nuisances(offset=True)) and cannot solve shared ones "
+                    "linearly: drop `separable` (the parameters are then trained with the others)."
+                )
             raise ValueError("fit: `separable` needs a SimulationLoss (the linear solve is on the simulated force).")
         for path, where in _where(separable, model, "separable"):
             node = where(model)
@@ -202,7 +209,19 @@ def parameter_specs(model: Any, train: Any, freeze: Any, separable: Sequence[str
         spec = _set_spec(spec, model, separable, False, "separable")
         _check_linear(model, linear_spec, data, separable)
     if not any(jax.tree_util.tree_leaves(spec)) and linear_spec is None:
-        raise ValueError("fit: nothing to train: every parameter is frozen.")
+        integers = [
+            "model" + jax.tree_util.keystr(path)
+            for path, leaf in jax.tree_util.tree_leaves_with_path(model)
+            if eqx.is_array(leaf) and jnp.issubdtype(leaf.dtype, jnp.integer)
+        ]
+        raise ValueError(
+            "fit: nothing to train: every parameter is frozen"
+            + (
+                f"; integer arrays are never trained ({', '.join(integers[:3])}): build them from floats (1.0, not 1)."
+                if integers
+                else " (`freeze`, `train`, fj.Fixed fields and smoothing widths are not trained)."
+            )
+        )
     return spec, linear_spec
 
 

@@ -30,6 +30,8 @@ from .._inputs import Motion
 from .._metrics import scaled_std
 from .._models._base import AbstractModel, feeds_back
 from .._simulate import check_force_shape, run
+from .._smoothing import is_concrete
+from .._validation import got_model
 from ._losses import AbstractLoss, JacobianGroups, OneStepLoss, SimulationLoss, leading_groups
 
 __all__ = [
@@ -116,9 +118,11 @@ class RecordBatch(eqx.Module):
             missing = names[dts.index(None)]
             raise ValueError(f"fit: {missing} of `{argument}` has no sample time; build its Motion with dt=... [s].")
         reference = dts[0]
+        # equal to the rounding of the coarsest dtype among the records (a float32 record's dt is 1e-7 off)
+        coarsest = max(float(np.finfo(np.result_type(np.asarray(r.motion.dt), np.float32)).eps) for r in records)
         for name, dt in zip(names, dts, strict=True):
             assert dt is not None and reference is not None
-            if abs(dt - reference) > 1e-9 * reference:
+            if abs(dt - reference) > max(1e-9, 8 * coarsest) * reference:
                 raise ValueError(
                     f"fit: {name} of `{argument}` is sampled at dt = {dt:.6g} s, {names[0]} at {reference:.6g} s; "
                     "records fitted together need one sample time: resample them first (scipy.signal.resample_poly)."
@@ -194,6 +198,56 @@ def padded_record(record: FrictionData, total: int, requires: frozenset[str], no
 
     motion = Motion(x=hold(x), v=zero(v), dt=record.motion.dt, a=zero(a), normal_force=hold(load))
     return FrictionData(motion, hold(np.asarray(record.force)))
+
+
+def check_records(model: Any, data: Any, validation: Any, loss: Any, where: str = "fit") -> None:
+    """The model is a fricjax model, and `data` / `validation` are records it can read (their type, the signals
+    its step needs, a force it can score): `where` names the entry point in the message."""
+    if not isinstance(model, eqx.Module):
+        raise TypeError(f"{where}: `model` must be a fricjax model (an equinox Module), got {got_model(model)}.")
+    data_type = getattr(loss, "data_type", FrictionData)
+    for name, value in (("data", data), ("validation", validation)):
+        if value is not None and not isinstance(value, data_type):
+            raise TypeError(
+                f"{where}: `{name}` must be a {data_type.__name__} for {type(loss).__name__}, "
+                f"got {type(value).__name__}"
+                + (" (wrap motion and force as fj.FrictionData(motion, force))." if data_type is FrictionData else ".")
+            )
+    if isinstance(model, AbstractModel):  # the signals the model needs are in the records (dt, x / v, ...)
+        for record in (data, validation):
+            if isinstance(record, FrictionData):
+                model.check_inputs(record.motion)
+        if isinstance(data, FrictionData):  # one model, one trace of its step: the data's motion suffices
+            check_force_shape(model, data.motion)
+    for name, record in (("data", data), ("validation", validation)):
+        if isinstance(record, FrictionData) and getattr(loss, "normalise", False) and is_concrete(record.force):
+            if not float(scaled_std(np.asarray(record.force))) > 0:  # scaled: 1e-200 N is not constant
+                raise ValueError(
+                    f"{where}: the measured force of `{name}` is constant (std = 0), so the normalised loss (error / "
+                    "std) is undefined; check the record, or use a loss with normalise=False."
+                )
+
+
+def check_burn_in(loss: Any, records: Any, argument: str, where: str, option: str | None = None) -> None:
+    """Refuse a loss whose unscored head (`burn_in`) covers a whole record of `records` (a `FrictionData` or a
+    `RecordBatch`): such a record would score nothing, and count as a perfect fit or make the loss NaN. `option`:
+    the argument that set the burn-in (default: the loss's own)."""
+    inner = loss.loss if isinstance(loss, RecordsLoss) else loss
+    burn_in = int(getattr(inner, "burn_in", 0) or 0)
+    option = f"the loss's burn_in ({type(inner).__name__}(burn_in=...))" if option is None else f"`{option}`"
+    if isinstance(records, FrictionData):
+        named = [(f"`{argument}`", records.length)]
+    elif isinstance(records, RecordBatch):
+        pairs = zip(records.names, records.lengths, strict=True)
+        named = [(f"{name} of `{argument}`", length) for name, length in pairs]
+    else:
+        return
+    for name, length in named:
+        if burn_in >= length:
+            raise ValueError(
+                f"{where}: {option} leaves {burn_in} samples unscored, all of {name} ({length} samples), so it "
+                "would score nothing; lower it or pass a longer record."
+            )
 
 
 def as_record_batch(value: Any, model: Any, argument: str, score_from: Sequence[int] | None = None) -> Any:
@@ -586,10 +640,11 @@ def initialise(
     state0 = jax.tree_util.tree_map(np.asarray, found.state0)
     if offset and initial_state and _offset_share(loss, physical, solved, batch) < 0.02:
         warnings.warn(
-            "fj.initialise: on this window the force offset and the model's initial state change the force alike "
-            "(no sliding in the window: a pre-sliding branch is an offset plus a stiffness), so their split is not "
-            "determined; lengthen the window to include sliding (compare: --init-window) or pass initial_state=False "
-            "(compare: --init offset).",
+            f"fj.initialise ({type(physical).__name__}, a window of {window.length} samples): on this window the "
+            "force offset and the model's initial state change the force almost alike (the motion in the window "
+            "does not make the model forget its initial state: a pre-sliding branch, or elements that never slide, "
+            "hold it as an offset plus a stiffness), so their split is poorly determined; lengthen the window "
+            "(compare: --init-window) or pass initial_state=False (compare: --init offset).",
             stacklevel=2,
         )
     return Initialisation(float(found.offset), state0, nmse, int(steps), float(found.rate))

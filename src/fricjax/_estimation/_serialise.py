@@ -53,7 +53,7 @@ import numpy as np
 from .._smoothing import AbstractSmoothing, Exact, Smooth
 from .._smoothing import exact as exact_model
 from .._version import fricjax_version
-from ._model_checks import check_loaded
+from ._model_checks import check_loaded, warn_unloadable
 
 MAGIC = b"fricjax-model\n"
 FORMAT = "fricjax-model"
@@ -103,6 +103,7 @@ def save_model(path: str | pathlib.Path, model: Any) -> None:
     """
     path = pathlib.Path(path)
     tree = _describe(model)  # first: it names what a model file cannot hold
+    warn_unloadable(model)  # what load_model would refuse
     header = {
         "format": FORMAT, "format_version": FORMAT_VERSION, "fricjax": fricjax_version(), "checksum": "sha256",
         "smoothing": _smoothing(model), "tree": tree,

@@ -22,11 +22,12 @@ import numpy as np
 import optax
 
 from .._constraints import trainable_filter
-from .._validation import nonnegative_int, positive_int
+from .._data._record import FrictionData
+from .._validation import got_model, nonnegative_int, positive_int
 from ._loop import Search, batched_losses, run_stage
 from ._losses import AbstractLoss, SimulationLoss
 from ._problem import Problem
-from ._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch
+from ._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch, check_burn_in, check_records
 from ._sharding import shard_batch
 from ._solvers import OptaxSolver
 
@@ -190,10 +191,19 @@ def sweep(
     checks = positive_int(checks, "checks", "sweep")
     validation_burn_in = nonnegative_int(validation_burn_in, "validation_burn_in", "sweep")
     batch = stack_models(models) if isinstance(models, (list, tuple)) else models
-    sizes = {np.shape(leaf)[0] for leaf in jax.tree_util.tree_leaves(batch) if eqx.is_array(leaf) and np.ndim(leaf)}
-    if len(sizes) != 1:
-        raise ValueError("sweep: `models` must be a list of models or a stack of them (one leading batch axis).")
-    count = sizes.pop()
+    arrays = [leaf for leaf in jax.tree_util.tree_leaves(batch) if eqx.is_array(leaf)]
+    sizes = {int(np.shape(leaf)[0]) if np.ndim(leaf) else -1 for leaf in arrays}
+    if len(sizes) != 1 or -1 in sizes:
+        raise ValueError(
+            "sweep: `models` must be a list of models or a stack of them (every array with one leading batch axis); "
+            f"got {got_model(models)}"
+            + (
+                ", one model or a stack with arrays of different leading sizes: pass a list, e.g. [model]."
+                if not isinstance(models, (list, tuple))
+                else "."
+            )
+        )
+    (count,) = sizes
     if not callable(optimiser):
         raise TypeError(
             f"sweep: `optimiser` must be an optax optimiser factory taking `learning_rate` (e.g. optax.adam), got "
@@ -217,6 +227,11 @@ def sweep(
             validation = as_record_batch(validation, one, "validation", starts)
     elif nuisances is not None:
         raise ValueError("sweep: `nuisances` are per-record parameters of a sweep over several records; pass a list.")
+    else:
+        check_records(one, data, validation, loss, "sweep")
+    check_burn_in(loss, data, "data", "sweep")
+    if isinstance(validation, FrictionData):
+        check_burn_in(val_loss_fn, validation, "validation", "sweep", "validation_burn_in")
     params, static = eqx.partition(batch, trainable_filter(one))
     if not isinstance(loss, RecordsLoss):
         extra0 = loss.init_extra(one, data)

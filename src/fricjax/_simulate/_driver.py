@@ -12,9 +12,11 @@ from typing import Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from .._constraints import unwrap
 from .._models._base import AbstractFrictionModel, AbstractModel, feeds_back
+from .._smoothing import is_concrete
 from .._validation import got_model, positive_int
 from ._parallel import SCANS, parallel_run, uses_parallel
 from ._primal import primal_run
@@ -121,10 +123,19 @@ def simulate(
         if measured is None:
             raise ValueError("simulate: `horizon` needs the measured outputs: pass `measured=` (teacher forcing).")
     check_options(model, derivatives, batching, scan=scan)
+    if unroll is not None:  # 0 or True would unroll the whole record into one program (minutes of compilation)
+        if isinstance(unroll, bool):
+            raise TypeError("simulate: `unroll` must be a positive number of steps per loop iteration, got a bool.")
+        unroll = positive_int(unroll, "unroll", "simulate", hint="(scan steps per loop iteration)")
     if state0 is not None:
         _check_state(model, state0)
     if measured is not None:  # arrays, never static Python values, under the jit
+        if isinstance(measured, (list, tuple)) and all(np.ndim(item) == 0 for item in measured):
+            measured = np.asarray(measured)  # a list of numbers is one signal, not a tree of scalars
         measured = jax.tree_util.tree_map(jnp.asarray, measured)
+        for leaf in jax.tree_util.tree_leaves(measured):
+            if is_concrete(leaf) and not bool(np.all(np.isfinite(np.asarray(leaf)))):
+                raise ValueError("simulate: `measured` contains NaN or inf; clean or interpolate the record.")
     return _simulate(model, inputs, state0, measured, horizon, unroll, derivatives, batching, scan)
 
 
@@ -166,6 +177,11 @@ def _simulate(
             if leaf.shape[:1] != (length,):
                 raise ValueError(
                     f"simulate: `measured` must have one value per sample ({length}), got shape {leaf.shape}."
+                )
+            if isinstance(model, AbstractFrictionModel) and leaf.shape != (length,):  # one force per sample
+                raise ValueError(
+                    f"simulate: `measured` must be the measured force, shape ({length},), got {leaf.shape}; pass a "
+                    "1-D array (np.ravel)."
                 )
     state = model.init_state() if state0 is None else state0
     if horizon is None or horizon == 1:

@@ -40,6 +40,8 @@ def check_writable(out: pathlib.Path, files: tuple[str, ...] = ()) -> None:
     Within a run decorated with `releasing_output_locks`, an `out` it created is removed again at the run's end if
     the run left it empty (interrupted, or stopped by an error: nothing written, not even the folder)."""
     created = not os.path.lexists(out)
+    if os.path.lexists(out) and not out.is_dir():
+        raise CompareError(f"--out {out}: a file, not a folder; choose another --out (a folder, created if missing)")
     try:
         out.mkdir(parents=True, exist_ok=True)
         locks = _LOCKS.get()

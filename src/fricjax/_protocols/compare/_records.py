@@ -358,6 +358,7 @@ def load_record_spec(
         "columns": dict(info.columns),
         "ignored": list(info.ignored),
         "units": {"x": info.units.x, "force": info.units.force},
+        "units_assumed_si": list(info.assumed_si),
         "dt_s": float(np.asarray(full.motion.dt)),
     }
     return LoadedRecord(spec, full, card, info.units)

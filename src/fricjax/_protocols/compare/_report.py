@@ -26,6 +26,18 @@ def by_score(row: ModelScore) -> tuple[bool, float]:
     return (not np.isfinite(row.nmse), float(row.nmse) if np.isfinite(row.nmse) else 0.0)
 
 
+def is_ensemble(row: ModelScore) -> bool:
+    """Whether a row is one of compare's ensembles (fitted on the validation part)."""
+    return row.name.startswith("ensemble")
+
+
+def validation_choice(rows: list[ModelScore]) -> ModelScore | None:
+    """The single model (not an ensemble) with the lowest finite validation NMSE: what a user chooses without the
+    test part; None where no row has one."""
+    scored = [r for r in rows if not is_ensemble(r) and np.isfinite(r.validation_nmse)]
+    return min(scored, key=lambda r: float(r.validation_nmse)) if scored else None
+
+
 def label_width(rows: list[ModelScore]) -> int:
     """The width of the table's first column: the longest label (at least 44 characters)."""
     return max([44, *(len(r.label) for r in rows)])
@@ -36,13 +48,13 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
     column per test record (where there are several), MAX as the largest absolute error divided by the standard
     deviation of the measured force (the first test record's), the noise-floor reference row where there is one,
     what the result codes mean, and each flagged row's notes (`ModelScore.notes`)."""
-    w = label_width(rows)
+    w = label_width(rows) + 2  # "* " marks the validation part's choice
     names = list(rows[0].tests) if rows and rows[0].tests else ["test"]
     several = len(names) > 1
     heads = [f"NMSE % {i + 1}" for i in range(len(names))] if several else ["NMSE %"]
     max_head = "MAX/std 1" if several else "MAX/std"  # the first test record's, as the sort
     lines = [
-        f"{'model':{w}s} {'params':>6s} "
+        f"{'model':{w}s} {'params':>6s} {'val %':>9s} "
         + " ".join(f"{h:>10s}" for h in heads)
         + f" {max_head:>9s} {'fit s':>7s}  result"
     ]
@@ -50,29 +62,41 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
     def values(tests: dict[str, Score], fallback: float) -> list[float]:
         return [tests[n].nmse if n in tests else fallback for n in names] if tests else [fallback]
 
+    chosen = validation_choice(rows)
     flagged: list[ModelScore] = []
     for r in sorted(rows, key=by_score):
         cells = " ".join(f"{v:10.4f}" for v in values(r.tests, r.nmse))
         flag = f" (note {len(flagged) + 1})" if r.notes else ""
         if r.notes:
             flagged.append(r)
+        val = r.validation_nmse
+        val_cell = "-" if not np.isfinite(val) else (f"({val:.4f})" if is_ensemble(r) else f"{val:.4f}")
+        label = ("* " if r is chosen else "  ") + r.label
         lines.append(
-            f"{r.label:{w}s} {r.num_parameters:6d} {cells} {r.max_error:9.3f} {r.fit_time:7.1f}  {r.result}{flag}"
+            f"{label:{w}s} {r.num_parameters:6d} {val_cell:>9s} {cells} {r.max_error:9.3f} {r.fit_time:7.1f}  "
+            f"{r.result}{flag}"
         )
     if reference:
         floor = [reference[n].nmse if n in reference else float("nan") for n in names]
         cells = " ".join(f"{v:10.4f}" for v in floor)
         first = reference.get(names[0])
         lines.append(
-            f"{'noise floor (true model + sensor model)':{w}s} {'':6s} {cells} "
+            f"{'  noise floor (true model + sensor model)':{w}s} {'':6s} {'':9s} {cells} "
             f"{(first.max_error if first else float('nan')):9.3f}"
         )
+    if chosen is not None:
+        lines += [
+            "* the validation part's choice: the single model with the lowest validation NMSE (`val %`); the rows are",
+            "  sorted by test NMSE, which no choice may use. An ensemble's `val %` (in brackets) is its own fit.",
+        ]
     if several:
         lines.append("test records: " + "; ".join(f"{i + 1} = {n}" for i, n in enumerate(short_labels(names))))
     codes = sorted({r.result for r in rows if r.result in RESULT_CODES})
     legend = dict(RESULT_CODES)
     if any(r.result == "max_steps" and r.name in NEURAL_MODELS for r in rows):  # their budget is --neural-steps
         legend["max_steps"] = legend["max_steps"].replace("--steps", "--steps; neural models: --neural-steps")
+    if any(is_ensemble(r) and r.result == "successful" for r in rows):  # no iterative solver
+        legend["successful"] += "; an ensemble: its weights or members found in closed form on the validation part"
     lines.append("result: " + "; ".join(f"{c} = {legend[c]}" for c in codes))
     lines += [f"note {i + 1}, {r.label}: " + "; ".join(r.notes) for i, r in enumerate(flagged)]
     return "\n".join(lines)
@@ -82,7 +106,8 @@ def format_record_nuisances(rows: list[ModelScore], units: Units | None = None) 
     """Each model's per-record nuisances after a fit to several records: the force offset, drift and training
     NMSE of every training record (`fj.RecordNuisances`), in the records' force unit (`units`; default N)."""
     unit, factor = (units.force, units.force_factor) if units is not None else ("N", 1.0)
-    lines = [f"per training record (training NMSE, offset [{unit}], drift [{unit}/s]):"]
+    drifts = any(r.records is not None and r.records.drift is not None for r in rows)
+    lines = [f"per training record (training NMSE, offset [{unit}]" + (f", drift [{unit}/s]):" if drifts else "):")]
     for r in sorted(rows, key=by_score):
         if r.records is None:
             continue

@@ -344,7 +344,8 @@ def run_compare(
         ]
         if split.validation:
             parts.append("validation: " + ", ".join(split.validation_names))
-        described = f"{len(split.records)} training records: " + "; ".join(parts)
+        count = len(split.records)
+        described = f"{count} training record{'s' if count != 1 else ''}: " + "; ".join(parts)
     else:
         described = (
             f"{data}, {split.full.length} samples (train {split.train_end}, "
@@ -359,9 +360,18 @@ def run_compare(
         + f"; models: {', '.join(models)}"
     )
     unused_loads = _unused_load_columns(split, training_cards or [training.card])
-    trained_on = _trained_on(data_specs + validation_specs, test_specs)
+    trained_on = _trained_on(data_specs, test_specs, validation_specs)
     for line in [*trained_on, *unused_loads, *statistics_warnings(split, tests, units)]:
         print("warning: " + line)
+    for card in [*(training_cards or [training.card]), *cards.values()]:
+        if card.get("units_assumed_si"):
+            quantities = " and ".join(
+                {"x": "displacement (m)", "force": "force (N)"}[q] for q in card["units_assumed_si"]
+            )
+            print(
+                f"note: {card['source']} gives no unit for its {quantities}: read as SI; if it is not, write the "
+                "unit in the header (`x [mm]`, `force [kN]`) or pass --x-unit / --force-unit"
+            )
     started = time.perf_counter()
     rows = fit_and_score(
         list(models), split, tests=tests, settings=settings, seed=seed, progress=progress, device=device
@@ -469,18 +479,19 @@ def _unused_load_columns(split: Any, cards: Sequence[dict[str, Any]]) -> list[st
     return [f"columns {listed} are not used; if they hold the normal load, name them with --normal-force-column"]
 
 
-def _trained_on(training: Sequence[str], tests: Sequence[str]) -> list[str]:
-    """A line for each --test record that is also a --data / --validation record (the same file, or the same
-    built-in record): its score is not held out."""
+def _trained_on(training: Sequence[str], tests: Sequence[str], validation: Sequence[str] = ()) -> list[str]:
+    """A line for each --test record that is also a --data (`training`) or --validation record (the same file, or
+    the same built-in record): its score is not held out."""
 
     def key(spec: str) -> str:
         return spec if spec.startswith("tribometer") else str(pathlib.Path(spec).resolve())
 
-    seen = {key(spec) for spec in training}
+    roles = {key(spec): role for role, specs in (("validation", validation), ("training", training)) for spec in specs}
     return [
-        f"{spec}: a training record too; its test score is not held out (test on records the fit has not seen)"
+        f"{spec}: a {roles[key(spec)]} record too; its test score is not held out (test on records the fit has not "
+        "seen)"
         for spec in dict.fromkeys(tests)
-        if key(spec) in seen
+        if key(spec) in roles
     ]
 
 

@@ -6,6 +6,7 @@ validation part significantly better than another (`paired_validation_gain`)."""
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import Any
 
 import numpy as np
@@ -86,7 +87,11 @@ def predict_test_record(
     if init == "offset" or test.init_window == 0:
         return free_run(friction, test.record)
     window = test.record.slice(test.start, test.scored_start)
-    found = initialise(exact(friction), window, drift=test_drift == "window")
+    with warnings.catch_warnings(record=True) as caught:  # said again with the record's name
+        warnings.simplefilter("always")
+        found = initialise(exact(friction), window, drift=test_drift == "window")
+    for warning in caught:
+        warnings.warn(f"{test.name}: {warning.message}", warning.category, stacklevel=2)
     # without the offset: `score_prediction` takes the window's mean error, which is the offset fitted with the state
     return found.predict(exact(friction), test.record.motion) - found.offset
 
