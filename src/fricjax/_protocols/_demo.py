@@ -73,7 +73,10 @@ def run_demo(out: pathlib.Path, *, figure: bool = True) -> dict[str, Any]:
                 "model": name,
                 "peak_force_N": float(np.max(np.abs(force))),
                 "presliding_peak_N": float(np.max(np.abs(force[presliding]))),
-                "presliding_stiffness_N_per_m": float(np.polyfit(x[:200], force[:200] - force[0], 1)[0]),
+                # a static law has no pre-sliding spring: its slope in x is meaningless (None)
+                "presliding_stiffness_N_per_m": None
+                if "static" in name
+                else float(np.polyfit(x[:200], force[:200] - force[0], 1)[0]),
                 "smooth_vs_exact_nrmse": exact_vs_smooth,
                 "simulate_s": elapsed,
             }
@@ -89,10 +92,17 @@ def run_demo(out: pathlib.Path, *, figure: bool = True) -> dict[str, Any]:
         f"{'smooth~exact':>12s} {'time [s]':>8s}"
     )
     for row in rows:
+        stiffness = row["presliding_stiffness_N_per_m"]
         print(
             f"{row['model']:28s} {row['peak_force_N']:10.3f} {row['presliding_peak_N']:11.3f} "
-            f"{row['presliding_stiffness_N_per_m']:10.3g} {row['smooth_vs_exact_nrmse']:12.2e} {row['simulate_s']:8.2f}"
+            f"{'-' if stiffness is None else f'{stiffness:.3g}':>10s} {row['smooth_vs_exact_nrmse']:12.2e} "
+            f"{row['simulate_s']:8.2f}"
         )
+    print(
+        "pre-slide F: the largest force in the first quarter (displacements below 3.5 um); k0: the initial slope of "
+        "force in displacement (a static law has none); smooth~exact: RMS difference between the smoothed and the "
+        "exact model, relative to the force's standard deviation"
+    )
     report = {"fricjax": fricjax_version(), "samples": motion.length, "dt": float(motion.dt), "models": rows}
     (out / "demo.json").write_text(json.dumps(report, indent=2))
     if figure:

@@ -52,7 +52,8 @@ def emps_table(out: pathlib.Path) -> None:
             test_error = float(result.relative_error_on(test))
             params = {
                 "M": float(result.M),
-                "offset": float(result.offset),
+                # the asymmetric laws have no offset: it is collinear with their two Coulomb levels
+                **({} if asymmetric else {"offset": float(result.offset)}),
                 **{k: np.asarray(v).tolist() for k, v in result.params.items()},
             }
             rows.append(
@@ -65,12 +66,22 @@ def emps_table(out: pathlib.Path) -> None:
                 }
             )
             text = ", ".join(
-                f"{k}={np.round(np.asarray(v), 4).tolist()}" + (f" {parameter_unit(k)}" if parameter_unit(k) else "")
+                f"{k}={_significant(v)}" + (f" {parameter_unit(k)}" if parameter_unit(k) else "")
                 for k, v in params.items()
             )
+            if "Fs" in params and np.any(np.asarray(params["Fs"]) < np.asarray(params["Fc"])):
+                text += " (Fs < Fc: the curve rises from standstill, no Stribeck dip)"
             print(f"{name:34s} {float(result.relative_error):18.4f} {test_error:18.4f}  {text}")
     write_atomic(
         out / "report.json",
         strict_json({"data": "emps", "fricjax": fricjax_version(), "versions": versions(), "idm": rows}),
     )
-    print(f"report: {out / 'report.json'}")
+    print("the asymmetric laws have no offset: it is collinear with their two Coulomb levels (Fc+, Fc-)")
+    print(f"report: {out / 'report.json'} (the IDM's table: no free-run figures; benchmarks/emps.py runs them)")
+
+
+def _significant(value: Any) -> str:
+    """A parameter value to 5 significant digits (a pair as `[a, b]`): 0.00021, not 0.0002 or 0.0."""
+    values = np.atleast_1d(np.asarray(value, dtype=float))
+    text = [f"{v:.5g}" for v in values]
+    return text[0] if np.ndim(value) == 0 else "[" + ", ".join(text) + "]"

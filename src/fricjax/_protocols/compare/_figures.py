@@ -43,20 +43,21 @@ def plot_prediction_errors(
     measured = np.asarray(test.record.force)[test.scored_start :]
     t = np.arange(measured.size) * float(np.asarray(test.record.motion.dt))
     step = _stride(measured.size)
-    fig, axes = plt.subplots(len(ordered) + 1, 1, figsize=(10, 1.4 * (len(ordered) + 1)), sharex=True)
+    fig, axes = plt.subplots(len(ordered) + 1, 1, figsize=(10, 1.6 * (len(ordered) + 1)), sharex=True)
     axes[0].plot(t[::step], f_scale * measured[::step], "k", lw=0.7)
     axes[0].set_ylabel(f"F [{f_unit}]")
     axes[0].set_title(
-        f"{_record_name(test, label)}: measured force (top) and prediction errors e = F_hat - F (each its own scale)"
+        f"{_record_name(test, label)}: measured force (top), prediction errors e = F_hat - F (below, each its own "
+        "scale)",
+        fontsize=9,
     )
     for ax, r in zip(axes[1:], ordered, strict=True):
         error = f_scale * (np.asarray(r.prediction) - measured)
         ax.plot(t[::step], error[::step], lw=0.6)
         limit = float(np.nanmax(np.abs(error))) if np.isfinite(error).any() else 1.0
         ax.set_ylim(-1.05 * limit, 1.05 * limit)
-        ax.text(
-            0.01, 0.8, f"{r.label}: NMSE {r.nmse:.3g} %, MAX/std {r.max_error:.3g}", transform=ax.transAxes, fontsize=8
-        )
+        # above the panel, not over its trace
+        ax.set_title(f"{r.label}: NMSE {r.nmse:.3g} %, MAX/std {r.max_error:.3g}", fontsize=8, loc="left", pad=2)
         ax.set_ylabel(f"e [{f_unit}]")
     axes[-1].set_xlabel("time in the scored part [s]")
     fig.tight_layout()
@@ -112,9 +113,10 @@ def plot_test_records(rows: Sequence[Any], labels: Sequence[str], path: Any) -> 
     ax.set_xticks(positions, [str(label) for label in labels], rotation=30, ha="right", fontsize=8)
     ax.set(ylabel="free-run NMSE [%]", title="test NMSE of each model on each test record")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    # below the axes, in columns: a legend beside them took most of the width from the plot
+    below = 0.1 + 0.008 * max((len(str(label)) for label in labels), default=0)  # under the rotated names
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -below), ncol=3, frameon=False)
+    fig.savefig(path, dpi=100, bbox_inches="tight")  # the canvas grows to hold the rotated names and the legend
     plt.close(fig)
 
 
