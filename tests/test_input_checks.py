@@ -201,3 +201,55 @@ def test_a_record_without_units_is_said_to_be_read_as_si(tmp_path):
     np.savetxt(path, np.c_[t, np.sin(t), np.cos(t)], delimiter=",", header="t,x [mm],force", comments="")
     assert fj.compare.load_record_spec(str(path)).card["units_assumed_si"] == ["force"]
     assert fj.compare.load_record_spec(str(path), force_unit="kN").card["units_assumed_si"] == []
+
+
+def test_the_summary_of_a_fit_names_what_is_implausible_in_the_model():
+    """compare's notes (Fs < Fc, a damping at its bound) never reached `fj.fit` users."""
+    motion = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * 2.0 * np.arange(2000) * DT), dt=DT)
+    truth = fj.Tustin(Fc=1.0, Fs=0.7, vs=1e-3, Fv=5.0, smoothing=fj.Smooth(1e-4))
+    data = fj.FrictionData(motion, np.asarray(fj.simulate(truth, motion)))
+    start = fj.Tustin(Fc=0.8, Fs=0.9, vs=2e-3, Fv=3.0, smoothing=fj.Smooth(1e-4))
+    summary = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=30).summary()
+    assert "implausible: Fs < Fc (a Stribeck curve falling towards standstill)" in summary
+    clean = fj.fit(_start(), _record(), solver=fj.levenberg_marquardt(), steps=10).summary()
+    assert "implausible" not in clean
+
+
+def test_record_files_and_motions_refuse_what_they_misread(tmp_path):
+    """An NPZ's scalar `t` and swapped time stamps were both 'not uniformly sampled'; a complex displacement lost
+    its imaginary part with a JAX warning; `dt=True` was one second."""
+    n = 300
+    t, x, force = np.arange(n) * DT, 1e-3 * np.sin(np.arange(n) * 0.02), np.cos(np.arange(n) * 0.02)
+    np.savez(tmp_path / "scalar.npz", t=np.float64(DT), x=x, force=force)
+    with pytest.raises(fj.RecordError, match="holds one time stamp, not a time per sample; .* name it 'dt'"):
+        fj.load_record(tmp_path / "scalar.npz")
+    swapped = t.copy()
+    swapped[[10, 11]] = swapped[[11, 10]]
+    np.savez(tmp_path / "swapped.npz", t=swapped, x=x, force=force)
+    with pytest.raises(fj.RecordError, match=r"goes back \(or stands\) at data row 12"):
+        fj.load_record(tmp_path / "swapped.npz")
+    with pytest.raises(TypeError, match="Motion: `x`: expected real numbers, got a complex array"):
+        fj.Motion(x=x * (1 + 1j), dt=DT)
+    with pytest.raises(TypeError, match="`dt` must be a sample time in seconds, got True"):
+        fj.Motion.from_position(x, True)
+
+
+def test_file_options_on_built_in_records_are_refused(capsys):
+    """`--dt -1` or `--x-unit foo` with `--data tribometer:mixed` ran and exited 0, ignoring them."""
+    assert fj.main(["compare", "--data", "tribometer:mixed", "--dt", "-1", "--x-unit", "foo"]) == 2
+    assert "--dt, --x-unit describe record files, and every record here is built in" in capsys.readouterr().err
+
+
+def test_initial_guess_refuses_records_it_cannot_read():
+    """A constant force gave Fc = 9e-16, a still record a plausible-looking LuGre, and a motion without reversals
+    a GMS of 1 N/m, all without a word."""
+    data = _record(2000)
+    with pytest.raises(ValueError, match="the record's force is constant"):
+        fj.initial_guess(fj.CoulombViscous, fj.FrictionData(data.motion, np.full(data.length, 0.3)))
+    still = fj.Motion.from_position(np.zeros(data.length), DT)
+    with pytest.raises(ValueError, match="the record does not move"):
+        fj.initial_guess(fj.LuGre, fj.FrictionData(still, data.force))
+    t = np.arange(data.length) * DT
+    onwards = fj.FrictionData(fj.Motion.from_position(1e-3 * t, DT), np.tanh(t) + 0.01 * np.sin(50 * t))
+    with pytest.warns(UserWarning, match="never reverses its motion, so GMS's pre-sliding stiffness"):
+        fj.initial_guess(fj.GMS, onwards)

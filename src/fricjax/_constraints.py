@@ -188,6 +188,8 @@ def as_float_array(value: Any, dtype: Any = None) -> Array:
     if isinstance(value, (list, tuple)):
         value = np.asarray(value)
     own = jnp.result_type(value)
+    if jnp.issubdtype(own, jnp.complexfloating):  # casting would drop the imaginary part
+        raise TypeError(f"expected real numbers, got a complex array ({own}); pass its real part (np.real) if meant.")
     if not jnp.issubdtype(own, jnp.floating):
         own = dtype or jnp.result_type(float)
     return jnp.asarray(value, dtype=own)

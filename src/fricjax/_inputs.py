@@ -167,6 +167,8 @@ class Motion(eqx.Module):
 def _sample_time(dt: ArrayLike, dtype: Any) -> Array:
     """`dt` [s] as a scalar of the signals' `dtype`, checked where concrete (a positive, finite scalar) before
     anything is divided by it."""
+    if isinstance(dt, (bool, np.bool_)):
+        raise TypeError(f"Motion: `dt` must be a sample time in seconds, got {dt!r}.")
     value = jnp.asarray(dt, dtype=dtype)
     if is_concrete(value):
         if value.ndim != 0:
@@ -218,7 +220,10 @@ def _as_signal(value: ArrayLike, name: str, owner: str = "Motion") -> Array:
                 UserWarning,
                 stacklevel=3,
             )
-    array = as_float_array(value)
+    try:
+        array = as_float_array(value)
+    except TypeError as err:
+        raise TypeError(f"{owner}: `{name}`: {err}") from None
     if array.ndim < 1:
         raise ValueError(f"{owner}: `{name}` must be a 1-D signal of shape (T,), got a scalar.")
     if array.shape[-1] == 0:

@@ -20,13 +20,13 @@ than the first: `rows_on_test`), `plot_test_records` (each model's NMSE on each;
 ```
 """
 
+from ._estimation._plausibility import implausible as implausible
 from ._protocols.compare._blackbox_recipes import linear_in_parameters_models as linear_in_parameters_models
 from ._protocols.compare._ensembles import add_ensembles as add_ensembles
 from ._protocols.compare._figures import distinct_models as distinct_models
 from ._protocols.compare._figures import plot_prediction_errors as plot_prediction_errors
 from ._protocols.compare._figures import plot_test_loops as plot_test_loops
 from ._protocols.compare._figures import plot_test_records as plot_test_records
-from ._protocols.compare._plausibility import implausible as implausible
 from ._protocols.compare._recipes import ModelSpec as ModelSpec
 from ._protocols.compare._records import LoadedRecord as LoadedRecord
 from ._protocols.compare._records import Split as Split

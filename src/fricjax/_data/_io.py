@@ -522,7 +522,19 @@ def _sample_time(
                 f"{path}: column {columns['t']!r} must increase, but goes from {float(t[0])!r} to {float(t[1])!r} "
                 f"s in its first step; correct it or {fix}"
             )
-        if steps.size == 0 or not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
+        if steps.size == 0:  # one time stamp (an NPZ's scalar `t`, say): a sample time is what was meant
+            raise RecordError(
+                f"{path}: column {columns['t']!r} holds one time stamp, not a time per sample; if it is the sample "
+                f"time, name it 'dt', or {fix}"
+            )
+        backwards = np.flatnonzero(steps <= 0)
+        if backwards.size:
+            row = int(backwards[0]) + 1
+            raise RecordError(
+                f"{path}: column {columns['t']!r} goes back (or stands) at data row {row + 1} ({float(t[row - 1])!r} "
+                f"-> {float(t[row])!r} s): sort or clean the record, or {fix}"
+            )
+        if not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
             raise RecordError(
                 f"{path}: column {columns['t']!r} must be uniformly sampled; if it is only rounded, {fix} or a "
                 "column 'dt' holding it"

@@ -329,7 +329,7 @@ def fit(
     message += screened
     if code != "diverged" and diverged.any() and not diverged.all():
         message += f" ({int(diverged.sum())} of {count} starts diverged and were discarded)"
-    losses = None
+    losses, kept = None, ""
     if not linear_only:  # never worse than the start: the initial model, scored as the starts are chosen
         chosen, kept, losses = _no_worse_than_start(solver, problem, chosen, ys0, static, validation is not None)
         if kept:
@@ -386,6 +386,7 @@ def fit(
         std=std,
         extra=chosen[1],
         records=record_nuisances(loss, fitted, chosen[1], data) if isinstance(loss, RecordsLoss) else None,
+        start_kept=bool(kept),
     )
     if throw and not solution.success:
         raise FitFailed(solution)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -21,6 +22,7 @@ import numpy as np
 
 from .._constraints import unwrap
 from .._data._record import FrictionData
+from .._metrics import scaled_std
 from .._models.physics._dahl import Dahl
 from .._models.physics._gms import GMS
 from .._models.physics._lugre import LuGre
@@ -401,6 +403,17 @@ def initial_guess(
     )[-1]
 
 
+def _reversals(record: FrictionData) -> int | None:
+    """How often a record's motion reverses (sign changes of its displacement steps, else of its velocity); None
+    when it does not move at all."""
+    motion = record.motion
+    steps = np.diff(np.asarray(motion.x, dtype=float)) if motion.x is not None else np.asarray(motion.v, dtype=float)
+    signs = np.sign(steps[steps != 0])
+    if signs.size == 0:
+        return None
+    return int(np.sum(signs[1:] != signs[:-1]))
+
+
 def initial_guesses(
     model: Any,
     data: FrictionData | Sequence[FrictionData] | dict[str, FrictionData] | RecordBatch,
@@ -427,6 +440,23 @@ def initial_guesses(
         elements = element_count(records) if issubclass(cls, (GMS, MaxwellSlip)) else 4  # others have no elements
     else:
         elements = positive_int(elements, "elements", "initial_guess", hint="(or 'auto')")
+    if not any(float(scaled_std(np.asarray(r.force))) > 0 for r in records):
+        raise ValueError(
+            "initial_guess: the record's force is constant (no friction level to read a start from); check the "
+            "force column, or build the start by hand."
+        )
+    moves = [_reversals(r) for r in records]
+    if all(count is None for count in moves):
+        raise ValueError("initial_guess: the record does not move (no displacement or velocity); check the record.")
+    hysteretic = (LuGre, LuGreBacklash, GMS, MaxwellSlip, Dahl)
+    if issubclass(cls, hysteretic) and not any(count for count in moves if count is not None):
+        warnings.warn(
+            f"initial_guess: the record never reverses its motion, so {cls.__name__}'s pre-sliding stiffness (and "
+            "its elements' breakaways) cannot be read from it; the start's values for them are rough guesses: "
+            "identify on a record with reversals.",
+            UserWarning,
+            stacklevel=2,
+        )
     s = RecordScales.from_data(records)
     if not s.Fc > 0:
         raise ValueError(

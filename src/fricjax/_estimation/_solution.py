@@ -15,6 +15,7 @@ import numpy as np
 from .._constraints import PARAMETER_UNITS as PARAMETER_UNITS
 from .._constraints import parameter_arrays, parameter_line, parameter_units, unwrap
 from .._smoothing import exact
+from ._plausibility import implausible
 
 
 class RESULTS(eqx.Enumeration):
@@ -86,6 +87,8 @@ class Solution:
       per-record nuisances in units of each record's force spread).
     - `records`: a fit to several records: `fj.RecordNuisances` (each record's offset [N], drift [N/s], initial
       state and training NMSE); `None` otherwise.
+    - `start_kept`: no step improved on the model the fit was given (by validation where there is validation
+      data), so that model is returned unchanged (`message` says so).
     """
 
     model: Any
@@ -102,6 +105,7 @@ class Solution:
     std: Any = None
     extra: Any = None
     records: Any = None
+    start_kept: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "result", as_result(self.result))  # a name is accepted (thin compatibility)
@@ -168,6 +172,9 @@ class Solution:
             lines.append(line)
         if len(rows) > max_parameters:
             lines.append(f"  ... and {len(rows) - max_parameters} more parameter arrays (Solution.parameters())")
+        notes = implausible(self.model)  # what a model of its class should not have (compare's table notes)
+        if notes:
+            lines.append("  implausible: " + "; ".join(notes))
         if self.records is not None:
             lines.append(f"  per record ({len(self.records.names)}):")
             lines += ["    " + line for line in self.records.lines()]

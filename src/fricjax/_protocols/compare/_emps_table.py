@@ -70,7 +70,7 @@ def emps_table(out: pathlib.Path) -> None:
                 for k, v in params.items()
             )
             if "Fs" in params and np.any(np.asarray(params["Fs"]) < np.asarray(params["Fc"])):
-                text += " (Fs < Fc: the curve rises from standstill, no Stribeck dip)"
+                text += " (Fs < Fc: a Stribeck curve falling towards standstill)"
             print(f"{name:34s} {float(result.relative_error):18.4f} {test_error:18.4f}  {text}")
     write_atomic(
         out / "report.json",

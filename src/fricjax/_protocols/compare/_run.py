@@ -18,6 +18,7 @@ import numpy as np
 
 from ..._estimation._interrupts import check_interrupt
 from ..._estimation._placement import check_device, choose_device, forced_device, resolve_device
+from ..._estimation._plausibility import half_excursion, implausible
 from ..._estimation._serialise import save_model
 from ..._metrics import numpy_std
 from ..._models.combine._sensor import SensorDrift
@@ -34,7 +35,7 @@ from ._output import (
     remove_stale_staging,
     strict_json,
 )
-from ._plausibility import command_line_advice, half_excursion, implausible
+from ._plausibility import command_line_advice
 from ._records import (
     Split,
     TestRecord,
@@ -143,6 +144,8 @@ def _fit_and_score_one(
         for test in tests
     }
     notes = implausible(model, _largest_excursion(split))
+    if getattr(result, "start_kept", False):  # "successful" is the solver's verdict on steps that were not kept
+        notes.append("no fit step improved on its start's validation loss: the start is reported")
     return score_row(
         name,
         label,
@@ -189,6 +192,11 @@ def _check_emps_options(arguments: dict[str, Any]) -> None:
             f"--data emps runs the EMPS table (the benchmark's own records, split and friction laws) and takes none "
             f"of {', '.join(given)}: drop them, or run compare on a record file (--data FILE)"
         )
+
+
+def _is_file_spec(spec: str) -> bool:
+    """Whether a record named on the command line is a file (not `tribometer:...` or `emps`)."""
+    return not (spec == "emps" or spec.startswith("tribometer"))
 
 
 def _largest_excursion(split: Split | TrainingRecords) -> float | None:
@@ -270,6 +278,17 @@ def run_compare(
         raise CompareError("--data emps runs the EMPS table on its own; give it alone")
     if data_specs == ["emps"]:
         _check_emps_options(arguments)
+    elif not any(_is_file_spec(spec) for spec in [*data_specs, *validation_specs, *list(test or [])]):
+        file_options: dict[str, Any] = {"--dt": dt, "--x-unit": x_unit, "--force-unit": force_unit}
+        file_options["--velocity"] = None if velocity == "auto" else velocity
+        file_options["--normal-force-column"] = normal_force_column or None
+        named = [name for name, value in file_options.items() if value is not None]
+        if named:
+            raise CompareError(
+                f"{', '.join(named)} {'describes' if len(named) == 1 else 'describe'} record files, and every record "
+                "here is built in: drop "
+                f"{'it' if len(named) == 1 else 'them'}, or name a file (--data FILE.csv)"
+            )
     settings = FitSettings(
         steps=steps,
         gms_elements=gms_elements,
