@@ -527,12 +527,12 @@ def _sample_time(
                 f"{path}: column {columns['t']!r} holds one time stamp, not a time per sample; if it is the sample "
                 f"time, name it 'dt', or {fix}"
             )
-        backwards = np.flatnonzero(steps <= 0)
+        backwards = np.flatnonzero(steps < 0)  # (a step of 0 is a rounded time stamp: the message below)
         if backwards.size:
             row = int(backwards[0]) + 1
             raise RecordError(
-                f"{path}: column {columns['t']!r} goes back (or stands) at data row {row + 1} ({float(t[row - 1])!r} "
-                f"-> {float(t[row])!r} s): sort or clean the record, or {fix}"
+                f"{path}: column {columns['t']!r} goes back at data row {row + 1} ({float(t[row - 1])!r} -> "
+                f"{float(t[row])!r} s): sort or clean the record, or {fix}"
             )
         if not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
             raise RecordError(

@@ -442,7 +442,7 @@ def initial_guesses(
         elements = positive_int(elements, "elements", "initial_guess", hint="(or 'auto')")
     if not any(float(scaled_std(np.asarray(r.force))) > 0 for r in records):
         raise ValueError(
-            "initial_guess: the record's force is constant (no friction level to read a start from); check the "
+            "initial_guess: the record's force does not vary (no friction level to read a start from); check the "
             "force column, or build the start by hand."
         )
     moves = [_reversals(r) for r in records]
