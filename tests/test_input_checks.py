@@ -253,3 +253,16 @@ def test_initial_guess_refuses_records_it_cannot_read():
     onwards = fj.FrictionData(fj.Motion.from_position(1e-3 * t, DT), np.tanh(t) + 0.01 * np.sin(50 * t))
     with pytest.warns(UserWarning, match="never reverses its motion, so GMS's pre-sliding stiffness"):
         fj.initial_guess(fj.GMS, onwards)
+
+
+def test_a_fit_that_stops_short_names_the_parameters_it_steps_as_stored():
+    """A damping of 7e4 N s/m stayed at its start in a Levenberg-Marquardt fit of the damper's records, and
+    nothing said that `scaling=fj.ParameterScaling()` was the fix."""
+    motion = _record().motion
+    data = fj.FrictionData(motion, np.asarray(fj.simulate(fj.CoulombViscous(1.0, 4e3), motion)))
+    start = fj.CoulombViscous(0.5, 2e3, smoothing=fj.Smooth(1e-4))
+    short = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=1)
+    assert short.code == "max_steps"
+    assert "real parameters far from unit size, Fv = 2e+03, are stepped as stored" in short.message
+    scaled = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=1, scaling=fj.ParameterScaling())
+    assert "stepped as stored" not in scaled.message

@@ -334,12 +334,14 @@ def fit(
         chosen, kept, losses = _no_worse_than_start(solver, problem, chosen, ys0, static, validation is not None)
         if kept:
             message += "; " + kept
-            if plan.scales is None and solver.kind == "optax":
-                message += (
-                    " (real parameters are stepped as stored: for physical models pass scaling="
-                    "fj.ParameterScaling(), which scales each by its magnitude or physical range)"
-                )
-
+    if plan.scales is None and (code != "successful" or kept) and code != "diverged":
+        if kept and solver.kind == "optax":  # a learning rate far from every parameter's size
+            message += (
+                " (real parameters are stepped as stored: for physical models pass scaling="
+                "fj.ParameterScaling(), which scales each by its magnitude or physical range)"
+            )
+        else:
+            message += _scaling_hint(params0)
     fitted = problem.materialise(chosen[0], static)
     if losses is not None:  # the returned model's losses, as the problem scores it (no further program)
         train_loss, val_loss = losses
@@ -481,6 +483,27 @@ def _several_records(
     if held:
         freeze = (*selector_items(freeze), *held)
     return batch, validation, RecordsLoss(loss, nuisances), freeze
+
+
+def _scaling_hint(params: Any) -> str:
+    """Advice for a fit that stopped short without `scaling`: the trained real (not log-stored) parameters far from
+    unit size, which a solver steps as stored (a damping of 7e4 N s/m barely moves), and the fix; "" if none."""
+    from .._constraints import AbstractUnwrappable
+
+    large = []
+    leaves = jax.tree_util.tree_leaves_with_path(params, is_leaf=lambda n: isinstance(n, AbstractUnwrappable))
+    for path, leaf in leaves:
+        if isinstance(leaf, AbstractUnwrappable) or not eqx.is_inexact_array(leaf):
+            continue
+        magnitude = float(np.max(np.abs(np.asarray(leaf)))) if np.size(leaf) else 0.0
+        if magnitude > 1e3:
+            large.append(f"{jax.tree_util.keystr(path).lstrip('.')} = {magnitude:.3g}")
+    if not large:
+        return ""
+    return (
+        f" (real parameters far from unit size, {', '.join(large[:3])}, are stepped as stored: pass "
+        "scaling=fj.ParameterScaling(), which scales each by its magnitude)"
+    )
 
 
 def _survivors(scores: np.ndarray, keep: int, count: int, how: str) -> tuple[np.ndarray, str]:
