@@ -9,8 +9,8 @@ model chosen by **validation** (compare's table is sorted by test NMSE; this is 
 test part), the PRESS ensemble (worden2007 §7: its members chosen on the validation part; the ensembles' own
 validation NMSE is their fit, so it cannot choose among them), compare's wall time, machine and versions.
 
-Run: `python benchmarks/tribometer_compare.py [--regimes presliding mixed sliding] [--models all]` (about 1 minute
-per regime with the default physics models on 2 cores; about 3-4 minutes with `--models all`).
+Run: `python benchmarks/tribometer_compare.py [--regimes presliding mixed sliding] [--models all]` (35-55 s
+per regime with the default physics models on 2 cores, 2-3 minutes with `--models all`).
 """
 
 from __future__ import annotations

@@ -7,6 +7,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
 import fricjax as fj
@@ -128,7 +129,7 @@ def test_simulate_checks_unroll_and_measured():
     with pytest.raises(TypeError, match="`unroll` must be a positive number"):
         fj.simulate(model, data.motion, unroll=True)
     force = np.asarray(data.force)
-    with pytest.raises(ValueError, match=r"`measured` must be the measured force, shape \(600,\), got \(600, 1\)"):
+    with pytest.raises(ValueError, match=r"`measured` must be shaped as the model's outputs, \(600,\), got \(600, 1\)"):
         fj.simulate(model, data.motion, measured=force[:, None])
     with pytest.raises(ValueError, match="`measured` contains NaN"):
         fj.simulate(model, data.motion, measured=np.where(np.arange(600) == 5, np.nan, force))
@@ -263,6 +264,15 @@ def test_a_fit_that_stops_short_names_the_parameters_it_steps_as_stored():
     start = fj.CoulombViscous(0.5, 2e3, smoothing=fj.Smooth(1e-4))
     short = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=1)
     assert short.code == "max_steps"
-    assert "real parameters far from unit size, Fv = 2e+03, are stepped as stored" in short.message
+    assert "large real parameters, Fv = 2e+03, are stepped as stored" in short.message
     scaled = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=1, scaling=fj.ParameterScaling())
     assert "stepped as stored" not in scaled.message
+
+
+def test_a_fit_whose_steps_never_improve_returns_its_start_and_says_so():
+    truth = fj.CoulombViscous(1.0, 30.0, smoothing=fj.Smooth(1e-4))
+    data = _record()
+    kept = fj.fit(truth, data, solver=optax.sgd(1e3), steps=3)  # every step overshoots
+    assert kept.start_kept and "returned unchanged" in kept.message
+    assert float(kept.model.Fv) == 30.0
+    assert not fj.fit(_start(), data, solver=fj.levenberg_marquardt(), steps=10).start_kept

@@ -340,7 +340,8 @@ SMOOTH_CASES = {
         [1e-4, 1e-5, 1e-6, 1e-7, 1e-8],
         1e-6,
     ),
-    # Threlfall's law is continuous at v = 0; smoothing only blends its two sides, so they differ here
+    # Threlfall's law is continuous at v = 0 and smoothing only blends its two sides: the sides must differ (an
+    # asymmetric law) for the smoothing to show at all
     "threlfall-asym": (
         lambda: fj.Threlfall(Fc=(1.0, 0.7), Fv=(0.3, 0.5), v0=(2e-4, 3e-4)),
         _sliding_motion,
@@ -462,7 +463,6 @@ FLOAT32_MODELS = {
         lambda: fj.BoPavelescu(f32(1.0), f32(1.5), f32(1e-3), f32(2.0), f32(0.3), offset=f32(0.0)),
         _f32_motion_sliding,
     ),
-    # Threlfall's law is continuous at v = 0; smoothing only blends its two sides, so they differ here
     "threlfall-asym": (
         lambda: fj.Threlfall(np.array([1.0, 1.2], f32), f32(0.3), f32(1e-3), offset=f32(0.0)),
         _f32_motion_sliding,

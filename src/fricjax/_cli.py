@@ -65,9 +65,13 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     args, unknown = parser.parse_known_args(argv)
     if unknown:
         command = parser.commands[args.command]  # type: ignore[attr-defined]
-        known = [o for action in command._actions for o in action.option_strings if o.startswith("--")]
-        hints = {u: difflib.get_close_matches(u.split("=")[0], known, n=1) for u in unknown if u.startswith("-")}
-        said = "; ".join(f"did you mean {h[0]} for {u}?" for u, h in hints.items() if h)
+        known = [o[2:] for action in command._actions for o in action.option_strings if o.startswith("--")]
+        hints = {
+            u: difflib.get_close_matches(u.split("=")[0].lstrip("-"), known, n=1, cutoff=0.75)
+            for u in unknown
+            if u.startswith("-")
+        }
+        said = "; ".join(f"did you mean --{h[0]} for {u}?" for u, h in hints.items() if h)
         command.error(f"unrecognized arguments: {' '.join(unknown)}" + (f" ({said})" if said else ""))
     return args
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numbers
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -93,12 +92,12 @@ class FrictionData(eqx.Module):
             raise ValueError("FrictionData.split: give at least one split point (a fraction or an index).")
         indices: list[int] = []
         for p in points:
-            if isinstance(p, (bool, np.bool_)) or not isinstance(p, numbers.Real):
+            kind = np.asarray(p).dtype.kind if np.ndim(p) == 0 else ""  # a number or a 0-d NumPy / JAX array
+            if isinstance(p, (str, bytes)) or kind not in "iuf" or not kind:
                 raise TypeError(
                     f"FrictionData.split: split points are fractions in (0, 1) or sample indices, got {p!r}."
                 )
-            integral = isinstance(p, numbers.Integral)
-            indices.append(int(p) if integral else int(round(float(p) * self.length)))
+            indices.append(int(p) if kind in "iu" else int(round(float(p) * self.length)))
         edges = [0, *indices, self.length]
         if any(b <= a for a, b in zip(edges[:-1], edges[1:], strict=True)):
             raise ValueError(

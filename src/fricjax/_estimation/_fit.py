@@ -23,7 +23,7 @@ import optax
 from .._data._record import FrictionData
 from .._smoothing import AbstractSmoothing, Smooth, exact, with_smoothing
 from .._validation import nonnegative_float, nonnegative_int, optional, positive_int, seed_value
-from ._loop import Search, run_stage, start_losses
+from ._loop import Search, run_stage, start_losses, trees_equal
 from ._losses import AbstractLoss, SimulationLoss
 from ._placement import choose_device, to_device
 from ._problem import (
@@ -334,6 +334,9 @@ def fit(
         chosen, kept, losses = _no_worse_than_start(solver, problem, chosen, ys0, static, validation is not None)
         if kept:
             message += "; " + kept
+        elif code != "diverged" and trees_equal(chosen[0], _host_take(ys0, 0)[0]):
+            kept = "no step improved on the model the fit was given, which is returned unchanged"
+            message += "; " + kept
     if plan.scales is None and (code != "successful" or kept) and code != "diverged":
         if kept and solver.kind == "optax":  # a learning rate far from every parameter's size
             message += (
@@ -486,8 +489,9 @@ def _several_records(
 
 
 def _scaling_hint(params: Any) -> str:
-    """Advice for a fit that stopped short without `scaling`: the trained real (not log-stored) parameters far from
-    unit size, which a solver steps as stored (a damping of 7e4 N s/m barely moves), and the fix; "" if none."""
+    """Advice for a fit that stopped short without `scaling`: the trained real (not log-stored) parameters above
+    1e3, which a solver steps as stored (a damping of 7e4 N s/m barely moves), and the fix; "" if none. (Small
+    ones are not named: a network's weights start near 0, and scaling would slow them down.)"""
     from .._constraints import AbstractUnwrappable
 
     large = []
@@ -501,7 +505,7 @@ def _scaling_hint(params: Any) -> str:
     if not large:
         return ""
     return (
-        f" (real parameters far from unit size, {', '.join(large[:3])}, are stepped as stored: pass "
+        f" (large real parameters, {', '.join(large[:3])}, are stepped as stored: pass "
         "scaling=fj.ParameterScaling(), which scales each by its magnitude)"
     )
 

@@ -211,7 +211,7 @@ def start_losses(solver: Any, problem: Any, ys: Any, args: Any) -> tuple[np.ndar
     return np.asarray(train), np.asarray(val)
 
 
-def _trees_equal(a: Any, b: Any) -> bool:
+def trees_equal(a: Any, b: Any) -> bool:
     """Whether two pytrees of arrays hold the same values (host side)."""
     return all(
         bool(np.array_equal(np.asarray(x), np.asarray(y)))
@@ -365,7 +365,7 @@ def run_stage(
             )
             projected = problem.project(ys)  # bounds (elementwise); a no-op for solvers that project at every step
             # a solver that keeps copies of the iterate goes on from its state unless the bounds moved the iterate
-            restart = not _trees_equal(projected, ys)
+            restart = not trees_equal(projected, ys)
             ys = projected
         if host and getattr(problem, "validation", None) is None:  # the solver's own evaluations scored them
             train, val = np.asarray(states.loss), np.full(len(states.loss), np.nan)

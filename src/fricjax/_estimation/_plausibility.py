@@ -20,11 +20,12 @@ from .._models.physics._stribeck import ExponentialStribeck
 NEGLIGIBLE = 1e-3
 
 
-def implausible(model: Any, record_excursion: float | None = None) -> list[str]:
+def implausible(model: Any, record_excursion: float | None = None, *, bounds: bool = True) -> list[str]:
     """What is implausible in a fitted physics model (empty when nothing is): a Stribeck curve whose static level is
     below its Coulomb level (`Fs < Fc`), a damping coefficient held at its bound 0, GMS elements carrying almost none
     of the force, Maxwell-slip elements that never slip on a record whose reversals span `record_excursion` [m]
-    (half the largest displacement swing), or all of them."""
+    (half the largest displacement swing), or all of them. `bounds=False` leaves out the damping "held at its
+    bound" notes (true of a fitted coefficient, not of one that was frozen or left at its default 0)."""
     friction = unwrap(model)
     while isinstance(friction, (SensorDrift, NormalLoad)):  # the friction model inside the sensor and the load
         friction = unwrap(friction.model)
@@ -36,9 +37,10 @@ def implausible(model: Any, record_excursion: float | None = None) -> list[str]:
         notes.append("Fs < Fc (a Stribeck curve falling towards standstill)")
     if isinstance(friction, (LuGre, GMS)):
         for name in ("sigma1", "sigma2") if isinstance(friction, LuGre) else ("sigma2",):
-            if float(np.asarray(getattr(friction, name))) <= 0.0:
+            if bounds and float(np.asarray(getattr(friction, name))) <= 0.0:
                 notes.append(f"{name} = 0 (held at its bound)")
-    if isinstance(friction, AbstractStaticFriction) and float(np.min(np.asarray(getattr(friction, "Fv", 1.0)))) <= 0:
+    static = isinstance(friction, AbstractStaticFriction)
+    if bounds and static and float(np.min(np.asarray(getattr(friction, "Fv", 1.0)))) <= 0:
         notes.append("Fv = 0 (held at its bound)")
     if isinstance(friction, GMS):
         alpha = np.asarray(friction.alpha)

@@ -118,13 +118,12 @@ class RecordBatch(eqx.Module):
             missing = names[dts.index(None)]
             raise ValueError(f"fit: {missing} of `{argument}` has no sample time; build its Motion with dt=... [s].")
         reference = dts[0]
-        # equal to the rounding of the coarsest dtype among the records (a float32 record's dt is 1e-7 off)
-        coarsest = max(float(np.finfo(np.result_type(np.asarray(r.motion.dt), np.float32)).eps) for r in records)
         for name, dt in zip(names, dts, strict=True):
             assert dt is not None and reference is not None
-            if abs(dt - reference) > max(1e-9, 8 * coarsest) * reference:
+            # equal to 1e-6: a sample time stored in float32 anywhere on its way is 1e-7 off
+            if abs(dt - reference) > 1e-6 * reference:
                 raise ValueError(
-                    f"fit: {name} of `{argument}` is sampled at dt = {dt:.6g} s, {names[0]} at {reference:.6g} s; "
+                    f"fit: {name} of `{argument}` is sampled at dt = {dt:.9g} s, {names[0]} at {reference:.9g} s; "
                     "records fitted together need one sample time: resample them first (scipy.signal.resample_poly)."
                 )
         with_normal = [r.motion.normal_force is not None for r in records]

@@ -172,7 +172,9 @@ class Solution:
             lines.append(line)
         if len(rows) > max_parameters:
             lines.append(f"  ... and {len(rows) - max_parameters} more parameter arrays (Solution.parameters())")
-        notes = implausible(self.model)  # what a model of its class should not have (compare's table notes)
+        # what a model of its class should not have (compare's table notes; the bound notes need to know what was
+        # trained, which compare does and a Solution does not)
+        notes = implausible(self.model, bounds=False)
         if notes:
             lines.append("  implausible: " + "; ".join(notes))
         if self.records is not None:

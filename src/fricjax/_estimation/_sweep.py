@@ -232,6 +232,8 @@ def sweep(
     check_burn_in(loss, data, "data", "sweep")
     if isinstance(validation, FrictionData):
         check_burn_in(val_loss_fn, validation, "validation", "sweep", "validation_burn_in")
+    elif isinstance(validation, RecordBatch):  # the training loss's burn-in applies to them too
+        check_burn_in(val_loss_fn, validation, "validation", "sweep")
     params, static = eqx.partition(batch, trainable_filter(one))
     if not isinstance(loss, RecordsLoss):
         extra0 = loss.init_extra(one, data)

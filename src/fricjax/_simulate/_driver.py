@@ -178,11 +178,16 @@ def _simulate(
                 raise ValueError(
                     f"simulate: `measured` must have one value per sample ({length}), got shape {leaf.shape}."
                 )
-            if isinstance(model, AbstractFrictionModel) and leaf.shape != (length,):  # one force per sample
-                raise ValueError(
-                    f"simulate: `measured` must be the measured force, shape ({length},), got {leaf.shape}; pass a "
-                    "1-D array (np.ravel)."
-                )
+            if isinstance(model, AbstractFrictionModel):  # shaped as the model's outputs: one force per sample
+                steps, rebuild = split_time_signals(samples)
+                first = rebuild([None if signal is None else signal[0] for signal in steps])
+                output = eqx.filter_eval_shape(lambda m, x: m.step(m.init_state(), x)[1], model, first)
+                expected = (length, *output.shape)
+                if leaf.shape != expected:
+                    raise ValueError(
+                        f"simulate: `measured` must be shaped as the model's outputs, {expected}, got {leaf.shape}"
+                        + ("; pass a 1-D array (np.ravel)." if expected == (length,) else ".")
+                    )
     state = model.init_state() if state0 is None else state0
     if horizon is None or horizon == 1:
         options: dict[str, Any] = {"derivatives": derivatives, "batching": batching, "scan": scan}

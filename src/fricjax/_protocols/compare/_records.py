@@ -256,6 +256,12 @@ def short_name(spec: str) -> str:
     return os.path.basename(spec) if os.sep in spec else spec
 
 
+def is_built_in(spec: str) -> bool:
+    """Whether a record named on the command line is built in (`emps`, `tribometer[:REGIME[:options]]`), not a
+    file (`tribometer_run.csv` is a file)."""
+    return spec in ("emps", "tribometer") or spec.startswith("tribometer:")
+
+
 def expand_record_specs(specs: Sequence[str], option: str) -> list[str]:
     """The records named by an option: built-in names as they are, file names with `*`, `?` or `[` expanded as
     globs (sorted; a glob that matches no file is an error naming it)."""
@@ -263,7 +269,7 @@ def expand_record_specs(specs: Sequence[str], option: str) -> list[str]:
 
     out: list[str] = []
     for spec in specs:
-        if spec.startswith("tribometer") or spec == "emps" or not any(c in spec for c in "*?["):
+        if is_built_in(spec) or not any(c in spec for c in "*?["):
             out.append(spec)
             continue
         matches = sorted(glob.glob(spec))
@@ -308,7 +314,7 @@ def load_record_spec(
 
     from ..._data._tribometer import make_tribometer
 
-    if spec.startswith("tribometer"):
+    if is_built_in(spec) and spec != "emps":
         parts = spec.split(":")
         regime = parts[1] if len(parts) > 1 and parts[1] else "mixed"
         options: dict[str, Any] = {"seed": seed}

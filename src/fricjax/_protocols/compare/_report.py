@@ -54,7 +54,7 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
     heads = [f"NMSE % {i + 1}" for i in range(len(names))] if several else ["NMSE %"]
     max_head = "MAX/std 1" if several else "MAX/std"  # the first test record's, as the sort
     lines = [
-        f"{'model':{w}s} {'params':>6s} {'val %':>10s} "
+        f"{'model':{w}s} {'params':>6s} {'val %':>11s} "
         + " ".join(f"{h:>10s}" for h in heads)
         + f" {max_head:>9s} {'fit s':>7s}  result"
     ]
@@ -73,7 +73,7 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
         val_cell = "-" if not np.isfinite(val) else (f"({val:.4f})" if is_ensemble(r) else f"{val:.4f}")
         label = ("* " if r is chosen else "  ") + r.label
         lines.append(
-            f"{label:{w}s} {r.num_parameters:6d} {val_cell:>10s} {cells} {r.max_error:9.3f} {r.fit_time:7.1f}  "
+            f"{label:{w}s} {r.num_parameters:6d} {val_cell:>11s} {cells} {r.max_error:9.3f} {r.fit_time:7.1f}  "
             f"{r.result}{flag}"
         )
     if reference:
@@ -81,7 +81,7 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
         cells = " ".join(f"{v:10.4f}" for v in floor)
         first = reference.get(names[0])
         lines.append(
-            f"{'  noise floor (true model + sensor model)':{w}s} {'':6s} {'':10s} {cells} "
+            f"{'  noise floor (true model + sensor model)':{w}s} {'':6s} {'':11s} {cells} "
             f"{(first.max_error if first else float('nan')):9.3f}"
         )
     if chosen is not None:

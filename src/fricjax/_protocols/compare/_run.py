@@ -41,6 +41,7 @@ from ._records import (
     TestRecord,
     TrainingRecords,
     expand_record_specs,
+    is_built_in,
     load_record_spec,
     short_labels,
     split_record,
@@ -144,7 +145,9 @@ def _fit_and_score_one(
         for test in tests
     }
     notes = implausible(model, _largest_excursion(split))
-    if getattr(result, "start_kept", False):  # "successful" is the solver's verdict on steps that were not kept
+    # "successful" is the solver's verdict on steps that were not kept; a network's NOE stage that does not improve on
+    # its least-squares start is the recipe working (its message says so), a physics fit's is worth a note
+    if name in PHYSICS_MODELS and getattr(result, "start_kept", False):
         notes.append("no fit step improved on its start's validation loss: the start is reported")
     return score_row(
         name,
@@ -192,11 +195,6 @@ def _check_emps_options(arguments: dict[str, Any]) -> None:
             f"--data emps runs the EMPS table (the benchmark's own records, split and friction laws) and takes none "
             f"of {', '.join(given)}: drop them, or run compare on a record file (--data FILE)"
         )
-
-
-def _is_file_spec(spec: str) -> bool:
-    """Whether a record named on the command line is a file (not `tribometer:...` or `emps`)."""
-    return not (spec == "emps" or spec.startswith("tribometer"))
 
 
 def _largest_excursion(split: Split | TrainingRecords) -> float | None:
@@ -278,7 +276,7 @@ def run_compare(
         raise CompareError("--data emps runs the EMPS table on its own; give it alone")
     if data_specs == ["emps"]:
         _check_emps_options(arguments)
-    elif not any(_is_file_spec(spec) for spec in [*data_specs, *validation_specs, *list(test or [])]):
+    elif all(is_built_in(spec) for spec in [*data_specs, *validation_specs, *list(test or [])]):
         file_options: dict[str, Any] = {"--dt": dt, "--x-unit": x_unit, "--force-unit": force_unit}
         file_options["--velocity"] = None if velocity == "auto" else velocity
         file_options["--normal-force-column"] = normal_force_column or None
@@ -503,7 +501,7 @@ def _trained_on(training: Sequence[str], tests: Sequence[str], validation: Seque
     the same built-in record): its score is not held out."""
 
     def key(spec: str) -> str:
-        return spec if spec.startswith("tribometer") else str(pathlib.Path(spec).resolve())
+        return spec if is_built_in(spec) else str(pathlib.Path(spec).resolve())
 
     roles = {key(spec): role for role, specs in (("validation", validation), ("training", training)) for spec in specs}
     return [
