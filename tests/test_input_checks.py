@@ -40,6 +40,10 @@ def test_a_burn_in_that_covers_a_record_is_refused():
         fj.sweep([_start(), _start()], data, loss=fj.SimulationLoss(burn_in=700), steps=2)
     with pytest.raises(ValueError, match=r"sweep: `validation_burn_in` leaves 600 samples unscored"):
         fj.sweep([_start(), _start()], data, validation=data, validation_burn_in=600, steps=2)
+    with pytest.raises(ValueError, match=r"sweep: the loss's burn_in .* all of record 0 of `validation`"):
+        fj.sweep(
+            [_start(), _start()], [data, data], loss=fj.SimulationLoss(burn_in=400), validation=[data.slice(0, 300)]
+        )
     fitted = fj.fit(_start(), [data, data.slice(0, 500)], loss=fj.SimulationLoss(burn_in=400), steps=2)
     assert np.all(np.asarray(fitted.records.train_nmse) > 0)  # both records scored
 
@@ -143,6 +147,7 @@ def test_small_conversions_name_the_fix():
         fj.Motion.from_position(np.zeros((600, 1)), DT)
     assert [part.length for part in data.split(np.float32(0.5))] == [300, 300]  # a NumPy float is a fraction
     assert [part.length for part in data.split(np.int64(200))] == [200, 400]
+    assert [part.length for part in data.split(jnp.argmax(jnp.arange(201)))] == [200, 400]  # a 0-d JAX array
     with pytest.raises(TypeError, match="split points are fractions"):
         data.split("0.5")
     with pytest.raises(TypeError, match="`data` must be one fj.FrictionData record, got list"):
@@ -239,6 +244,8 @@ def test_file_options_on_built_in_records_are_refused(capsys):
     """`--dt -1` or `--x-unit foo` with `--data tribometer:mixed` ran and exited 0, ignoring them."""
     assert fj.main(["compare", "--data", "tribometer:mixed", "--dt", "-1", "--x-unit", "foo"]) == 2
     assert "--dt, --x-unit describe record files, and every record here is built in" in capsys.readouterr().err
+    assert fj.main(["compare", "--data", "tribometer_run.csv", "--dt", "1e-3"]) == 2  # a file of that name
+    assert "tribometer_run.csv: no such file" in capsys.readouterr().err
 
 
 def test_initial_guess_refuses_records_it_cannot_read():
