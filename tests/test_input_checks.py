@@ -283,3 +283,45 @@ def test_a_fit_whose_steps_never_improve_returns_its_start_and_says_so():
     assert kept.start_kept and "returned unchanged" in kept.message
     assert float(kept.model.Fv) == 30.0
     assert not fj.fit(_start(), data, solver=fj.levenberg_marquardt(), steps=10).start_kept
+
+
+def test_a_sweep_over_several_records_holds_what_fit_holds():
+    """fj.sweep on several records trained the model's own offset and initial state, which fj.fit holds (each
+    record has its own): the same configuration reached 0.0375 in the sweep and 3.3e-6 in the fit. A single
+    validation record crashed after the training; a line-search optimiser failed inside JAX."""
+    t = np.arange(1500) * DT
+
+    def record(amplitude: float, offset: float) -> fj.FrictionData:
+        motion = fj.Motion.from_position(amplitude * np.sin(2 * np.pi * 2.0 * t), DT)
+        truth = fj.LuGre(fj.ExponentialStribeck(1.0, 1.5, 1e-3), 1e5, 300.0, 0.4, smoothing=fj.Smooth(1e-4))
+        return fj.FrictionData(motion, np.asarray(fj.simulate(truth, motion)) + offset)
+
+    records = [record(1e-3, 0.1), record(5e-4, -0.2), record(8e-4, 0.0)]
+    start = fj.LuGre(fj.ExponentialStribeck(0.8, 1.2, 2e-3), 5e4, 100.0, 0.2, smoothing=fj.Smooth(1e-4))
+    swept = fj.sweep([start], records[:2], steps=40, learning_rate=1e-2, validation=records[2])
+    alone = fj.fit(start, records[:2], solver=optax.adam(1e-2), steps=40)
+    np.testing.assert_allclose(swept.train_loss[0], alone.train_loss, rtol=1e-6)
+    assert float(np.asarray(fj.unwrap(swept.models).z0)[0]) == 0.0 and np.isfinite(swept.val_loss[0])
+    with pytest.raises(TypeError, match=r"cannot take one learning rate per configuration .*optax.lbfgs"):
+        fj.sweep([_start(), _start()], _record(), optimiser=optax.lbfgs, steps=2)
+
+
+def test_a_fit_whose_steps_overshoot_is_told_to_lower_the_rate():
+    """The budget message read 'still falling: raise `steps`' at a loss 4e7 times its best."""
+    motion = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * 0.5 * np.arange(2000) * DT), DT)
+    stribeck = fj.ExponentialStribeck(10.0, 15.0, 1e-3, 2.0)
+    data = fj.FrictionData(motion, np.asarray(fj.simulate(fj.LuGre(stribeck, 1e6, 300.0, 50.0), motion)))
+    start = fj.LuGre(fj.ExponentialStribeck(9.0, 13.5, 9e-4), 4.5e5, 200.0, 27.0, smoothing=fj.Smooth(1e-5))
+    fitted = fj.fit(start, data, solver=optax.adam(5.0), steps=300)
+    assert "raise `steps`" not in fitted.message
+    assert "the steps overshoot" in fitted.message, fitted.message
+
+
+def test_standard_deviations_in_float32_come_with_a_warning():
+    f32 = np.float32
+    motion = fj.Motion.from_position((1e-3 * np.sin(2 * np.pi * 3.0 * np.arange(600) * DT)).astype(f32), f32(DT))
+    truth = fj.CoulombViscous(f32(1.0), f32(30.0), smoothing=fj.Smooth(f32(1e-4)))
+    data = fj.FrictionData(motion, np.asarray(fj.simulate(truth, motion)))
+    start = fj.CoulombViscous(f32(0.5), f32(10.0), smoothing=fj.Smooth(f32(1e-4)))
+    with pytest.warns(UserWarning, match="compute_std in float32"):
+        fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=5, compute_std=True)

@@ -3,6 +3,8 @@ input signals of a system model), the per-step samples a model's `step` sees, an
 
 from __future__ import annotations
 
+import pathlib
+import sys
 import warnings
 from typing import Any, NamedTuple
 
@@ -206,6 +208,20 @@ def position_from_velocity(v: Array, dt: Array, x0: ArrayLike = 0.0) -> Array:
 
 
 _WARNED_X64 = False
+# the packages a call from the user's code passes through before it reaches `_as_signal`
+_LIBRARIES = tuple(str(pathlib.Path(m.__file__).parent) for m in (jax, eqx) if m.__file__) + (
+    str(pathlib.Path(__file__).parent),
+)
+
+
+def _caller_level() -> int:
+    """The `stacklevel` of a warning raised here that points at the user's line (not at fricjax, equinox or JAX,
+    which build a Motion through constructors and loaders)."""
+    frame: Any = sys._getframe(1)
+    level = 1
+    while frame is not None and frame.f_code.co_filename.startswith(_LIBRARIES):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def _as_signal(value: ArrayLike, name: str, owner: str = "Motion") -> Array:
@@ -218,7 +234,7 @@ def _as_signal(value: ArrayLike, name: str, owner: str = "Motion") -> Array:
                 "(small motions on large offsets lose accuracy); call jax.config.update('jax_enable_x64', True) "
                 "first.",
                 UserWarning,
-                stacklevel=3,
+                stacklevel=_caller_level(),
             )
     try:
         array = as_float_array(value)

@@ -583,6 +583,12 @@ def _budget_message(steps: int, losses: list[Any]) -> str:
         return f"ran the full budget of {steps} steps (no convergence test for optax solvers)"
     previous, last = finite[-2], finite[-1]
     change = (previous - last) / max(abs(previous), 1e-300)
+    best = min(finite)
+    if last > 2 * best and best > 0:  # falling again, but far above where it was: the steps overshoot
+        return (
+            f"stopped at the step budget ({steps} steps) with the loss at {last / best:.3g}x the best seen "
+            f"({best:.4g}): the steps overshoot; the best model seen is returned: lower the learning rate"
+        )
     if change > 1e-3:
         return (
             f"stopped at the step budget ({steps} steps) while the loss was still falling ({100 * change:.2g} % over "

@@ -26,7 +26,7 @@ from .._data._record import FrictionData
 from .._validation import got_model, nonnegative_int, positive_int
 from ._loop import Search, batched_losses, run_stage
 from ._losses import AbstractLoss, SimulationLoss
-from ._problem import Problem
+from ._problem import Problem, initial_state_paths, offset_paths, parameter_specs
 from ._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch, check_burn_in, check_records
 from ._sharding import shard_batch
 from ._solvers import OptaxSolver
@@ -46,9 +46,10 @@ def stack_models(models: Sequence[Any]) -> Any:
             raise ValueError(
                 f"stack_models: model {i} differs in structure from model 0"
                 + (f" at {where}" if where else "")
-                + " (class, static fields such as the number of lags or the smoothing, or None fields); build every "
-                "configuration at one maximal shape and switch lags and units off with masks "
-                "(NARXRegressors(input_mask=, output_mask=), unit_mask=)."
+                + " (class, static fields such as the number of lags or the smoothing, or None fields); a physics "
+                "model needs one class, element count and kind of smoothing (fj.Smooth or fj.Exact) in every "
+                "configuration; NARX models: build every configuration at one maximal shape and switch lags and "
+                "units off with masks (NARXRegressors(input_mask=, output_mask=), unit_mask=)."
             )
         for (path, a), b in zip(
             jax.tree_util.tree_leaves_with_path(models[0]), jax.tree_util.tree_leaves(model), strict=True
@@ -63,7 +64,8 @@ def stack_models(models: Sequence[Any]) -> Any:
             if np.shape(a) != np.shape(b):
                 raise ValueError(
                     f"stack_models: model {i} has shape {np.shape(b)} at {jax.tree_util.keystr(path)}, model 0 has "
-                    f"{np.shape(a)}; use one maximal shape and masks."
+                    f"{np.shape(a)}; a physics model needs one element count in every configuration (sweep each "
+                    "count on its own), NARX models one maximal shape and masks."
                 )
     return jax.tree_util.tree_map(
         lambda *leaves: jnp.stack([jnp.asarray(x) for x in leaves]) if _stackable(leaves[0]) else leaves[0], *models
@@ -222,6 +224,8 @@ def sweep(
         data = as_record_batch(data, one, "data")
         loss, extra0 = RecordsLoss(loss, nuisances).bind_and_start(one, data)
         val_loss_fn = loss.validation_loss()
+        if isinstance(validation, FrictionData):  # one validation record, as fj.fit takes it
+            validation = [validation]
         if isinstance(validation, (list, tuple, dict)):
             starts = [validation_burn_in] * len(validation)
             validation = as_record_batch(validation, one, "validation", starts)
@@ -234,13 +238,27 @@ def sweep(
         check_burn_in(val_loss_fn, validation, "validation", "sweep", "validation_burn_in")
     elif isinstance(validation, RecordBatch):  # the training loss's burn-in applies to them too
         check_burn_in(val_loss_fn, validation, "validation", "sweep")
-    params, static = eqx.partition(batch, trainable_filter(one))
+    spec = trainable_filter(one)
+    if isinstance(loss, RecordsLoss):  # each record's offset and initial state replace the model's own, as fj.fit
+        held = [
+            *(offset_paths(one) if loss.nuisances.offset else []),
+            *(initial_state_paths(one) if loss.nuisances.initial_state else []),
+        ]
+        spec = parameter_specs(one, None, held, (), loss, data)[0]
+    params, static = eqx.partition(batch, spec)
     if not isinstance(loss, RecordsLoss):
         extra0 = loss.init_extra(one, data)
     extras = jax.tree_util.tree_map(lambda e: jnp.broadcast_to(e, (count,) + jnp.shape(e)), extra0)
     problem = Problem(loss, None, None, None, None, data, None, loss)
     ys = (params, extras)
-    states = _init_states(ys, jnp.asarray(rates), optimiser)
+    try:
+        states = _init_states(ys, jnp.asarray(rates), optimiser)
+    except (TypeError, jax.errors.ConcretizationTypeError) as err:  # a rate it cannot take traced, per configuration
+        raise TypeError(
+            f"sweep: `optimiser` {getattr(optimiser, '__name__', optimiser)!r} cannot take one learning rate per "
+            f"configuration (optax.inject_hyperparams: {type(err).__name__}); sweep runs first-order optax optimisers "
+            "(optax.adam, optax.sgd, ...): fit line-search ones (optax.lbfgs) with fj.fit."
+        ) from None
     # the configurations spread over every local device (as many as divide the batch; identity on one device)
     ys, static, states = shard_batch((ys, static, states))
     bar = None
