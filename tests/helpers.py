@@ -25,6 +25,14 @@ def presliding_to_sliding(n: int = 400, amplitude: float = 2e-3, dt: float = DT)
     return fj.Motion.from_position(x, dt=dt)
 
 
+def coulomb_viscous_record(samples: int = 600, frequency: float = 1.5) -> fj.FrictionData:
+    """A smooth Coulomb + viscous law (Fc 1 N, Fv 30 N s/m) under a 1 mm sine of `frequency` [Hz] at 1 kHz."""
+    t = np.arange(samples) * DT
+    motion = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * frequency * t), dt=DT)
+    truth = fj.CoulombViscous(1.0, 30.0, smoothing=fj.Smooth(1e-4))
+    return fj.FrictionData(motion, np.asarray(fj.simulate(truth, motion)))
+
+
 def stribeck() -> fj.ExponentialStribeck:
     return fj.ExponentialStribeck(Fc=1.0, Fs=1.5, vs=1e-3, delta=2.0)
 

@@ -12,16 +12,15 @@ import pytest
 
 import fricjax as fj
 
+from helpers import coulomb_viscous_record
+
 jax.config.update("jax_enable_x64", True)
 
 DT = 1e-3
 
 
 def _record(samples: int = 600) -> fj.FrictionData:
-    t = np.arange(samples) * DT
-    motion = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * 3.0 * t), dt=DT)
-    truth = fj.CoulombViscous(1.0, 30.0, smoothing=fj.Smooth(1e-4))
-    return fj.FrictionData(motion, np.asarray(fj.simulate(truth, motion)))
+    return coulomb_viscous_record(samples, frequency=3.0)
 
 
 def _start() -> fj.CoulombViscous:

@@ -17,14 +17,13 @@ import pytest
 
 import fricjax as fj
 
+from helpers import coulomb_viscous_record
+
 DT = 1e-3
 
 
 def _record(samples: int = 600) -> fj.FrictionData:
-    t = np.arange(samples) * DT
-    motion = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * 1.5 * t), dt=DT)
-    truth = fj.CoulombViscous(1.0, 30.0, smoothing=fj.Smooth(1e-4))
-    return fj.FrictionData(motion, np.asarray(fj.simulate(truth, motion)))
+    return coulomb_viscous_record(samples, frequency=1.5)
 
 
 def test_the_documented_noise_floor_snippet_gives_the_floor():

@@ -129,13 +129,18 @@ def exact(model: eqx.Module) -> eqx.Module:
     )
 
 
-def with_smoothing(model: eqx.Module, smoothing: AbstractSmoothing) -> eqx.Module:
-    """Return `model` with every smoothing strategy inside it replaced by `smoothing` (e.g. `Smooth(1e-4)`)."""
+def check_smoothing(smoothing: Any, where: str) -> None:
+    """Refuse a `smoothing` that is not a strategy: a plain number for `Smooth(eps)` is the likely slip."""
     if not isinstance(smoothing, AbstractSmoothing):
         raise TypeError(
-            f"with_smoothing: `smoothing` must be fj.Smooth(eps) or fj.Exact(), got {smoothing!r}"
-            + (f"; pass fj.Smooth({smoothing!r})." if isinstance(smoothing, (int, float)) else ".")
+            f"{where}: `smoothing` must be fj.Smooth(eps) or fj.Exact(), got {smoothing!r}"
+            + (f"; pass smoothing=fj.Smooth({smoothing!r})." if isinstance(smoothing, (int, float)) else ".")
         )
+
+
+def with_smoothing(model: eqx.Module, smoothing: AbstractSmoothing) -> eqx.Module:
+    """Return `model` with every smoothing strategy inside it replaced by `smoothing` (e.g. `Smooth(1e-4)`)."""
+    check_smoothing(smoothing, "with_smoothing")
     return jax.tree_util.tree_map(
         lambda leaf: smoothing if isinstance(leaf, AbstractSmoothing) else leaf,
         model,

@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from .._constraints import AbstractUnwrappable
 from .._data._record import FrictionData
 from .._smoothing import AbstractSmoothing, Smooth, exact, with_smoothing
 from .._validation import nonnegative_float, nonnegative_int, optional, positive_int, seed_value
@@ -31,10 +32,9 @@ from ._problem import (
     Selector,
     evaluate,
     gauss_newton_std,
-    initial_state_paths,
+    held_paths,
     nonnegative_flags,
     nonnegative_mask,
-    offset_paths,
     parameter_specs,
     selector_items,
     selector_paths,
@@ -478,11 +478,7 @@ def _several_records(
         validation = as_record_batch(validation, model, "validation", starts)
     elif validation is not None and not isinstance(validation, RecordBatch):
         raise TypeError(f"fit: `validation` must be records like `data`, got {type(validation).__name__}.")
-    # one offset and one initial state per record replace the model's own
-    held = [
-        *(offset_paths(model) if nuisances.offset else []),
-        *(initial_state_paths(model) if nuisances.initial_state else []),
-    ]
+    held = held_paths(model, nuisances)  # one offset and one initial state per record replace the model's own
     if held:
         freeze = (*selector_items(freeze), *held)
     return batch, validation, RecordsLoss(loss, nuisances), freeze
@@ -492,8 +488,6 @@ def _scaling_hint(params: Any) -> str:
     """Advice for a fit that stopped short without `scaling`: the trained real (not log-stored) parameters above
     1e3, which a solver steps as stored (a damping of 7e4 N s/m barely moves), and the fix; "" if none. (Small
     ones are not named: a network's weights start near 0, and scaling would slow them down.)"""
-    from .._constraints import AbstractUnwrappable
-
     large = []
     leaves = jax.tree_util.tree_leaves_with_path(params, is_leaf=lambda n: isinstance(n, AbstractUnwrappable))
     for path, leaf in leaves:

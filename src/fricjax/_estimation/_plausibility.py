@@ -18,6 +18,7 @@ from .._models.physics._stribeck import ExponentialStribeck
 
 # a fraction of the force or of the elements below which a part of the model does nothing
 NEGLIGIBLE = 1e-3
+FS_BELOW_FC = "Fs < Fc (a Stribeck curve falling towards standstill)"
 
 
 def implausible(model: Any, record_excursion: float | None = None, *, bounds: bool = True) -> list[str]:
@@ -34,7 +35,7 @@ def implausible(model: Any, record_excursion: float | None = None, *, bounds: bo
     levels = stribeck if isinstance(stribeck, ExponentialStribeck) else friction
     Fc, Fs = getattr(levels, "Fc", None), getattr(levels, "Fs", None)
     if Fc is not None and Fs is not None and np.any(np.asarray(Fs) < np.asarray(Fc)):
-        notes.append("Fs < Fc (a Stribeck curve falling towards standstill)")
+        notes.append(FS_BELOW_FC)
     if isinstance(friction, (LuGre, GMS)):
         for name in ("sigma1", "sigma2") if isinstance(friction, LuGre) else ("sigma2",):
             if bounds and float(np.asarray(getattr(friction, name))) <= 0.0:

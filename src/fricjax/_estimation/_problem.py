@@ -257,6 +257,15 @@ def initial_state_paths(model: Any) -> list[str]:
     return out
 
 
+def held_paths(model: Any, nuisances: Any) -> list[str]:
+    """The model's own fields that a fit to several records holds at their start, because each record gets its own
+    (`nuisances`, an `fj.Nuisances`): the force offsets and the fields of the state at rest."""
+    return [
+        *(offset_paths(model) if nuisances.offset else []),
+        *(initial_state_paths(model) if nuisances.initial_state else []),
+    ]
+
+
 def _nonnegative_paths(model: Any) -> list[str]:
     return [
         prefix + field.name
@@ -457,13 +466,19 @@ def gauss_newton_std(
         size = sum(int(np.size(leaf)) for leaf in jax.tree_util.tree_leaves(params))
         warnings.warn(
             "fit: compute_std in float32: the Jacobian's directions weaker than "
-            f"{np.sqrt(10 * size * np.finfo(np.float32).eps):.1g} of its strongest are dropped (a pseudo-inverse), so "
+            f"{_std_rcond(size, np.float32):.1g} of its strongest are dropped (a pseudo-inverse), so "
             "poorly determined parameters get standard deviations that are too small (measured: up to 14x on a GMS "
             "of 3 elements); enable float64 first (jax.config.update('jax_enable_x64', True)) for reliable ones.",
             UserWarning,
             stacklevel=3,
         )
     return _std_from_jacobian(params, rest, loss, extra, data)
+
+
+def _std_rcond(size: int, dtype: Any) -> float:
+    """The relative singular-value cut-off of the standard deviations of `size` parameters: that of the former
+    pinv of the Gram matrix (the figures in the docs were computed with it)."""
+    return float(np.sqrt(10 * size * np.finfo(dtype).eps))
 
 
 @eqx.filter_jit
@@ -476,9 +491,6 @@ def _std_from_jacobian(params: Any, rest: Any, loss: AbstractLoss, extra: Any, d
 
     r = residuals(flat)
     J = jax.jacfwd(residuals)(flat) if flat.size <= 64 else jax.jacrev(residuals)(flat)
-    # the cut-off of the former pinv of the Gram matrix (the figures in the docs were computed with it)
-    std_flat = parameter_std(
-        J, r, max(int(r.size) - int(flat.size), 1), rcond=float(np.sqrt(10 * flat.size * np.finfo(J.dtype).eps))
-    )
+    std_flat = parameter_std(J, r, max(int(r.size) - int(flat.size), 1), rcond=_std_rcond(flat.size, J.dtype))
     nan_rest = jax.tree_util.tree_map(lambda a: jnp.full_like(a, jnp.nan) if eqx.is_inexact_array(a) else a, rest)
     return eqx.combine(unravel(std_flat), nan_rest)

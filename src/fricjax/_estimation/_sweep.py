@@ -26,7 +26,7 @@ from .._data._record import FrictionData
 from .._validation import got_model, nonnegative_int, positive_int
 from ._loop import Search, batched_losses, run_stage
 from ._losses import AbstractLoss, SimulationLoss
-from ._problem import Problem, initial_state_paths, offset_paths, parameter_specs
+from ._problem import Problem, held_paths, parameter_specs
 from ._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch, check_burn_in, check_records
 from ._sharding import shard_batch
 from ._solvers import OptaxSolver
@@ -240,11 +240,7 @@ def sweep(
         check_burn_in(val_loss_fn, validation, "validation", "sweep")
     spec = trainable_filter(one)
     if isinstance(loss, RecordsLoss):  # each record's offset and initial state replace the model's own, as fj.fit
-        held = [
-            *(offset_paths(one) if loss.nuisances.offset else []),
-            *(initial_state_paths(one) if loss.nuisances.initial_state else []),
-        ]
-        spec = parameter_specs(one, None, held, (), loss, data)[0]
+        spec = parameter_specs(one, None, held_paths(one, loss.nuisances), (), loss, data)[0]
     params, static = eqx.partition(batch, spec)
     if not isinstance(loss, RecordsLoss):
         extra0 = loss.init_extra(one, data)

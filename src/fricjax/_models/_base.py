@@ -19,7 +19,7 @@ import jax
 from jaxtyping import Array
 
 from .._inputs import InputRecord, Motion, MotionSample
-from .._smoothing import AbstractSmoothing
+from .._smoothing import check_smoothing
 from ._display import model_text
 
 
@@ -42,11 +42,8 @@ class AbstractModel(eqx.Module):
         """A `smoothing` field holds a smoothing strategy (`fj.Smooth(eps)`, `fj.Exact()`), or None where the
         model allows it; a plain number there is the likely slip, refused at construction."""
         smoothing = getattr(self, "smoothing", None)
-        if smoothing is not None and not isinstance(smoothing, AbstractSmoothing):
-            raise TypeError(
-                f"{type(self).__name__}: `smoothing` must be fj.Smooth(eps) or fj.Exact(), got {smoothing!r}"
-                + (f"; pass smoothing=fj.Smooth({smoothing!r})." if isinstance(smoothing, (int, float)) else ".")
-            )
+        if smoothing is not None:
+            check_smoothing(smoothing, type(self).__name__)
 
     # real (not reparametrised) fields that are physically >= 0 (damping coefficients): separable least squares
     # keeps them >= 0 (`fj.fit(..., separable=...)`)

@@ -173,21 +173,20 @@ def _simulate(
     length = _length(samples)
     if measured is not None:
         measured = jax.tree_util.tree_map(jnp.asarray, measured)
+        expected = None
+        if isinstance(model, AbstractFrictionModel):  # shaped as the model's outputs: one force per sample
+            output = eqx.filter_eval_shape(lambda m, x: m.step(m.init_state(), x)[1], model, first_sample(samples))
+            expected = (length, *output.shape)
         for leaf in jax.tree_util.tree_leaves(measured):
             if leaf.shape[:1] != (length,):
                 raise ValueError(
                     f"simulate: `measured` must have one value per sample ({length}), got shape {leaf.shape}."
                 )
-            if isinstance(model, AbstractFrictionModel):  # shaped as the model's outputs: one force per sample
-                steps, rebuild = split_time_signals(samples)
-                first = rebuild([None if signal is None else signal[0] for signal in steps])
-                output = eqx.filter_eval_shape(lambda m, x: m.step(m.init_state(), x)[1], model, first)
-                expected = (length, *output.shape)
-                if leaf.shape != expected:
-                    raise ValueError(
-                        f"simulate: `measured` must be shaped as the model's outputs, {expected}, got {leaf.shape}"
-                        + ("; pass a 1-D array (np.ravel)." if expected == (length,) else ".")
-                    )
+            if expected is not None and leaf.shape != expected:
+                raise ValueError(
+                    f"simulate: `measured` must be shaped as the model's outputs, {expected}, got {leaf.shape}"
+                    + ("; pass a 1-D array (np.ravel)." if expected == (length,) else ".")
+                )
     state = model.init_state() if state0 is None else state0
     if horizon is None or horizon == 1:
         options: dict[str, Any] = {"derivatives": derivatives, "batching": batching, "scan": scan}
@@ -234,6 +233,13 @@ def run(
     return plain_run(model, samples, state, measured, DEFAULT_UNROLL if unroll is None else unroll, return_states)
 
 
+def first_sample(samples: Any) -> Any:
+    """The signals of a record's first sample (a `model.samples(...)` with its time axis taken at 0): what one
+    `step` reads, for tracing its output's shape."""
+    steps, rebuild = split_time_signals(samples)
+    return rebuild([None if signal is None else signal[0] for signal in steps])
+
+
 def check_force_shape(model: Any, motion: Any, *, scalar: bool = True) -> None:
     """A friction model fitted to a measured force must return one scalar force per sample; a force of shape (1,)
     broadcast against the measured (T,) force in the losses and fitted nothing (a custom model's mistake). By shape
@@ -244,18 +250,14 @@ def check_force_shape(model: Any, motion: Any, *, scalar: bool = True) -> None:
     if not isinstance(model, AbstractFrictionModel):
         return
 
-    def first_sample(model: Any, motion: Any) -> Any:
-        steps, rebuild = split_time_signals(unwrap(model).samples(motion))
-        return rebuild([None if signal is None else signal[0] for signal in steps])
-
     def one_step(model: Any, motion: Any) -> Any:
         plain = unwrap(model)
-        return plain.step(plain.init_state(), first_sample(model, motion))[1]
+        return plain.step(plain.init_state(), first_sample(plain.samples(motion)))[1]
 
     try:  # traced, never compiled: no program runs here
         force = eqx.filter_eval_shape(one_step, model, motion)
     except TypeError as err:  # a signal read that `requires` does not name arrives as None
-        first = eqx.filter_eval_shape(first_sample, model, motion)
+        first = eqx.filter_eval_shape(lambda m, mo: first_sample(unwrap(m).samples(mo)), model, motion)
         missing = (
             [name for name, value in first._asdict().items() if value is None] if hasattr(first, "_asdict") else []
         )

@@ -12,6 +12,7 @@ import numpy as np
 from ..._constraints import parameter_unit
 from ..._data._emps import load_emps
 from ..._data._folder import data_folder
+from ..._estimation._plausibility import FS_BELOW_FC
 from ..._models.physics._static import BoPavelescu, CoulombViscous, Threlfall, Tustin
 from ..._version import fricjax_version
 from .._emps_idm import fit_emps_idm
@@ -70,7 +71,7 @@ def emps_table(out: pathlib.Path) -> None:
                 for k, v in params.items()
             )
             if "Fs" in params and np.any(np.asarray(params["Fs"]) < np.asarray(params["Fc"])):
-                text += " (Fs < Fc: a Stribeck curve falling towards standstill)"
+                text += f"; {FS_BELOW_FC}"
             print(f"{name:34s} {float(result.relative_error):18.4f} {test_error:18.4f}  {text}")
     write_atomic(
         out / "report.json",

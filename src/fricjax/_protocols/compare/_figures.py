@@ -10,6 +10,8 @@ from typing import Any
 
 import numpy as np
 
+from ._scoring import is_ensemble
+
 
 def _display(units: Any) -> tuple[float, str, str]:
     """(factor from SI to the displayed displacement unit, that unit, the force unit): a record given in SI is
@@ -126,10 +128,9 @@ def distinct_models(rows: Sequence[Any], count: int) -> list[Any]:
     ordered = sorted(rows, key=lambda r: (not np.isfinite(r.nmse), np.nan_to_num(r.nmse)))
     out, ensemble = [], False
     for row in ordered:
-        is_ensemble = str(row.name).startswith("ensemble")
-        if is_ensemble and ensemble:
+        if is_ensemble(row) and ensemble:
             continue
-        ensemble |= is_ensemble
+        ensemble |= is_ensemble(row)
         out.append(row)
         if len(out) == count:
             break

@@ -17,18 +17,13 @@ from ..._version import fricjax_version
 from ._names import NEURAL_MODELS
 from ._output import versions
 from ._records import LoadedRecord, Split, TestRecord, TrainingRecords, short_labels
-from ._scoring import ModelScore, Score
+from ._scoring import ModelScore, Score, is_ensemble
 from ._settings import RESULT_CODES, FitSettings
 
 
 def by_score(row: ModelScore) -> tuple[bool, float]:
     """Sort key of the table: by test NMSE (the first test record), non-finite scores last."""
     return (not np.isfinite(row.nmse), float(row.nmse) if np.isfinite(row.nmse) else 0.0)
-
-
-def is_ensemble(row: ModelScore) -> bool:
-    """Whether a row is one of compare's ensembles (fitted on the validation part)."""
-    return row.name.startswith("ensemble")
 
 
 def validation_choice(rows: list[ModelScore]) -> ModelScore | None:

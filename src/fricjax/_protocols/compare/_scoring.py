@@ -167,6 +167,11 @@ class ModelScore:
     notes: tuple[str, ...] = ()  # what the table flags: an implausible fitted model, worse than a constant force
 
 
+def is_ensemble(row: Any) -> bool:
+    """Whether a row is one of compare's ensembles (`ensemble_*`: fitted on the validation part)."""
+    return str(row.name).startswith("ensemble")
+
+
 def count_parameters(model: Any) -> int:
     """The number of trainable scalars of `model` (`fj.trainable_filter`: `Fixed` leaves and smoothing widths
     excluded), the parameter count of the comparison table."""
