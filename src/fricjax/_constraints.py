@@ -62,6 +62,7 @@ class Positive(AbstractUnwrappable):
                 raise ValueError(f"`{name}` must be finite, got {np.asarray(value)!r}.")
             if not bool(np.all(np.asarray(value) > 0)):
                 raise ValueError(f"`{name}` must be positive, got {np.asarray(value)!r}; pass a value > 0.")
+            check_normal(value, name)
         self.transform = transform
         if transform == "log":
             self.raw = jnp.log(value)
@@ -75,6 +76,19 @@ class Positive(AbstractUnwrappable):
         if self.transform == "log":
             return jnp.exp(self.raw)
         return jax.nn.softplus(self.raw)
+
+
+def check_normal(value: Any, name: str) -> None:
+    """Refuse a positive value below the smallest normal float of its dtype (a subnormal such as 1e-320): a model
+    divides by such parameters, and the quotient overflows to inf / NaN forces."""
+    array = np.asarray(value)
+    if np.issubdtype(array.dtype, np.floating):
+        tiny = np.finfo(array.dtype).tiny
+        if bool(np.any((array > 0) & (array < tiny))):
+            raise ValueError(
+                f"`{name}` = {array.tolist()} is too small to compute with (below {tiny:.3g}, the smallest normal "
+                f"{array.dtype} number: forces divided by it overflow); check its unit, or pass a value >= {tiny:.3g}."
+            )
 
 
 class Fixed(AbstractUnwrappable, Generic[_T]):

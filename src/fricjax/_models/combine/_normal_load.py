@@ -14,7 +14,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from ..._constraints import Fixed, FixedScalar, ParamLike, model_dtype, real, unwrap
+from ..._constraints import Fixed, FixedScalar, ParamLike, check_normal, model_dtype, real, unwrap
 from ..._inputs import MotionSample
 from ..._smoothing import is_concrete, safe_div
 from ..._validation import got_model
@@ -67,10 +67,18 @@ class NormalLoad(AbstractFrictionModel):
         if not isinstance(model, AbstractFrictionModel):
             raise TypeError(f"NormalLoad: `model` must be a fricjax friction model, got {got_model(model)}.")
         self.model = model
-        value = real(reference, "reference", model_dtype(reference), scalar=True)
-        if is_concrete(value) and not float(value) > 0:
-            raise ValueError(f"NormalLoad: `reference` must be a positive normal load in newtons, got {reference!r}.")
-        self.reference = Fixed(value)
+        self.reference = Fixed(real(reference, "reference", model_dtype(reference), scalar=True))
+
+    def __check_init__(self):
+        # here, not only in __init__: fj.load_model runs it on a model read from a file (no constructor runs there)
+        value = unwrap(self.reference)
+        if is_concrete(value):
+            if not float(value) > 0:
+                raise ValueError(f"NormalLoad: `reference` must be a positive normal load in newtons, got {float(value)}.")
+            try:
+                check_normal(value, "reference")
+            except ValueError as err:
+                raise ValueError(f"NormalLoad: {err}") from None
 
     @property
     def requires(self) -> frozenset[str]:  # type: ignore[override]
