@@ -70,11 +70,14 @@ def test_a_planted_program_in_a_shared_folder_is_never_run(tmp_path):
     assert planting.returncode == 0, planting.stderr
     (entry,) = folder.glob("*-cache")
     other = tmp_path / "other"
-    assert _run(
-        "import jax, fricjax as fj\nfj.enable_compilation_cache()\nprint(int(jax.jit(lambda x: x + 100)(1)))",
-        {"FRICJAX_CACHE_DIR": str(other)},
-        tmp_path,
-    ).returncode == 0
+    assert (
+        _run(
+            "import jax, fricjax as fj\nfj.enable_compilation_cache()\nprint(int(jax.jit(lambda x: x + 100)(1)))",
+            {"FRICJAX_CACHE_DIR": str(other)},
+            tmp_path,
+        ).returncode
+        == 0
+    )
     (evil,) = other.glob("*-cache")
     entry.write_bytes(evil.read_bytes())  # the key of x + 1 now holds x + 100
     folder.chmod(0o777)

@@ -1,5 +1,5 @@
-"""Reliability, round 4 (issue 52): values no model can compute with, records named twice or weighted silently, checks
-too strict or too loose, plausible records that raised tracebacks. The compilation cache: tests/test_compilation_cache.py."""
+"""Reliability, round 4 (issue 52): values no model can compute with, records named twice or weighted silently,
+checks too strict or too loose, plausible records that raised tracebacks. The cache: tests/test_compilation_cache.py."""
 
 import equinox as eqx
 import jax.numpy as jnp

@@ -105,7 +105,8 @@ def _problem(module: eqx.Module) -> str | None:
         if not bool(np.all(np.isfinite(value) & (value > 0))):
             return f"its value must be finite and positive, got {_summary(value)} (`raw` {_summary(module.raw)})"
         if bool(np.any(value < np.finfo(value.dtype).tiny)):
-            return f"its value {_summary(value)} is below the smallest normal {value.dtype} number (`raw` {_summary(module.raw)})"
+            tiny = np.finfo(value.dtype).tiny
+            return f"its value {_summary(value)} is below the smallest normal number, {tiny:.3g} (a subnormal)"
     for name in sorted(getattr(cls, "nonnegative_fields", ())):
         if not hasattr(module, name):  # declared by a base class for fields only some subclasses have
             continue

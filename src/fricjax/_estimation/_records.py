@@ -31,7 +31,7 @@ from .._metrics import scaled_std
 from .._models._base import AbstractModel, feeds_back
 from .._simulate import check_force_shape, run
 from .._smoothing import is_concrete
-from .._validation import got_model
+from .._validation import got_model, same_sample_time
 from ._losses import AbstractLoss, JacobianGroups, OneStepLoss, SimulationLoss, leading_groups
 
 __all__ = [
@@ -120,8 +120,7 @@ class RecordBatch(eqx.Module):
         reference = dts[0]
         for name, dt in zip(names, dts, strict=True):
             assert dt is not None and reference is not None
-            # equal to 1e-6: a sample time stored in float32 anywhere on its way is 1e-7 off
-            if abs(dt - reference) > 1e-6 * reference:
+            if not same_sample_time(dt, reference):
                 raise ValueError(
                     f"fit: {name} of `{argument}` is sampled at dt = {dt:.9g} s, {names[0]} at {reference:.9g} s; "
                     "records fitted together need one sample time: resample them first (scipy.signal.resample_poly)."

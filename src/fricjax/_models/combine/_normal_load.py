@@ -74,7 +74,9 @@ class NormalLoad(AbstractFrictionModel):
         value = unwrap(self.reference)
         if is_concrete(value):
             if not float(value) > 0:
-                raise ValueError(f"NormalLoad: `reference` must be a positive normal load in newtons, got {float(value)}.")
+                raise ValueError(
+                    f"NormalLoad: `reference` must be a positive normal load in newtons, got {float(value)}."
+                )
             try:
                 check_normal(value, "reference")
             except ValueError as err:

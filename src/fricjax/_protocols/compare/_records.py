@@ -263,22 +263,45 @@ def is_built_in(spec: str) -> bool:
 
 
 def expand_record_specs(specs: Sequence[str], option: str) -> list[str]:
-    """The records named by an option: built-in names as they are, file names with `*`, `?` or `[` expanded as
-    globs (sorted; a glob that matches no file is an error naming it)."""
+    """The records named by an option: built-in names as they are; a name that is an existing file as it is (a file
+    called `run[1].csv` is that file, not a pattern); other names with `*`, `?` or `[` expanded as globs (sorted; a
+    glob that matches no file is an error naming it). A record named twice (the same file by two paths, overlapping
+    globs) is kept once, with a note: fitted twice, its share of the loss would be doubled."""
     import glob
 
     out: list[str] = []
+    seen: dict[str, str] = {}  # the real path of each file (a built-in record: its name) -> the name first given
     for spec in specs:
-        if is_built_in(spec) or not any(c in spec for c in "*?["):
-            out.append(spec)
-            continue
-        matches = sorted(glob.glob(spec))
-        if not matches:
-            raise CompareError(
-                f"{option} {spec}: the pattern matches no file (quote it so the shell does not expand it)"
-            )
-        out.extend(matches)
+        if is_built_in(spec) or _exists(spec) or not any(c in spec for c in "*?["):
+            matches = [spec]
+        else:
+            matches = sorted(glob.glob(spec))
+            if not matches:
+                raise CompareError(
+                    f"{option} {spec}: the pattern matches no file (quote it so the shell does not expand it)"
+                )
+        for name in matches:
+            key = name if is_built_in(name) else os.path.realpath(name)
+            if key in seen:
+                print(f"note: {option} {name} is {seen[key]} again; each record is read once")
+                continue
+            seen[key] = name
+            out.append(name)
     return out
+
+
+def _exists(spec: str) -> bool:
+    """Whether `spec` names an existing file or folder (False for a name the system cannot take: the loader says so)."""
+    return os.path.isfile(spec) or os.path.isdir(spec)
+
+
+def _short(spec: str, limit: int = 80) -> str:
+    """A file name as an error message shows it: at most `limit` characters."""
+    return spec if len(spec) <= limit else f"{spec[: limit // 2]}...{spec[-limit // 2 :]} ({len(spec)} characters)"
+
+
+def _reason_of(err: Exception) -> str:
+    return getattr(err, "strerror", None) or str(err)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -343,9 +366,15 @@ def load_record_spec(
             spec, data.full, dict(data.card), Units(), data.true_model, np.asarray(data.sensor_force, dtype=float)
         )
     path = pathlib.Path(spec)
-    if path.is_dir():
+    try:
+        is_dir, is_file = path.is_dir(), path.is_file()
+    except (OSError, ValueError) as err:  # a name longer than the system takes; a NUL character
+        raise CompareError(
+            f"{_short(spec)}: not a usable file name ({_reason_of(err)}); name the file by a shorter path"
+        ) from None
+    if is_dir:
         raise CompareError(f"{spec}: a folder; name its records, e.g. with a quoted glob '{path / '*.npz'}'")
-    if not path.is_file():
+    if not is_file:
         raise CompareError(f"{spec}: no such file (use tribometer:presliding|mixed|sliding, emps, or a .csv / .npz)")
     try:
         full, info = read_record(

@@ -22,7 +22,7 @@ from ..._estimation._plausibility import half_excursion, implausible
 from ..._estimation._serialise import save_model
 from ..._metrics import numpy_std
 from ..._models.combine._sensor import SensorDrift
-from ..._validation import nonnegative_int
+from ..._validation import nonnegative_int, same_sample_time
 from ..._version import fricjax_version
 from ._emps_table import emps_table
 from ._ensembles import add_ensembles
@@ -518,18 +518,21 @@ def _check_together(records: Sequence[Any]) -> None:
     first = records[0]
     for other in records[1:]:
         dt, reference = other.card.get("dt_s", 0.0), first.card.get("dt_s", 0.0)
-        if abs(dt - reference) > 1e-9 * max(reference, 1e-300):
+        if not same_sample_time(dt, reference):
             raise CompareError(
-                f"{other.name}: sampled at dt = {dt:.6g} s, {first.name} at {reference:.6g} s; records fitted together "
+                f"{other.name}: sampled at dt = {dt:.9g} s, {first.name} at {reference:.9g} s; records fitted together "
                 "need one sample time (resample them, or pass --dt when the files' time columns are rounded)"
             )
     force = [float(numpy_std(r.data.force)) for r in records]
     travel = [float(np.ptp(np.asarray(r.data.motion.samples().x))) for r in records]
-    for values, what, limit, option in (
-        (force, "force spread", 10.0, "--force-unit"),
-        (travel, "travel", 100.0, "--x-unit"),
+    for values, what, limit, option, quantity in (
+        (force, "force spread", 10.0, "--force-unit", "force"),
+        (travel, "travel", 100.0, "--x-unit", "x"),
     ):
         fix = f"(a unit in the column header, e.g. 'force [kN]'; {option} sets the unit of every record)"
+        # every file declares the unit (or the option sets it): a ratio is the experiment's (loads, amplitudes, a
+        # short record), not a unit mistake; said, not refused
+        declared = all(quantity not in r.card.get("units_assumed_si", ()) for r in records)
         # each against the others' median (a record's own value would pull it: of two records, half-way); the most
         # distant one is named (of three, an outlier drags the others' median of the two sound ones towards it)
         middles = [float(np.median([v for j, v in enumerate(values) if j != i])) for i in range(len(values))]
@@ -537,6 +540,12 @@ def _check_together(records: Sequence[Any]) -> None:
         i = int(np.argmax([abs(np.log(r)) if r > 0 else np.inf for r in ratios]))
         record, ratio = records[i], ratios[i]
         if 1 / limit < ratio < limit:
+            continue
+        if declared:
+            print(
+                f"note: {record.name}: its {what} is {ratio:.3g}x the other records' (in SI units); every record "
+                "declares its unit, so the records are fitted as they are"
+            )
             continue
         if len(records) == 2:
             raise CompareError(
