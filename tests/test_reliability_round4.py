@@ -3,9 +3,14 @@ checks too strict or too loose, plausible records that raised tracebacks. The ca
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 import fricjax as fj
+from fricjax._protocols.compare._records import expand_record_specs, load_record_spec
+from fricjax._protocols.compare._run import _check_together as check_records_together
+from fricjax._protocols.compare._run import _trained_on as trained_on
+from fricjax._protocols.compare._settings import CompareError
 
 
 @pytest.mark.parametrize(
@@ -43,3 +48,98 @@ def test_load_model_refuses_a_subnormal_gap(tmp_path):
         fj.save_model(path, edited)
     with pytest.raises(ValueError, match="invalid Positive at `model.gap`"):
         fj.load_model(path)
+
+
+# ---------------------------------------------------------------- the command line's records and output folder
+
+
+def _record(path, *, samples=1500, amplitude=1e-3, force_scale=1.0, header=("t", "x", "force"), columns=None):
+    """A small CSV record: a 2 Hz sine of `amplitude` [m] and a smooth Coulomb + viscous force [N]."""
+    dt = 1e-3
+    t = np.arange(samples) * dt
+    x = amplitude * np.sin(2 * np.pi * 2.0 * t)
+    v = np.gradient(x, dt)
+    columns = columns or {}
+    force = force_scale * (np.tanh(v / 1e-3) + 20.0 * v) + 0.01 * np.random.default_rng(0).standard_normal(samples)
+    table = {"t": t, "x": x, "force": force, **columns}
+    names = list(header) + [name for name in columns if name not in header]
+    values = [table[name if name in table else name.split(" ")[0]] for name in names]
+    np.savetxt(path, np.column_stack(values), delimiter=",", header=",".join(names), comments="")
+    return path
+
+
+RUN = ["compare", "--models", "stribeck", "--steps", "3", "--no-cache", "--no-progress"]
+
+
+def test_an_empty_out_is_refused(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert fj.main(["compare", "--out", ""]) == 2
+    assert "--out: an empty name" in capsys.readouterr().err
+    assert fj.main(["demo", "--out", " "]) == 2
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_file_name_the_system_cannot_take_is_one_line(tmp_path, capsys):
+    name = str(tmp_path / ("a" * 300 + ".csv"))
+    assert fj.main([*RUN, "--data", name, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "not a usable file name" in err and "characters" in err and "Traceback" not in err
+
+
+def test_a_record_named_twice_is_read_once(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    _record(tmp_path / "A.csv")
+    _record(tmp_path / "B.csv", amplitude=1.5e-3)
+    specs = expand_record_specs(["A.csv", "./A.csv", str(tmp_path / "A.csv"), "*.csv", "[A].csv"], "--data")
+    assert specs == ["A.csv", "B.csv"]
+    out = capsys.readouterr().out
+    assert out.count("each record is read once") == 4
+
+
+def test_an_existing_file_with_glob_characters_is_that_file(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    _record(tmp_path / "run[1].csv")
+    assert expand_record_specs(["run[1].csv"], "--data") == ["run[1].csv"]
+    _record(tmp_path / "r1.csv")
+    assert expand_record_specs(["r[1].csv"], "--data") == ["r1.csv"]  # no such file: a pattern
+
+
+def test_a_float32_time_column_of_one_millisecond_is_one_sample_time(tmp_path):
+    _record(tmp_path / "A.csv")  # t in float64
+    dt32 = float(np.float32(1e-3))  # a dt column written from float32: 1e-3 + 4.7e-11
+    _record(tmp_path / "B.csv", header=("dt", "x", "force"), columns={"dt": np.full(1500, dt32)})
+    a, b = (load_record_spec(str(tmp_path / n)) for n in ("A.csv", "B.csv"))
+    assert a.card["dt_s"] != b.card["dt_s"]
+    check_records_together([a, b])  # no error
+
+
+def test_records_with_declared_units_are_not_refused_as_a_unit_mistake(tmp_path, capsys):
+    header = ("t [s]", "x [m]", "force [N]")
+    light = _record(tmp_path / "light.csv", header=header)
+    heavy = _record(tmp_path / "heavy.csv", header=header, force_scale=12.0)
+    records = [load_record_spec(str(p)) for p in (light, heavy)]
+    check_records_together(records)
+    assert "every record declares its unit" in capsys.readouterr().out
+    bare = [load_record_spec(str(_record(tmp_path / f"{n}.csv", force_scale=s))) for n, s in (("a", 1.0), ("b", 12))]
+    with pytest.raises(CompareError, match="check the units"):
+        check_records_together(bare)
+
+
+def test_validation_records_that_are_training_records_are_named():
+    lines = trained_on(["A.csv", "B.csv"], ["C.csv"], ["B.csv"])
+    assert any("B.csv: a training record too; its validation score is not held out" in line for line in lines)
+
+
+def test_a_users_own_files_in_out_are_kept(tmp_path, capsys):
+    out = tmp_path / "o"
+    (out / "models").mkdir(parents=True)
+    (out / "report.json").write_text('{"mine": true}')
+    (out / "models" / "stribeck.eqx").write_text("my model")
+    record = _record(tmp_path / "A.csv")
+    assert fj.main([*RUN, "--data", str(record), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert (out / "report.json.bak").read_text() == '{"mine": true}'
+    assert (out / "models" / "stribeck.eqx.bak").read_text() == "my model"
+    assert "your report.json is kept as report.json.bak" in printed
+    assert fj.main([*RUN, "--data", str(record), "--out", str(out)]) == 0  # its own files: replaced, no new copy
+    assert not (out / "report.json.bak2").exists() and not (out / "models" / "stribeck.eqx.bak2").exists()

@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import difflib
 import os
-import pathlib
 import sys
 import warnings
 from collections.abc import Sequence
@@ -260,14 +259,14 @@ def _run(args: argparse.Namespace) -> int:
         enable_compilation_cache()
 
     from ._protocols._demo import run_demo
-    from ._protocols.compare._output import check_writable
+    from ._protocols.compare._output import check_writable, output_folder
     from ._protocols.compare._run import run_compare
     from ._protocols.compare._settings import CompareError
 
     jax.config.update("jax_enable_x64", True)
     if args.command == "demo":
-        out = pathlib.Path(args.out)
         try:
+            out = output_folder(args.out)
             check_writable(out)
         except CompareError as err:
             print(f"fricjax demo: {err}", file=sys.stderr)

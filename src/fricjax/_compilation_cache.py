@@ -64,16 +64,20 @@ def enable_compilation_cache(path: str | os.PathLike[str] | None = None) -> path
     try:
         folder = default_cache_dir() if path is None else pathlib.Path(path).expanduser()
     except RuntimeError as err:  # no home folder to put the default under
-        return _off(f"no folder for it ({err}); set FRICJAX_CACHE_DIR to a private folder")
+        _off(f"no folder for it ({err}); set FRICJAX_CACHE_DIR to a private folder")
+        return None
     if not folder.is_absolute():
-        return _off(f"{str(folder)!r} is a relative path (it would follow the working folder); give an absolute one")
+        _off(f"{str(folder)!r} is a relative path (it would follow the working folder); give an absolute one")
+        return None
     try:
         _make_private_folders(folder)
         problem = private_folder_problem(folder)
     except OSError as err:
-        return _off(f"{folder} cannot be used ({err.strerror or err})")
+        _off(f"{folder} cannot be used ({err.strerror or err})")
+        return None
     if problem:
-        return _off(problem)
+        _off(problem)
+        return None
     removed = remove_unreadable_entries(folder)
     if removed:
         print(
@@ -88,8 +92,8 @@ def enable_compilation_cache(path: str | os.PathLike[str] | None = None) -> path
 
 
 def _off(reason: str) -> None:
+    """Say in one line why the cache stays off."""
     print(f"fricjax: compilation cache off: {reason}", file=sys.stderr)
-    return None
 
 
 def _make_private_folders(folder: pathlib.Path) -> None:

@@ -34,6 +34,59 @@ JOURNAL_NAME = "publishing.json"  # in a staging folder while its files move int
 UNFINISHED_LOCK_AFTER = 10.0  # seconds: an empty lock file this old was left by a run killed as it created it
 
 
+def output_folder(text: str | os.PathLike[str], option: str = "--out") -> pathlib.Path:
+    """The output folder named by `--out`: an empty name is refused (read as a path it would be the working folder)."""
+    if not str(os.fspath(text)).strip():
+        raise CompareError(f"{option}: an empty name; give a folder (created if missing), or {option} . for this one")
+    return pathlib.Path(text)
+
+
+def earlier_outputs(out: pathlib.Path) -> set[str]:
+    """The files in `out` that an earlier fricjax run wrote, as its `report.json` lists them: the report itself, its
+    figures and its models' files (`models/NAME.eqx`); nothing where `out` holds no fricjax report. Any other file a
+    run would replace is the user's, and is kept (`keep_copies`)."""
+    try:
+        report = json.loads((out / "report.json").read_text())
+    except (OSError, ValueError, RecursionError):
+        return set()
+    if not isinstance(report, dict) or "fricjax" not in report:
+        return set()
+    figures = report.get("figures")
+    models = report.get("models")
+    names = {"report.json"}
+    names |= {f for f in figures if isinstance(f, str)} if isinstance(figures, list) else set()
+    if isinstance(models, list):
+        names |= {f"models/{m['name']}.eqx" for m in models if isinstance(m, dict) and isinstance(m.get("name"), str)}
+    return names
+
+
+def keep_copies(out: pathlib.Path, names: list[str], ours: set[str]) -> list[pathlib.Path]:
+    """Copy each file of `out` that a run is about to replace and that no earlier fricjax run wrote (not in `ours`)
+    to `NAME.bak` (`NAME.bak2`, ... where taken), saying so: nothing of the user's is lost. **Returns:** the copies."""
+    copies: list[pathlib.Path] = []
+    for name in names:
+        target = out / name
+        if name in ours or not target.is_file():
+            continue
+        backup = target.with_name(f"{target.name}.bak")
+        number = 1
+        while os.path.lexists(backup):
+            number += 1
+            backup = target.with_name(f"{target.name}.bak{number}")
+        try:
+            shutil.copy2(target, backup)
+        except OSError as err:
+            for copy in copies:
+                copy.unlink(missing_ok=True)
+            raise CompareError(
+                f"--out {out}: {name} is not from an earlier run and could not be kept as {backup.name} "
+                f"({_reason(err)}); move it away or choose another --out (nothing was written)"
+            ) from None
+        print(f"note: --out {out}: your {name} is kept as {backup.relative_to(out)} (this run writes its own {name})")
+        copies.append(backup)
+    return copies
+
+
 def check_writable(out: pathlib.Path, files: tuple[str, ...] = ()) -> None:
     """Raise `CompareError` unless `out` (created if missing) takes new files, its `models` entry, if any, is a
     folder, and none of the `files` it is to receive is a folder (said before a fit of minutes, not after it).
@@ -270,6 +323,7 @@ class Staging:
                 raise CompareError(
                     f"--out {self.out}: {name} is a folder; move it away or choose another --out (nothing was written)"
                 )
+        copies = keep_copies(self.out, self.names, earlier_outputs(self.out))
         moves: list[tuple[pathlib.Path, pathlib.Path]] = []  # the renames done, to undo in reverse
         created: list[pathlib.Path] = []  # the folders made in `out`, to remove again
         current = ""
@@ -291,6 +345,8 @@ class Staging:
                 (self.root / JOURNAL_NAME).unlink()  # published: nothing for a later run to roll back
             except BaseException as err:
                 failed = _undo(moves, created)
+                for copy in copies if not failed else ():  # the user's files are back in place
+                    copy.unlink(missing_ok=True)
                 self.keep = bool(failed)
                 if failed:
                     raise CompareError(

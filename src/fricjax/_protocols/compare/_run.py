@@ -31,6 +31,7 @@ from ._output import (
     Staging,
     check_writable,
     lock_output,
+    output_folder,
     releasing_output_locks,
     remove_stale_staging,
     strict_json,
@@ -253,7 +254,7 @@ def run_compare(
     if target is not None:  # everything on `target`: data, fits, scores, ensembles
         with forced_device(target):
             return run_compare(**{**arguments, "device": "auto"})
-    out = pathlib.Path(out)
+    out = output_folder(out)
     models = list(dict.fromkeys(m.lower() for m in models))  # case-insensitive, each once
     if models == ["all"]:
         models = list(MODEL_NAMES)
@@ -497,14 +498,20 @@ def _unused_load_columns(split: Any, cards: Sequence[dict[str, Any]]) -> list[st
 
 
 def _trained_on(training: Sequence[str], tests: Sequence[str], validation: Sequence[str] = ()) -> list[str]:
-    """A line for each --test record that is also a --data (`training`) or --validation record (the same file, or
-    the same built-in record): its score is not held out."""
+    """A line for each --validation record that is also a --data (`training`) record, and each --test record that is
+    also a --data or --validation record (the same file, or the same built-in record): its score is not held out."""
 
     def key(spec: str) -> str:
         return spec if is_built_in(spec) else str(pathlib.Path(spec).resolve())
 
     roles = {key(spec): role for role, specs in (("validation", validation), ("training", training)) for spec in specs}
+    trained = {key(spec) for spec in training}
     return [
+        f"{spec}: a training record too; its validation score is not held out (the choice among starts and models "
+        "is then made on data the fits have seen: name other records with --validation)"
+        for spec in dict.fromkeys(validation)
+        if key(spec) in trained
+    ] + [
         f"{spec}: a {roles[key(spec)]} record too; its test score is not held out (test on records the fit has not "
         "seen)"
         for spec in dict.fromkeys(tests)
