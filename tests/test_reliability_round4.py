@@ -2,6 +2,7 @@
 checks too strict or too loose, plausible records that raised tracebacks. The cache: tests/test_compilation_cache.py."""
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -143,3 +144,78 @@ def test_a_users_own_files_in_out_are_kept(tmp_path, capsys):
     assert "your report.json is kept as report.json.bak" in printed
     assert fj.main([*RUN, "--data", str(record), "--out", str(out)]) == 0  # its own files: replaced, no new copy
     assert not (out / "report.json.bak2").exists() and not (out / "models" / "stribeck.eqx.bak2").exists()
+
+
+# ---------------------------------------------------------------- stopping within seconds
+
+
+@pytest.mark.parametrize("solver", ["adam", "optimistix-lm"])
+def test_steps_in_pieces_give_the_fit_of_one_call(monkeypatch, solver):
+    """Under `fricjax compare` (signal handlers installed) a chunk of compiled steps runs as pieces of about a second
+    with a check between them; the fit must be the one a single call gives, to the last bit."""
+    import optax
+    import optimistix as optx
+
+    from fricjax._estimation import _loop
+    from fricjax._estimation._interrupts import stop_on_signals
+
+    from helpers import coulomb_viscous_record
+
+    data = coulomb_viscous_record()
+    start = fj.CoulombViscous(0.5, 10.0, smoothing=fj.Smooth(1e-4))
+    chosen = optax.adam(3e-2) if solver == "adam" else optx.LevenbergMarquardt(1e-10, 1e-12)
+    whole = fj.fit(start, data, solver=chosen, steps=40)
+    monkeypatch.setattr(_loop, "PIECE_SECONDS", 0.0)  # one step a piece
+    calls = []
+    original = _loop.run_steps
+    monkeypatch.setattr(_loop, "run_steps", lambda *a, **k: calls.append(1) or original(*a, **k))
+    with stop_on_signals():
+        pieces = fj.fit(start, data, solver=chosen, steps=40)
+    assert len(calls) > 3
+    assert (pieces.result, pieces.train_loss, pieces.message) == (whole.result, whole.train_loss, whole.message)
+    for name in set(whole.history) - {"time"}:  # wall-clock time differs
+        np.testing.assert_array_equal(pieces.history[name], whole.history[name])
+    for a, b in zip(jax.tree_util.tree_leaves(whole.model), jax.tree_util.tree_leaves(pieces.model), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.mark.slow  # three compare runs on a 40 000-sample record, signalled in compilation and in the fit
+def test_a_signal_stops_a_long_fit_within_seconds(tmp_path):
+    """Issue 52: SIGTERM during a Maxwell-slip DNLRX fit of a 74 000-sample record was acted on when that fit ended,
+    minutes later. Now the loop checks between steps (and pieces of compiled steps), and a signal that one long
+    compiled call keeps the run from acting on ends the process after `GRACE_S` (module _interrupts)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    rng = np.random.default_rng(0)
+    t = np.arange(40_000) / 3000.0
+    x = sum(np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi)) for f in np.arange(1, 21) * 0.2)
+    x = 3e-3 * x / np.max(np.abs(x))
+    v = np.gradient(x, t)
+    force = 2.0 * np.tanh(v / 1e-3) + 30.0 * v + 0.02 * rng.standard_normal(t.size)
+    record = tmp_path / "long.csv"
+    np.savetxt(record, np.c_[t, x, force], delimiter=",", header="t,x,force", comments="")
+    wrong = []
+    for delay in (0.3, 4.0, 15.0):  # compiling the step; in the steps; later (a second start, or the scores)
+        out = tmp_path / f"out{delay}"
+        process = subprocess.Popen(
+            [sys.executable, "-m", "fricjax", "compare", "--data", str(record), "--models", "dnlrx", "--steps", "400"]
+            + ["--no-cache", "--no-progress", "--out", str(out)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        assert process.stdout is not None
+        for line in process.stdout:
+            if line.startswith("fitting"):
+                break
+        time.sleep(delay)
+        sent = time.perf_counter()
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=600)
+        waited = time.perf_counter() - sent
+        if process.returncode != 130 or waited > 8.0 or out.exists() or "Traceback" in err:
+            wrong.append(f"at {delay} s: exit {process.returncode} after {waited:.1f} s, out {out.exists()}: {err}")
+    assert not wrong, "\n".join(wrong)

@@ -9,6 +9,13 @@ callback it is dropped ("Exception ignored in _xla_gc_callback": the run went on
 main thread waits for a compilation, jaxlib checks for signals and gives up waiting, but the compilation goes on in
 XLA's thread pool; the interpreter then exits and frees the client under it: a segmentation fault on the compiling
 thread (`xla::ifrt::SingleDeviceSharding::Create` in `PjRtCompiler::CompileAndLoad`) after `main` returned 130.
+
+Checks between steps are not enough where one call takes long: a compilation, or a solver step on a long record,
+runs in native code, and Python's handler runs only when it returns. Within `abandonable(message)` (the command line's
+fits, before anything is staged) a watcher thread learns of the signal at once (`signal.set_wakeup_fd`); when the main
+thread has not stopped `GRACE_S` seconds later (or at a second signal), the watcher runs the hooks registered with
+`on_abandon` (the output folder's lock, a folder the run created), prints the message and ends the process with
+`os._exit(130)`: no interpreter teardown, so nothing frees the JAX client under a compiling thread.
 """
 
 from __future__ import annotations
@@ -16,13 +23,17 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import sys
+import threading
+import time
 
 TYPE_CHECKING = False  # no `typing` (10 ms) before the `fricjax` program's first statement; type checkers read True
 if TYPE_CHECKING:
-    from collections.abc import Iterator
+    from collections.abc import Callable, Iterator
     from typing import Any
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
+GRACE_S = 3.0  # seconds the main thread has to stop by itself within `abandonable` before the process is ended
 
 
 class Interrupted(KeyboardInterrupt):
@@ -33,6 +44,9 @@ class Interrupted(KeyboardInterrupt):
 class _State:
     received: int | None = None  # the first signal received while the handlers are installed
     hold: int = 0  # > 0: inside `hold_signals` (a second signal is recorded too, not fatal)
+    abandonable: list[str] = []  # the messages of the `abandonable` blocks the main thread is in, innermost last
+    hooks: list[Callable[[], None]] = []  # `on_abandon`'s clean-ups, run last first
+    guard = threading.Lock()  # the watcher ends the process only while holding it, and blocks leave under it
 
 
 def check_interrupt() -> None:
@@ -40,6 +54,11 @@ def check_interrupt() -> None:
     them, never)."""
     if _State.received is not None:
         raise Interrupted(signal.Signals(_State.received).name)
+
+
+def interruptible() -> bool:
+    """Whether `stop_on_signals` (or `catch_signals`) handles SIGINT here: a long run should then check often."""
+    return any(signal.getsignal(number) is _record for number in _SIGNALS)
 
 
 def interrupted() -> bool:
@@ -100,3 +119,78 @@ def hold_signals() -> Iterator[None]:
         yield
     finally:
         _State.hold -= 1
+
+
+def on_abandon(hook: Callable[[], None]) -> Callable[[], None]:
+    """Register `hook` (a clean-up that must happen even when the process is ended by `abandonable`'s watcher: remove
+    a lock file); **returns** the function that unregisters it (call it when the clean-up is done by the usual way)."""
+    _State.hooks.append(hook)
+
+    def remove() -> None:
+        with contextlib.suppress(ValueError):
+            _State.hooks.remove(hook)
+
+    return remove
+
+
+@contextlib.contextmanager
+def abandonable(message: str) -> Iterator[None]:
+    """Within the block, a SIGINT / SIGTERM that the main thread does not act on within `GRACE_S` (it waits in one
+    long native call) ends the process: the `on_abandon` hooks run, `message` is printed, exit status 130. Use it
+    only around work whose loss costs nothing (no file written but those the hooks remove). Outside the main thread,
+    or where the handlers are not installed (a library call), nothing changes."""
+    if threading.current_thread() is not threading.main_thread() or not interruptible():
+        yield
+        return
+    read_end, write_end = os.pipe()
+    os.set_blocking(write_end, False)
+    try:
+        previous = signal.set_wakeup_fd(write_end, warn_on_full_buffer=False)
+    except ValueError:
+        os.close(read_end)
+        os.close(write_end)
+        yield
+        return
+    _State.abandonable.append(message)
+    depth = len(_State.abandonable)
+    watcher = threading.Thread(target=_watch, args=(read_end, depth), name="fricjax-interrupt-watcher", daemon=True)
+    watcher.start()
+    try:
+        yield
+    finally:
+        with _State.guard:
+            del _State.abandonable[depth - 1 :]
+        signal.set_wakeup_fd(previous)
+        os.close(write_end)  # the watcher reads end-of-file and returns
+        watcher.join(timeout=1.0)
+        os.close(read_end)
+
+
+def _watch(read_end: int, depth: int) -> None:
+    """The watcher of one `abandonable` block: wait for a signal's byte, give the main thread `GRACE_S` seconds (less
+    at a second signal), then end the process if the block is still running."""
+    while True:
+        byte = os.read(read_end, 1)
+        if not byte:
+            return  # the block ended
+        if byte[0] in _SIGNALS:  # another handled signal (none of fricjax's) wakes it too
+            break
+    deadline = time.monotonic() + GRACE_S
+    os.set_blocking(read_end, False)
+    while time.monotonic() < deadline:
+        with contextlib.suppress(BlockingIOError):
+            if os.read(read_end, 1)[:1] in [bytes([n]) for n in _SIGNALS]:
+                break  # a second signal: at once
+        if len(_State.abandonable) < depth:
+            return  # the main thread stopped by itself
+        time.sleep(0.05)
+    with _State.guard:
+        if len(_State.abandonable) < depth or _State.hold:
+            return
+        for hook in reversed(_State.hooks):
+            with contextlib.suppress(Exception):
+                hook()
+        with contextlib.suppress(Exception):
+            sys.stdout.flush()
+            print(_State.abandonable[-1], file=sys.stderr, flush=True)
+        os._exit(130)

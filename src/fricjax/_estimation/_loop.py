@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._smoothing import on_host
-from ._interrupts import check_interrupt
+from ._interrupts import check_interrupt, interruptible
 from ._sharding import shard_batch
 from ._solution import RESULTS
 from ._solvers import AbstractSolver, tree_finite
@@ -55,18 +55,26 @@ def init_states(solver: AbstractSolver, problem: Any, ys: Any, args: Any, batche
 
 @eqx.filter_jit
 def run_steps(
-    solver: AbstractSolver, problem: Any, ys: Any, states: Any, args: Any, n: jax.Array, batched_args: bool = False
+    solver: AbstractSolver,
+    problem: Any,
+    ys: Any,
+    states: Any,
+    args: Any,
+    n: jax.Array,
+    batched_args: bool = False,
+    stopped: jax.Array | None = None,
 ) -> tuple[Any, Any, jax.Array, jax.Array, Any, jax.Array]:
     """Up to `n` steps of `solver` for every start (`ys` batched along axis 0, `args` too with `batched_args`), from
     solver states `states` (None: `solver.init` of each start). Returns `(ys, states, steps, done, result, bad)`: the
     solver states (their arrays batched, their other leaves, such as an optimistix solver's jaxprs, as the trace made
     them: passed back, they continue the solver where it stopped), the steps each start took, whether its solver's
     convergence test ended it, the solver's verdict (`fj.RESULTS`), and whether it met a non-finite step (its
-    parameters are then the last finite ones)."""
+    parameters are then the last finite ones). `stopped` (one bool per start): starts that met a non-finite step in
+    an earlier call, which take no step here (`run_in_pieces`)."""
     arrays, static_in = (None, None) if states is None else eqx.partition(states, eqx.is_array)
     static_out: list[Any] = []  # the non-array part of the solver state, as traced
 
-    def one(y: Any, state_arrays: Any, a: Any) -> Any:
+    def one(y: Any, state_arrays: Any, a: Any, bad: Any) -> Any:
         state = solver.init(problem, y, a) if state_arrays is None else eqx.combine(state_arrays, static_in)
         # as optimistix's loop: only the arrays of the state are carried (a solver may keep jaxprs in its state)
         dynamic, static = eqx.partition(state, eqx.is_array)
@@ -86,16 +94,16 @@ def run_steps(
             keep = lambda new, old: _where_tree(ok, new, old)  # noqa: E731 - a non-finite step changes nothing
             return i + 1, keep(new_y, y), keep(new_dynamic, dynamic), done & ok, result, jnp.invert(ok)
 
-        carry = (jnp.asarray(0), y, dynamic, done, result, jnp.asarray(False))
+        carry = (jnp.asarray(0), y, dynamic, done, result, jnp.asarray(False) if bad is None else bad)
         return jax.lax.while_loop(cond, body, carry)
 
-    in_axes = (MAPPED, None if arrays is None else MAPPED, _args_axis(batched_args))
+    in_axes = (MAPPED, None if arrays is None else MAPPED, _args_axis(batched_args), None if stopped is None else 0)
     if _batch_size(ys) == 1:  # one start: the unbatched program (vmap of a batch of one compiles ~2x longer)
         squeeze = lambda tree, axis: tree if axis is None else _first(tree)  # noqa: E731
-        out = one(*(squeeze(tree, axis) for tree, axis in zip((ys, arrays, args), in_axes, strict=True)))
+        out = one(*(squeeze(tree, axis) for tree, axis in zip((ys, arrays, args, stopped), in_axes, strict=True)))
         steps, ys, states, done, result, bad = jax.tree_util.tree_map(lambda leaf: jnp.asarray(leaf)[None], out)
         return ys, eqx.combine(states, static_out[0]), steps, done, result, bad
-    steps, ys, states, done, result, bad = eqx.filter_vmap(one, in_axes=in_axes)(ys, arrays, args)
+    steps, ys, states, done, result, bad = eqx.filter_vmap(one, in_axes=in_axes)(ys, arrays, args, stopped)
     states = eqx.combine(states, static_out[0])
     return ys, states, steps, done, result, bad
 
@@ -140,6 +148,41 @@ def _rows(ys: Any) -> tuple[np.ndarray, Any]:
     return flat, structure
 
 
+PIECE_SECONDS = 1.0  # `run_in_pieces`: about this long a compiled call, so that a signal is acted on within seconds
+
+
+def run_in_pieces(
+    solver: AbstractSolver, problem: Any, ys: Any, states: Any, args: Any, n: int, batched_args: bool = False
+) -> tuple[Any, Any, Any, Any, Any, Any]:
+    """`run_steps`'s `n` steps as several calls of about `PIECE_SECONDS` each, with `check_interrupt` between them
+    (under `fricjax compare`, where a chunk of steps on a long record is minutes): the same returns, and the same
+    iterates, as one call (the solver state is passed on; starts that met a non-finite step stay stopped)."""
+    count = _batch_size(ys)
+    stopped = jnp.zeros(count, bool)
+    total = np.zeros(count, int)
+    finished = result = None
+    piece, left = 1, n  # the first piece measures a step (and compiles)
+    while left > 0:
+        check_interrupt()
+        k = min(piece, left)
+        begin = time.perf_counter()
+        ys, states, steps, new_finished, new_result, bad = run_steps(
+            solver, problem, ys, states, args, jnp.asarray(k), batched_args, stopped
+        )
+        if finished is not None:  # a start stopped before this piece keeps its verdict
+            new_finished = jnp.where(stopped, finished, new_finished)
+            keep = functools.partial(jnp.where, stopped)
+            new_result = jax.tree_util.tree_map(lambda new, old, keep=keep: keep(old, new), new_result, result)
+        finished, result, stopped = new_finished, new_result, bad
+        total += np.asarray(steps)
+        left -= k
+        if bool(np.all(np.asarray(finished) | np.asarray(bad))):
+            break
+        per_step = (time.perf_counter() - begin) / k
+        piece = max(1, int(PIECE_SECONDS / max(per_step, 1e-9)))
+    return ys, states, jnp.asarray(total), finished, result, stopped
+
+
 def run_steps_on_host(
     solver: Any, problem: Any, ys: Any, states: Any, args: Any, n: int, batched_args: bool = False
 ) -> tuple[Any, Any, Any, Any, Any, Any]:
@@ -152,6 +195,7 @@ def run_steps_on_host(
     state = solver.start_state(np, flat) if states is None else states
     steps, bad = np.zeros(count, int), np.zeros(count, bool)
     for _ in range(n):
+        check_interrupt()  # each step is one compiled call: under `fricjax compare`, stop between steps
         active = ~(np.asarray(state.done) | bad)
         if not active.any():
             break
@@ -357,6 +401,10 @@ def run_stage(
             states = None  # initialised inside `run_steps`, from the (projected) iterate
         if host:  # its trial points are projected when evaluated
             ys, states, steps, finished, result, bad = run_steps_on_host(
+                solver, problem, search.ys, states, args, n, batched_args
+            )
+        elif interruptible():  # under `fricjax compare`: pieces of about a second, a check between them
+            ys, states, steps, finished, result, bad = run_in_pieces(
                 solver, problem, search.ys, states, args, n, batched_args
             )
         else:

@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from ..._estimation._interrupts import check_interrupt, hold_signals
+from ..._estimation._interrupts import check_interrupt, hold_signals, on_abandon
 from ._settings import CompareError
 
 STAGING_PREFIX = ".partial-"  # the staging folders inside --out
@@ -100,6 +100,7 @@ def check_writable(out: pathlib.Path, files: tuple[str, ...] = ()) -> None:
         locks = _LOCKS.get()
         if created and locks is not None:
             locks.callback(_remove_if_empty, out)
+            locks.callback(on_abandon(functools.partial(_remove_if_empty, out)))  # also when the process is ended
         handle, probe = tempfile.mkstemp(prefix=".fricjax-write-test-", dir=out)  # a fresh name: nothing overwritten
         os.close(handle)
         os.unlink(probe)
@@ -157,6 +158,7 @@ class _OutputLock:
     def __init__(self, out: pathlib.Path):
         self.out, self.path = out, out / LOCK_NAME
         self.text = json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "token": uuid.uuid4().hex})
+        self.forget: Callable[[], None] = lambda: None  # unregisters the clean-up `abandonable` would run
 
     def __enter__(self) -> _OutputLock:
         for _ in range(5):  # each turn: create it, or take over a dead run's (another run may be doing the same)
@@ -169,6 +171,7 @@ class _OutputLock:
             else:
                 with os.fdopen(handle, "w") as stream:
                     stream.write(self.text)
+                self.forget = on_abandon(self._release)  # removed also when `abandonable` ends the process
                 return self
             try:
                 seen = self.path.read_bytes()
@@ -190,6 +193,10 @@ class _OutputLock:
         raise CompareError(f"--out {self.out}: other runs keep taking {LOCK_NAME}; run again")
 
     def __exit__(self, *exc: Any) -> None:
+        self._release()
+        self.forget()
+
+    def _release(self) -> None:
         try:
             if self.path.read_text() == self.text:  # ours still (not one a user deleted and another run made)
                 self.path.unlink()

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..._estimation._interrupts import check_interrupt
+from ..._estimation._interrupts import abandonable, check_interrupt
 from ..._estimation._placement import check_device, choose_device, forced_device, resolve_device
 from ..._estimation._plausibility import half_excursion, implausible
 from ..._estimation._serialise import save_model
@@ -391,15 +391,18 @@ def run_compare(
                 "unit in the header (`x [mm]`, `force [kN]`) or pass --x-unit / --force-unit"
             )
     started = time.perf_counter()
-    rows = fit_and_score(
-        list(models), split, tests=tests, settings=settings, seed=seed, progress=progress, device=device
-    )
-    check_interrupt()
-    if isinstance(split, Split):
-        rows += add_ensembles(rows, split, tests)
-    else:
-        print("ensembles: not formed with several training records (their weights come from one validation part)")
-    floor = reference_scores(tests)
+    # nothing is written until the files are staged: a signal that a long compiled call keeps the run from acting on
+    # within seconds ends the process there (module _interrupts, `abandonable`)
+    with abandonable(f"fricjax compare: interrupted; nothing was written to {out}"):
+        rows = fit_and_score(
+            list(models), split, tests=tests, settings=settings, seed=seed, progress=progress, device=device
+        )
+        check_interrupt()
+        if isinstance(split, Split):
+            rows += add_ensembles(rows, split, tests)
+        else:
+            print("ensembles: not formed with several training records (their weights come from one validation part)")
+        floor = reference_scores(tests)
     print()
     print(format_table(rows, floor))
     if isinstance(split, TrainingRecords):
