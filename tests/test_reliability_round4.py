@@ -219,3 +219,93 @@ def test_a_signal_stops_a_long_fit_within_seconds(tmp_path):
         if process.returncode != 130 or waited > 8.0 or out.exists() or "Traceback" in err:
             wrong.append(f"at {delay} s: exit {process.returncode} after {waited:.1f} s, out {out.exists()}: {err}")
     assert not wrong, "\n".join(wrong)
+
+
+# ---------------------------------------------------------------- plausible records: one line, before any fit
+
+
+def test_a_constant_force_record_is_one_line_before_any_fit(tmp_path, capsys):
+    constant = tmp_path / "const.csv"
+    t = np.arange(1500) * 1e-3
+    np.savetxt(
+        constant,
+        np.c_[t, 1e-3 * np.sin(2 * np.pi * t), np.full(t.size, 0.5)],
+        delimiter=",",
+        header="t,x,force",
+        comments="",
+    )
+    good = _record(tmp_path / "A.csv")
+    for args in (["--data", str(constant)], ["--data", str(good), "--test", str(constant)]):
+        assert fj.main([*RUN, *args, "--out", str(tmp_path / "o")]) == 2
+        captured = capsys.readouterr()
+        assert "const.csv: column 'force' holds one value (0.5 N) in every row" in captured.err
+        assert "fitting" not in captured.out and "Traceback" not in captured.err
+
+
+def test_a_test_record_at_rest_in_its_initialisation_window_names_the_options(tmp_path, capsys):
+    path = _record(tmp_path / "rest.csv")
+    table = np.loadtxt(path, delimiter=",", skiprows=1)
+    table[:300, 1:] = 0.0  # the sensor reads exactly 0 before the motion starts
+    np.savetxt(path, table, delimiter=",", header="t,x,force", comments="")
+    good = _record(tmp_path / "A.csv")
+    args = [*RUN, "--data", str(good), "--test", str(path), "--init-window", "200", "--out", str(tmp_path / "o")]
+    assert fj.main(args) == 2
+    captured = capsys.readouterr()
+    assert "rest.csv: the force is 0 N throughout its 200-sample initialisation window" in captured.err
+    assert "--init-window" in captured.err and "--init offset" in captured.err and "fitting" not in captured.out
+    assert fj.main([*args[:-2], "--init", "offset", "--out", str(tmp_path / "o2")]) == 0  # the window's mean: fine
+
+
+def test_normal_loads_of_zero_or_in_some_records_only_are_one_line(tmp_path, capsys):
+    loaded = _record(tmp_path / "N.csv", columns={"normal_force": np.full(1500, 100.0)})
+    zero = _record(tmp_path / "Z.csv", columns={"normal_force": np.zeros(1500)})
+    bare = _record(tmp_path / "bare.csv")
+    test = _record(tmp_path / "T.csv", columns={"normal_force": np.full(1500, 80.0)})
+    cases = {
+        ("--data", str(zero)): "Z.csv: its normal load is 0 N in every row",
+        ("--data", str(loaded), str(bare), "--test", str(test)): "N.csv holds a normal load and",
+        ("--data", str(bare), str(loaded), "--test", str(test)): "N.csv holds a normal load and",
+        ("--data", str(loaded), "--test", str(zero)): "Z.csv: its normal load is 0 N",
+    }
+    for args, expected in cases.items():
+        assert fj.main([*RUN, *args, "--out", str(tmp_path / "o")]) == 2, args
+        captured = capsys.readouterr()
+        assert expected in captured.err and "Traceback" not in captured.err, (args, captured.err)
+        assert "fitting" not in captured.out
+
+
+def test_fit_refuses_a_record_with_no_normal_load_for_a_load_scaled_model():
+    t = np.arange(500) * 1e-3
+    motion = fj.Motion.from_position(1e-3 * np.sin(2 * np.pi * 2 * t), dt=1e-3)
+    zero = fj.FrictionData(fj.Motion(x=motion.x, v=motion.v, dt=1e-3, normal_force=np.zeros(t.size)), np.sin(t))
+    model = fj.NormalLoad(fj.Coulomb(Fc=0.5, smoothing=fj.Smooth(1e-3)), reference=100.0)
+    with pytest.raises(ValueError, match="normal load of `data` is 0 N in every sample"):
+        fj.fit(model, zero, steps=3)
+    loaded = fj.FrictionData(fj.Motion(x=motion.x, v=motion.v, dt=1e-3, normal_force=np.full(t.size, 50.0)), np.sin(t))
+    with pytest.raises(ValueError, match="normal load of record 1 of `data` is 0 N"):
+        fj.fit(model, [loaded, zero], steps=3)
+    with pytest.raises(ValueError, match="lacks the signal `normal_force`"):
+        fj.concatenate([loaded, fj.FrictionData(motion, np.sin(t))])
+
+
+@pytest.mark.parametrize("fmt", ["%.18e", "%.9g"])
+@pytest.mark.parametrize("kind", ["summed", "rounded"])
+def test_float32_time_stamps_are_a_uniform_sample_time(tmp_path, fmt, kind):
+    steps = np.full(3000, 1e-3, np.float32)
+    t = np.cumsum(steps) if kind == "summed" else (np.arange(3000) * 1e-3).astype(np.float32)
+    x = 1e-3 * np.sin(2 * np.pi * 2 * np.arange(3000) * 1e-3)
+    path = tmp_path / "f32.csv"
+    np.savetxt(
+        path,
+        np.c_[t.astype(float), x, np.tanh(np.gradient(x) / 1e-6)],
+        delimiter=",",
+        header="t,x,force",
+        comments="",
+        fmt=fmt,
+    )
+    assert float(fj.load_record(path).motion.dt) == pytest.approx(1e-3, rel=2e-5)
+    jittered = tmp_path / "jitter.csv"  # float64 stamps that are not uniform: still refused
+    t64 = np.arange(3000) * 1e-3 + 2e-7 * np.random.default_rng(1).random(3000)
+    np.savetxt(jittered, np.c_[t64, x, np.tanh(np.gradient(x) / 1e-6)], delimiter=",", header="t,x,force", comments="")
+    with pytest.raises(ValueError, match="must be uniformly sampled"):
+        fj.load_record(jittered)

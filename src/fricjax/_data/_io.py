@@ -534,6 +534,11 @@ def _sample_time(
                 f"{path}: column {columns['t']!r} goes back at data row {row + 1} ({float(t[row - 1])!r} -> "
                 f"{float(t[row])!r} s): sort or clean the record, or {fix}"
             )
+        if _float32_stamps(t):  # each stamp rounded to float32 (or summed in it): steps differ by its rounding
+            mean = float(t[-1] - t[0]) / steps.size
+            rounding = 4.0 * float(np.spacing(np.float32(np.max(np.abs(t)))))
+            if np.all(np.abs(steps - mean) <= rounding + 1e-6 * mean):
+                return mean
         if not np.allclose(steps, steps[0], rtol=1e-6, atol=0):
             raise RecordError(
                 f"{path}: column {columns['t']!r} must be uniformly sampled; if it is only rounded, {fix} or a "
@@ -543,6 +548,14 @@ def _sample_time(
     if dt is None:
         raise RecordError(f"{path}: need a time column 't' (or time) or a sample-time column 'dt', or {fix}")
     return dt
+
+
+def _float32_stamps(t: np.ndarray) -> bool:
+    """Whether the time stamps `t` [s] are float32 numbers (as a float32 column, or one written from float32, reads):
+    each within a quarter of its float32 rounding step of a float32 value (nine significant digits keep that; of
+    float64 stamps, about half are, so a record of hundreds of samples cannot pass by chance)."""
+    single = t.astype(np.float32)
+    return bool(np.all(np.abs(t - single) <= 0.25 * np.spacing(np.abs(single))))
 
 
 def _warn_if_time_disagrees(

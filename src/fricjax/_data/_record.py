@@ -108,13 +108,20 @@ class FrictionData(eqx.Module):
 
 
 def concatenate(parts: Sequence[FrictionData]) -> FrictionData:
-    """Join records end to end (same `dt`); each signal of the first record's motion (`x`, `v`, `a`,
-    `normal_force`) is joined."""
+    """Join records end to end (same `dt`); each signal of the records' motions (`x`, `v`, `a`, `normal_force`) is
+    joined where every record has it, and dropped where none has; a signal that only some records have is an error
+    (joined, the others' samples would be missing; dropped, theirs would be lost without a word)."""
     first = parts[0].motion
 
     def join(name: str) -> np.ndarray | None:
-        if getattr(first, name) is None:
+        present = [getattr(p.motion, name) is not None for p in parts]
+        if not any(present):
             return None
+        if not all(present):
+            raise ValueError(
+                f"concatenate: record {present.index(not present[0])} {'lacks' if present[0] else 'has'} the "
+                f"signal `{name}` that record 0 {'has' if present[0] else 'lacks'}; give it to every record or to none."
+            )
         return np.concatenate([np.asarray(getattr(p.motion, name)) for p in parts])
 
     motion = Motion(x=join("x"), v=join("v"), dt=first.dt, a=join("a"), normal_force=join("normal_force"))

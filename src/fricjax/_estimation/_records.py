@@ -132,6 +132,9 @@ class RecordBatch(eqx.Module):
                 f"fit: the model needs the normal load and {missing} of `{argument}` has none; load it with "
                 "normal_force_column=... or pass Motion(..., normal_force=...)."
             )
+        if "normal_force" in requires:
+            for name, record in zip(names, records, strict=True):
+                check_load(record, f"{name} of `{argument}`", "fit")
         lengths = tuple(r.length for r in records)
         starts = [0] * len(records) if score_from is None else [int(s) for s in score_from]
         for name, start, length in zip(names, starts, lengths, strict=True):
@@ -212,9 +215,11 @@ def check_records(model: Any, data: Any, validation: Any, loss: Any, where: str 
                 + (" (wrap motion and force as fj.FrictionData(motion, force))." if data_type is FrictionData else ".")
             )
     if isinstance(model, AbstractModel):  # the signals the model needs are in the records (dt, x / v, ...)
-        for record in (data, validation):
+        for name, record in (("data", data), ("validation", validation)):
             if isinstance(record, FrictionData):
                 model.check_inputs(record.motion)
+                if "normal_force" in model.requires:
+                    check_load(record, f"`{name}`", where)
         if isinstance(data, FrictionData):  # one model, one trace of its step: the data's motion suffices
             check_force_shape(model, data.motion)
     for name, record in (("data", data), ("validation", validation)):
@@ -224,6 +229,17 @@ def check_records(model: Any, data: Any, validation: Any, loss: Any, where: str 
                     f"{where}: the measured force of `{name}` is constant (std = 0), so the normalised loss (error / "
                     "std) is undefined; check the record, or use a loss with normalise=False."
                 )
+
+
+def check_load(record: FrictionData, name: str, where: str) -> None:
+    """Refuse a record whose normal load is 0 in every sample, for a model that scales its force with it: the model
+    predicts no force there and its gradient is 0, so a fit ends where it started without a word."""
+    load = record.motion.normal_force
+    if load is not None and is_concrete(load) and not np.any(np.asarray(load)):
+        raise ValueError(
+            f"{where}: the normal load of {name} is 0 N in every sample, so a load-scaled model predicts no force "
+            "there and cannot be fitted; check the load column and its unit, or drop the record."
+        )
 
 
 def check_burn_in(loss: Any, records: Any, argument: str, where: str, option: str | None = None) -> None:

@@ -387,6 +387,11 @@ def load_record_spec(
         )
     except ValueError as err:
         raise CompareError(str(err)) from err
+    if not np.ptp(np.asarray(full.force)) > 0:
+        raise CompareError(
+            f"{spec}: column {info.columns.get('force', 'force')!r} holds one value ({float(full.force[0]):.6g} N) in "
+            "every row: no friction to identify or score; check the column"
+        )
     card = {
         "source": str(path),
         "samples": full.length,

@@ -325,7 +325,8 @@ def run_compare(
     if several:
         trainings = [load_record_spec(spec, seed=seed, **units_kw) for spec in data_specs]
         validations = [load_record_spec(spec, seed=seed, **units_kw) for spec in validation_specs]
-        _check_together([*trainings, *validations])
+        fitted_on = [*trainings, *validations]
+        _check_together(fitted_on)
         training, training_cards = trainings[0], [t.card for t in trainings]
         split: Split | TrainingRecords = TrainingRecords.build(
             trainings, validations, None if split_at is None else split_at[0]
@@ -335,6 +336,7 @@ def run_compare(
             raise CompareError(f"{given}: name the records to test on with --test")
     else:
         training, training_cards = load_record_spec(data, seed=seed, **units_kw), None
+        fitted_on = [training]
         split = split_record(training, split_at, tested_elsewhere=bool(test_specs))
     tests: list[TestRecord] = []
     cards: dict[str, Any] = {}  # the data cards of the other test records, by test name
@@ -347,6 +349,14 @@ def run_compare(
         cards[name] = loaded.card
     if not tests:
         raise CompareError("nothing to test on: the split leaves no test part; pass --test records")
+    for t in tests:
+        _check_test_record(t, settings.init)
+    for label, motion in [(r.name, r.data.motion) for r in fitted_on] + [(t.name, t.record.motion) for t in tests]:
+        if motion.normal_force is not None and not np.any(np.asarray(motion.normal_force)):
+            raise CompareError(
+                f"{label}: its normal load is 0 N in every row, so a load-scaled model predicts no force; check "
+                "the load column and its unit, or name another with --normal-force-column"
+            )
     if split.train.motion.normal_force is not None:
         for t in tests:
             if t.record.motion.normal_force is None:
@@ -522,10 +532,38 @@ def _trained_on(training: Sequence[str], tests: Sequence[str], validation: Seque
     ]
 
 
+def _check_test_record(test: TestRecord, init: str) -> None:
+    """A test record's force must vary where it is scored, and, with `--init state`, over its initialisation window
+    (the offset and the initial state are fitted there, relative to the force's spread): one line naming the record
+    and the options that fix it, before any fit."""
+    force = np.asarray(test.record.force)
+    scored = force[test.scored_start :]
+    if not np.ptp(scored) > 0:
+        raise CompareError(
+            f"{test.name}: the force is {scored[0]:.6g} N in every scored row; nothing to score a model on (check the "
+            "force column)"
+        )
+    window = force[test.start : test.scored_start]
+    if init == "state" and window.size and not np.ptp(window) > 0:
+        raise CompareError(
+            f"{test.name}: the force is {window[0]:.6g} N throughout its {window.size}-sample initialisation window "
+            "(a sensor at rest before the motion?), where the offset and the initial state are fitted; move the "
+            "window into the motion with a larger --init-window, or use --init offset, or --init-window 0"
+        )
+
+
 def _check_together(records: Sequence[Any]) -> None:
-    """Records fitted together: one sample time, and scales that agree (a record read in the wrong units shows as a
-    force or displacement 10x / 100x off the others'); one line naming the file and the fix."""
+    """Records fitted together: one sample time, the normal load in all or none, and scales that agree (a record
+    read in the wrong units shows as a force or displacement 10x / 100x off the others'); one line naming the file
+    and the fix."""
     first = records[0]
+    loaded = [r for r in records if r.data.motion.normal_force is not None]
+    if loaded and len(loaded) < len(records):
+        bare = next(r for r in records if r.data.motion.normal_force is None)
+        raise CompareError(
+            f"{loaded[0].name} holds a normal load and {bare.name} none; records fitted together need it in every "
+            "file or in none (name its column with --normal-force-column, or drop it)"
+        )
     for other in records[1:]:
         dt, reference = other.card.get("dt_s", 0.0), first.card.get("dt_s", 0.0)
         if not same_sample_time(dt, reference):

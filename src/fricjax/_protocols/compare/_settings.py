@@ -59,7 +59,8 @@ class DataScales:
         dfw = np.concatenate([f[window:] - f[:-window] for f in force_of])
         moving = np.abs(dxw) > np.percentile(np.abs(dxw), 20) + 1e-15
         slopes = np.abs(dfw[moving] / dxw[moving])
-        stiffness = float(np.percentile(slopes, 90)) if slopes.size else scale / 1e-5
+        stiffness = float(np.percentile(slopes, 90)) if slopes.size else 0.0
+        stiffness = stiffness if stiffness > 0 else max(scale, 1e-12) / 1e-5  # no force slope read: a guess
         steps = np.abs(np.concatenate([np.diff(x) for x in x_of]))
         dx = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 1e-9
         duration = sum(r.length * float(np.asarray(r.motion.dt)) for r in records)
