@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from fricjax import _compilation_cache as cache
+import fricjax as fj
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 POSIX = hasattr(os, "getuid")
@@ -23,6 +23,15 @@ def _run(code: str, env_extra: dict[str, str], cwd: pathlib.Path) -> subprocess.
     return subprocess.run(
         [sys.executable, "-c", code], env=env, cwd=cwd, capture_output=True, text=True, timeout=120, check=False
     )
+
+
+def _refused(path, capsys) -> str:
+    """The one line `fj.enable_compilation_cache(path)` prints where it refuses `path` (it returns None and leaves
+    JAX's configuration alone, so the test process's own cache setting is untouched)."""
+    assert fj.enable_compilation_cache(path) is None
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("fricjax: compilation cache off: "), lines
+    return lines[0]
 
 
 ENABLE_AND_JIT = """
@@ -45,15 +54,12 @@ def test_missing_folders_are_created_private(tmp_path):
 
 
 @pytest.mark.skipif(not POSIX, reason="POSIX owners and modes")
-def test_a_world_writable_folder_turns_the_cache_off_with_one_line(tmp_path):
+def test_a_world_writable_folder_turns_the_cache_off_with_one_line(tmp_path, capsys):
     folder = tmp_path / "shared-cache"
     folder.mkdir()
     folder.chmod(0o777)
-    proc = _run(ENABLE_AND_JIT, {"FRICJAX_CACHE_DIR": str(folder)}, tmp_path)
-    assert proc.returncode == 0, proc.stderr
-    assert "FOLDER None" in proc.stdout and "RESULT 2" in proc.stdout
-    lines = [line for line in proc.stderr.splitlines() if "compilation cache" in line]
-    assert len(lines) == 1 and "can be written by other users" in lines[0] and "chmod 700" in lines[0], proc.stderr
+    line = _refused(folder, capsys)
+    assert "can be written by other users" in line and "chmod 700" in line and "holds code that JAX runs" in line
     assert not list(folder.iterdir()), "nothing may be read from or written to a folder others can write"
 
 
@@ -86,53 +92,58 @@ def test_a_planted_program_in_a_shared_folder_is_never_run(tmp_path):
 
 
 @pytest.mark.skipif(not IS_ROOT, reason="needs root to give a folder to another user")
-def test_a_folder_of_another_user_and_a_link_to_it_are_refused(tmp_path):
+def test_a_folder_of_another_user_and_a_link_to_it_are_refused(tmp_path, capsys):
     folder = tmp_path / "theirs"
     folder.mkdir(mode=0o700)
     os.chown(folder, OTHER_UID, OTHER_UID)
     link = tmp_path / "link"
     link.symlink_to(folder)
-    for given in (folder, link):
-        problem = cache.private_folder_problem(given)
-        assert problem is not None and f"belongs to user {OTHER_UID}" in problem, problem
-    assert "a link to" in (cache.private_folder_problem(link) or "")
+    assert f"belongs to user {OTHER_UID}" in _refused(folder, capsys)
+    assert "a link to" in _refused(link, capsys)
 
 
 @pytest.mark.skipif(not POSIX, reason="POSIX owners and modes")
-def test_a_link_to_a_writable_folder_and_a_writable_parent_are_refused(tmp_path):
+def test_a_link_to_a_writable_folder_and_a_writable_parent_are_refused(tmp_path, capsys):
     open_folder = tmp_path / "open"
     open_folder.mkdir()
     open_folder.chmod(0o777)
     link = tmp_path / "to-open"
     link.symlink_to(open_folder)
-    assert "can be written by other users" in (cache.private_folder_problem(link) or "")
+    assert "can be written by other users" in _refused(link, capsys)
     parent = tmp_path / "parent"
     parent.mkdir()
     (parent / "jax").mkdir(mode=0o700)
     parent.chmod(0o777)  # not sticky: another user could rename jax/ and put their own in its place
-    assert "its parent" in (cache.private_folder_problem(parent / "jax") or "")
-    parent.chmod(0o1777)  # sticky, as /tmp: they cannot
-    assert cache.private_folder_problem(parent / "jax") is None
+    assert "its parent" in _refused(parent / "jax", capsys)
+    assert not os.listdir(parent / "jax")
 
 
-def test_relative_paths_never_put_the_cache_in_the_working_folder(tmp_path, monkeypatch):
-    monkeypatch.delenv("FRICJAX_CACHE_DIR", raising=False)
-    monkeypatch.setenv("XDG_CACHE_HOME", "relative-cache")
-    monkeypatch.setenv("HOME", str(tmp_path / "home"))
-    assert cache.default_cache_dir() == tmp_path / "home" / ".cache" / "fricjax" / "jax"
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    assert cache.default_cache_dir() == tmp_path / "xdg" / "fricjax" / "jax"
+def test_a_relative_folder_is_refused(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    assert cache.enable_compilation_cache("relative/jax") is None
+    assert "relative path" in _refused("relative/jax", capsys)
     assert not (tmp_path / "relative").exists()
 
 
-def test_created_folders_are_private_and_pass_the_check(tmp_path):
-    folder = tmp_path / "a" / "b" / "jax"
-    cache._make_private_folders(folder)
-    for made in (folder, folder.parent, folder.parent.parent):
-        assert stat.S_IMODE(made.stat().st_mode) & 0o077 == 0, (made, oct(made.stat().st_mode))
-    assert cache.private_folder_problem(folder) is None
+DEFAULT_FOLDER = """
+import fricjax as fj
+print("FOLDER", fj.enable_compilation_cache())
+"""
+
+
+@pytest.mark.slow
+def test_a_relative_xdg_cache_home_is_ignored_and_a_sticky_parent_is_private(tmp_path):
+    home = tmp_path / "home"
+    home.mkdir()
+    env = {"HOME": str(home), "XDG_CACHE_HOME": "relative-cache"}
+    proc = _run(DEFAULT_FOLDER, env, tmp_path)
+    assert f"FOLDER {home / '.cache' / 'fricjax' / 'jax'}" in proc.stdout, proc.stderr
+    assert not (tmp_path / "relative-cache").exists()
+    assert stat.S_IMODE((home / ".cache").stat().st_mode) & 0o077 == 0
+    sticky = tmp_path / "sticky"
+    sticky.mkdir()
+    sticky.chmod(0o1777)  # as /tmp: others may not rename what is not theirs
+    proc = _run(DEFAULT_FOLDER, {"XDG_CACHE_HOME": str(sticky)}, tmp_path)
+    assert f"FOLDER {sticky / 'fricjax' / 'jax'}" in proc.stdout, proc.stderr
 
 
 @pytest.mark.slow

@@ -1,17 +1,14 @@
 """Reliability, round 4 (issue 52): values no model can compute with, records named twice or weighted silently,
 checks too strict or too loose, plausible records that raised tracebacks. The cache: tests/test_compilation_cache.py."""
 
+import json
+
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import fricjax as fj
-from fricjax._protocols.compare._records import expand_record_specs, load_record_spec
-from fricjax._protocols.compare._run import _check_together as check_records_together
-from fricjax._protocols.compare._run import _trained_on as trained_on
-from fricjax._protocols.compare._settings import CompareError
 
 
 @pytest.mark.parametrize(
@@ -87,96 +84,82 @@ def test_a_file_name_the_system_cannot_take_is_one_line(tmp_path, capsys):
     assert "not a usable file name" in err and "characters" in err and "Traceback" not in err
 
 
+def _stops_at_a_missing_test(tmp_path, capsys, *args):
+    """Run compare up to where it loads its test records (a missing one: exit 2 before any fit); its output."""
+    code = fj.main([*RUN, *args, "--test", str(tmp_path / "missing.csv"), "--out", str(tmp_path / "o")])
+    captured = capsys.readouterr()
+    assert code == 2 and "missing.csv: no such file" in captured.err, captured.err
+    return captured.out
+
+
 def test_a_record_named_twice_is_read_once(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     _record(tmp_path / "A.csv")
     _record(tmp_path / "B.csv", amplitude=1.5e-3)
-    specs = expand_record_specs(["A.csv", "./A.csv", str(tmp_path / "A.csv"), "*.csv", "[A].csv"], "--data")
-    assert specs == ["A.csv", "B.csv"]
-    out = capsys.readouterr().out
-    assert out.count("each record is read once") == 4
+    printed = _stops_at_a_missing_test(tmp_path, capsys, "--data", "A.csv", "./A.csv", str(tmp_path / "A.csv"), "*.csv")
+    assert printed.count("is A.csv again; each record is read once") == 3, printed
 
 
-def test_an_existing_file_with_glob_characters_is_that_file(tmp_path, monkeypatch):
+def test_an_existing_file_with_glob_characters_is_that_file(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     _record(tmp_path / "run[1].csv")
-    assert expand_record_specs(["run[1].csv"], "--data") == ["run[1].csv"]
-    _record(tmp_path / "r1.csv")
-    assert expand_record_specs(["r[1].csv"], "--data") == ["r1.csv"]  # no such file: a pattern
+    _stops_at_a_missing_test(tmp_path, capsys, "--data", "run[1].csv")
+    assert fj.main([*RUN, "--data", "r[2].csv", "--out", str(tmp_path / "o")]) == 2  # no such file: a pattern
+    assert "the pattern matches no file" in capsys.readouterr().err
 
 
-def test_a_float32_time_column_of_one_millisecond_is_one_sample_time(tmp_path):
-    _record(tmp_path / "A.csv")  # t in float64
+def test_a_float32_sample_time_column_of_one_millisecond_is_one_sample_time(tmp_path, capsys):
+    a = _record(tmp_path / "A.csv")  # t in float64
     dt32 = float(np.float32(1e-3))  # a dt column written from float32: 1e-3 + 4.7e-11
-    _record(tmp_path / "B.csv", header=("dt", "x", "force"), columns={"dt": np.full(1500, dt32)})
-    a, b = (load_record_spec(str(tmp_path / n)) for n in ("A.csv", "B.csv"))
-    assert a.card["dt_s"] != b.card["dt_s"]
-    check_records_together([a, b])  # no error
+    b = _record(tmp_path / "B.csv", header=("dt", "x", "force"), columns={"dt": np.full(1500, dt32)})
+    _stops_at_a_missing_test(tmp_path, capsys, "--data", str(a), str(b))
 
 
 def test_records_with_declared_units_are_not_refused_as_a_unit_mistake(tmp_path, capsys):
     header = ("t [s]", "x [m]", "force [N]")
     light = _record(tmp_path / "light.csv", header=header)
     heavy = _record(tmp_path / "heavy.csv", header=header, force_scale=12.0)
-    records = [load_record_spec(str(p)) for p in (light, heavy)]
-    check_records_together(records)
-    assert "every record declares its unit" in capsys.readouterr().out
-    bare = [load_record_spec(str(_record(tmp_path / f"{n}.csv", force_scale=s))) for n, s in (("a", 1.0), ("b", 12))]
-    with pytest.raises(CompareError, match="check the units"):
-        check_records_together(bare)
+    printed = _stops_at_a_missing_test(tmp_path, capsys, "--data", str(light), str(heavy))
+    assert "every record declares its unit" in printed
+    bare = [str(_record(tmp_path / f"{n}.csv", force_scale=f)) for n, f in (("a", 1.0), ("b", 12.0))]
+    assert fj.main([*RUN, "--data", *bare, "--test", bare[0], "--out", str(tmp_path / "o")]) == 2
+    assert "check the units" in capsys.readouterr().err
 
 
-def test_validation_records_that_are_training_records_are_named():
-    lines = trained_on(["A.csv", "B.csv"], ["C.csv"], ["B.csv"])
-    assert any("B.csv: a training record too; its validation score is not held out" in line for line in lines)
-
-
-def test_a_users_own_files_in_out_are_kept(tmp_path, capsys):
+def test_a_users_own_files_in_out_are_kept_and_validation_records_trained_on_are_named(tmp_path, capsys):
     out = tmp_path / "o"
     (out / "models").mkdir(parents=True)
     (out / "report.json").write_text('{"mine": true}')
     (out / "models" / "stribeck.eqx").write_text("my model")
-    record = _record(tmp_path / "A.csv")
-    assert fj.main([*RUN, "--data", str(record), "--out", str(out)]) == 0
+    a, b, c = (_record(tmp_path / f"{n}.csv", amplitude=k * 1e-3) for n, k in (("A", 1.0), ("B", 1.2), ("C", 0.8)))
+    argv = [*RUN, "--data", str(a), str(b), "--validation", str(b), "--test", str(c), "--out", str(out)]
+    assert fj.main(argv) == 0
     printed = capsys.readouterr().out
+    assert "B.csv: a training record too; its validation score is not held out" in printed
     assert (out / "report.json.bak").read_text() == '{"mine": true}'
     assert (out / "models" / "stribeck.eqx.bak").read_text() == "my model"
     assert "your report.json is kept as report.json.bak" in printed
-    assert fj.main([*RUN, "--data", str(record), "--out", str(out)]) == 0  # its own files: replaced, no new copy
+    assert fj.main(argv) == 0  # its own files: replaced, no new copy
     assert not (out / "report.json.bak2").exists() and not (out / "models" / "stribeck.eqx.bak2").exists()
 
 
 # ---------------------------------------------------------------- stopping within seconds
 
 
-@pytest.mark.parametrize("solver", ["adam", "optimistix-lm"])
-def test_steps_in_pieces_give_the_fit_of_one_call(monkeypatch, solver):
-    """Under `fricjax compare` (signal handlers installed) a chunk of compiled steps runs as pieces of about a second
-    with a check between them; the fit must be the one a single call gives, to the last bit."""
-    import optax
-    import optimistix as optx
-
-    from fricjax._estimation import _loop
-    from fricjax._estimation._interrupts import stop_on_signals
-
-    from helpers import coulomb_viscous_record
-
-    data = coulomb_viscous_record()
-    start = fj.CoulombViscous(0.5, 10.0, smoothing=fj.Smooth(1e-4))
-    chosen = optax.adam(3e-2) if solver == "adam" else optx.LevenbergMarquardt(1e-10, 1e-12)
-    whole = fj.fit(start, data, solver=chosen, steps=40)
-    monkeypatch.setattr(_loop, "PIECE_SECONDS", 0.0)  # one step a piece
-    calls = []
-    original = _loop.run_steps
-    monkeypatch.setattr(_loop, "run_steps", lambda *a, **k: calls.append(1) or original(*a, **k))
-    with stop_on_signals():
-        pieces = fj.fit(start, data, solver=chosen, steps=40)
-    assert len(calls) > 3
-    assert (pieces.result, pieces.train_loss, pieces.message) == (whole.result, whole.train_loss, whole.message)
-    for name in set(whole.history) - {"time"}:  # wall-clock time differs
-        np.testing.assert_array_equal(pieces.history[name], whole.history[name])
-    for a, b in zip(jax.tree_util.tree_leaves(whole.model), jax.tree_util.tree_leaves(pieces.model), strict=True):
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+@pytest.mark.slow  # two compare runs of a neural model
+def test_compiled_steps_in_pieces_give_the_fit_of_whole_chunks(tmp_path, monkeypatch, capsys):
+    """Under the command line a chunk of compiled steps (optax: the neural models) runs as pieces of about a second
+    with a check for a signal between them; one step a piece must give the fit that chunks in one call give."""
+    record = _record(tmp_path / "A.csv")
+    reports = []
+    for seconds in ("0", "1e9"):  # one step a piece; the whole chunk in one piece (after the first step)
+        monkeypatch.setenv("FRICJAX_PIECE_SECONDS", seconds)
+        out = tmp_path / f"o{seconds}"
+        argv = ["compare", "--models", "mlp", "--neural-steps", "40", "--no-cache", "--no-progress", "--data"]
+        assert fj.main([*argv, str(record), "--out", str(out)]) == 0, capsys.readouterr().err
+        reports.append(json.loads((out / "report.json").read_text())["models"])
+    (pieces,), (whole,) = reports
+    assert pieces["parameters"] == whole["parameters"] and pieces["nmse_percent"] == whole["nmse_percent"]
 
 
 @pytest.mark.slow  # three compare runs on a 40 000-sample record, signalled in compilation and in the fit

@@ -186,12 +186,15 @@ def _csv(path, header: str, *columns) -> str:
     return str(path)
 
 
-def _damper_like(path, scale: float = 1.0, samples: int = 800) -> str:
-    """A record in the damper's column names: inches, kip, and an actuator force in pounds (a normal-load candidate)."""
+def _damper_like(path, scale: float = 1.0, samples: int = 800, units: bool = True) -> str:
+    """A record in the damper's column names: inches, kip, and an actuator force in pounds (a normal-load candidate);
+    `units=False`: the same without units in its names (read as SI, and checked for a unit mistake)."""
     t = np.arange(samples) * DT
     x = 0.02 * np.sin(2 * np.pi * 2.0 * t)
     force = scale * (0.5 * np.tanh(np.gradient(x, DT) / 0.01) + 0.01 * np.random.default_rng(0).normal(size=samples))
     header = "time_s,displacement_in,friction_force_kip,actuator_force1_lb,actuator_pos1_in"
+    if not units:
+        header = "t,x,force,actuator_force1,actuator_pos1"
     return _csv(path, header, t, x, force, np.full(samples, 3000.0), x)
 
 
@@ -216,7 +219,7 @@ def test_a_sample_time_argument_that_contradicts_the_time_column_is_warned_of(tm
 
 def test_two_training_records_in_units_10x_apart_are_refused_naming_both(tmp_path, capsys):
     """Against a median that includes the record itself, two records 10x apart read 0.18x / 1.8x and passed."""
-    good, bad = _damper_like(tmp_path / "good.csv"), _damper_like(tmp_path / "bad.csv", scale=10.0)
+    good, bad = _damper_like(tmp_path / "good.csv", units=False), _damper_like(tmp_path / "bad.csv", 10.0, units=False)
     argv = ["compare", "--data", good, bad, "--test", good, "--models", "stribeck", "--no-progress"]
     assert fj.main([*argv, "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
@@ -225,7 +228,7 @@ def test_two_training_records_in_units_10x_apart_are_refused_naming_both(tmp_pat
 
 def test_of_three_records_the_one_in_other_units_is_named(tmp_path, capsys):
     """Of spreads 1 : 1 : 100, the first record's others' median (50.5) named the first, a sound record."""
-    paths = [_damper_like(tmp_path / f"r{i}.csv", scale=scale) for i, scale in enumerate((1.0, 1.0, 100.0))]
+    paths = [_damper_like(tmp_path / f"r{i}.csv", scale, units=False) for i, scale in enumerate((1.0, 1.0, 100.0))]
     argv = ["compare", "--data", *paths, "--test", paths[0], "--models", "stribeck", "--no-progress"]
     assert fj.main([*argv, "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err

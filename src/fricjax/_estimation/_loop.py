@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 import time
 from typing import Any
 
@@ -151,6 +152,15 @@ def _rows(ys: Any) -> tuple[np.ndarray, Any]:
 PIECE_SECONDS = 1.0  # `run_in_pieces`: about this long a compiled call, so that a signal is acted on within seconds
 
 
+def piece_seconds() -> float:
+    """The length [s] of a piece of compiled steps under the command line: `FRICJAX_PIECE_SECONDS` where set (0: one
+    step a piece, as the tests check that pieces change nothing), else `PIECE_SECONDS`."""
+    try:
+        return max(0.0, float(os.environ.get("FRICJAX_PIECE_SECONDS", PIECE_SECONDS)))
+    except ValueError:
+        return PIECE_SECONDS
+
+
 def run_in_pieces(
     solver: AbstractSolver, problem: Any, ys: Any, states: Any, args: Any, n: int, batched_args: bool = False
 ) -> tuple[Any, Any, Any, Any, Any, Any]:
@@ -179,7 +189,7 @@ def run_in_pieces(
         if bool(np.all(np.asarray(finished) | np.asarray(bad))):
             break
         per_step = (time.perf_counter() - begin) / k
-        piece = max(1, int(PIECE_SECONDS / max(per_step, 1e-9)))
+        piece = max(1, int(piece_seconds() / max(per_step, 1e-9)))
     return ys, states, jnp.asarray(total), finished, result, stopped
 
 
