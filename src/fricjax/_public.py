@@ -38,12 +38,11 @@ from ._data._tribometer_model import default_tribometer_model as default_tribome
 from ._data._tribometer_model import model_parameters as model_parameters
 from ._estimation._covariance import covariance as covariance
 from ._estimation._covariance import parameter_std as parameter_std
+from ._estimation._elements import element_count as element_count
 from ._estimation._ensemble_fit import ForwardSelection as ForwardSelection
 from ._estimation._ensemble_fit import fit_weighted_ensemble as fit_weighted_ensemble
 from ._estimation._ensemble_fit import select_forward as select_forward
 from ._estimation._fit import fit as fit
-from ._estimation._initial_guess import RecordScales as RecordScales
-from ._estimation._initial_guess import element_count as element_count
 from ._estimation._initial_guess import initial_guess as initial_guess
 from ._estimation._kernel_narx import KernelNARXCandidate as KernelNARXCandidate
 from ._estimation._kernel_narx import KernelNARXResult as KernelNARXResult
@@ -63,6 +62,7 @@ from ._estimation._lstsq import lstsq as lstsq
 from ._estimation._polynomial_narx import PolynomialNARXResult as PolynomialNARXResult
 from ._estimation._polynomial_narx import identify_polynomial_narx as identify_polynomial_narx
 from ._estimation._problem import solve_linear as solve_linear
+from ._estimation._record_scales import RecordScales as RecordScales
 from ._estimation._records import Initialisation as Initialisation
 from ._estimation._records import Nuisances as Nuisances
 from ._estimation._records import RecordBatch as RecordBatch
