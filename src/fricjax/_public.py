@@ -17,12 +17,12 @@ from ._data._boucwen import BOUCWEN_PERIOD as BOUCWEN_PERIOD
 from ._data._boucwen import BoucWenData as BoucWenData
 from ._data._boucwen import BoucWenRecord as BoucWenRecord
 from ._data._boucwen import load_boucwen as load_boucwen
+from ._data._columns import RecordError as RecordError
 from ._data._differentiators import al_alaoui_coefficients as al_alaoui_coefficients
 from ._data._differentiators import al_alaoui_derivative as al_alaoui_derivative
 from ._data._emps import EMPSRecord as EMPSRecord
 from ._data._emps import load_emps as load_emps
 from ._data._folder import data_folder as data_folder
-from ._data._io import RecordError as RecordError
 from ._data._io import load_record as load_record
 from ._data._preprocessing import Normaliser as Normaliser
 from ._data._preprocessing import butter_filtfilt as butter_filtfilt

@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from ..._data._io import Units, read_record
+from ..._data._columns import Units
+from ..._data._io import read_record
 from ..._data._record import FrictionData
 from ..._metrics import numpy_std
 from ._settings import CompareError

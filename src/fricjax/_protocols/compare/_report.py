@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..._constraints import parameter_arrays, parameter_units, unwrap
-from ..._data._io import Units
+from ..._data._columns import Units
 from ..._smoothing import exact
 from ..._version import fricjax_version
 from ._names import NEURAL_MODELS
