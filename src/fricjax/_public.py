@@ -44,6 +44,8 @@ from ._estimation._ensemble_fit import fit_weighted_ensemble as fit_weighted_ens
 from ._estimation._ensemble_fit import select_forward as select_forward
 from ._estimation._fit import fit as fit
 from ._estimation._initial_guess import initial_guess as initial_guess
+from ._estimation._initialise import Initialisation as Initialisation
+from ._estimation._initialise import initialise as initialise
 from ._estimation._kernel_narx import KernelNARXCandidate as KernelNARXCandidate
 from ._estimation._kernel_narx import KernelNARXResult as KernelNARXResult
 from ._estimation._kernel_narx import identify_kernel_narx as identify_kernel_narx
@@ -63,12 +65,10 @@ from ._estimation._polynomial_narx import PolynomialNARXResult as PolynomialNARX
 from ._estimation._polynomial_narx import identify_polynomial_narx as identify_polynomial_narx
 from ._estimation._problem import solve_linear as solve_linear
 from ._estimation._record_scales import RecordScales as RecordScales
-from ._estimation._records import Initialisation as Initialisation
 from ._estimation._records import Nuisances as Nuisances
 from ._estimation._records import RecordBatch as RecordBatch
 from ._estimation._records import RecordNuisances as RecordNuisances
 from ._estimation._records import RecordsLoss as RecordsLoss
-from ._estimation._records import initialise as initialise
 from ._estimation._recursive_fit import RecursiveFitResult as RecursiveFitResult
 from ._estimation._recursive_fit import recursive_fit as recursive_fit
 from ._estimation._serialise import load_model as load_model
