@@ -179,3 +179,86 @@ def test_import_and_help_answer_before_jax_loads():
     done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert "--device" in done.stdout
+
+
+def _concrete_model_classes() -> set[str]:
+    """The names of the concrete model classes (subclasses of `AbstractModel`, not `Abstract*`) under `_models` and
+    `_systems`, read from their class definitions."""
+    bases: dict[str, list[str]] = {}
+    for folder in ("_models", "_systems"):
+        for path in (PACKAGE / folder).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.ClassDef):
+                    bases[node.name] = [ast.unparse(b).split(".")[-1].split("[")[0] for b in node.bases]
+
+    def is_model(name: str, seen: frozenset[str] = frozenset()) -> bool:
+        return name == "AbstractModel" or any(
+            b not in seen and is_model(b, seen | {name})
+            for b in bases.get(name, [])
+            if b in bases or b == "AbstractModel"
+        )
+
+    return {name for name in bases if not name.startswith("Abstract") and is_model(name)}
+
+
+# what still switches on a model class outside `_models` (issue 53, "knowledge on the models"): each entry is a
+# function still to move onto the model classes; the list may only shrink
+KNOWN_CLASS_SWITCHES = {
+    ("_estimation/_initial_guess.py", "initial_guesses"),  # each family's start from the record's scales
+    ("_protocols/_emps_idm.py", "<module>"),  # the static laws' regression forms (a table keyed by class)
+    ("_protocols/_emps_idm.py", "_friction_params"),
+    ("_protocols/_emps_idm.py", "_std"),
+    ("_protocols/_emps_hybrid.py", "emps_hybrid_start"),  # a hybrid static law in the EMPS plant
+    ("_systems/_emps.py", "resisting_force"),
+}
+
+
+def test_no_code_outside_the_models_switches_on_a_model_class():
+    """DESIGN.md v4: what only a model family knows is a method of its class (`breakaway_displacement`,
+    `implausible`, `slipping`, `smoothing_scale`, `without_drift`, wrappers' `model` walk), so that a new friction model
+    is one file. Flags `isinstance` / `issubclass` on a concrete model class (or on a name bound to a tuple of them),
+    `cls is C` / `cls in (C, D)`, and dicts keyed by model classes, outside `_models`."""
+    models = _concrete_model_classes()
+    found = set()
+    for path in PACKAGE.rglob("*.py"):
+        relative = str(path.relative_to(PACKAGE))
+        if relative.startswith("_models"):
+            continue
+        tree = ast.parse(path.read_text())
+        tuples = {  # names bound to a class or a tuple of classes (GUESSABLE = (Coulomb, ...))
+            target.id: {ast.unparse(e).split(".")[-1] for e in getattr(node.value, "elts", [node.value])}
+            for node in ast.walk(tree)
+            if isinstance(node, ast.Assign)
+            for target in node.targets
+            if isinstance(target, ast.Name)
+        }
+
+        def names(expr: ast.AST, tuples: dict[str, set[str]] = tuples) -> set[str]:
+            out = set()
+            for e in getattr(expr, "elts", [expr]):
+                name = ast.unparse(e).split(".")[-1]
+                out |= {name} | tuples.get(name, set())
+            return out & models
+
+        def scopes(node: ast.AST, where: str):
+            for child in ast.iter_child_nodes(node):
+                inner = child.name if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)) else where
+                yield child, inner
+                yield from scopes(child, inner)
+
+        for node, where in scopes(tree, "<module>"):
+            hit = set()
+            if isinstance(node, ast.Call) and ast.unparse(node.func) in ("isinstance", "issubclass") and node.args[1:]:
+                hit = names(node.args[1])
+            elif isinstance(node, ast.Compare) and any(
+                isinstance(o, (ast.Is, ast.IsNot, ast.In, ast.NotIn)) for o in node.ops
+            ):
+                hit = set().union(*(names(c) for c in node.comparators))
+            elif isinstance(node, ast.Dict):
+                hit = set().union(set(), *(names(k) for k in node.keys if k is not None))
+            if hit:
+                found.add((relative, where))
+    assert found <= KNOWN_CLASS_SWITCHES, sorted(found - KNOWN_CLASS_SWITCHES)
+    assert found == KNOWN_CLASS_SWITCHES, (
+        f"moved onto the models, drop from KNOWN_CLASS_SWITCHES: {sorted(KNOWN_CLASS_SWITCHES - found)}"
+    )

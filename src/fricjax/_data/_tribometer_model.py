@@ -8,17 +8,13 @@ from __future__ import annotations
 from typing import Any
 
 import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
 from .._constraints import parameter_arrays, unwrap
 from .._inputs import Motion, MotionSample
 from .._models._base import AbstractFrictionModel
-from .._models.physics._dahl import Dahl
 from .._models.physics._gms import GMS
-from .._models.physics._lugre import LuGre
-from .._models.physics._maxwell_slip import MaxwellSlip, SpringForces
 from .._models.physics._stribeck import ExponentialStribeck
 from .._simulate import simulate
 
@@ -45,53 +41,35 @@ def default_tribometer_model() -> GMS:
 
 
 def _breakaway_displacement(model: AbstractFrictionModel) -> float:
-    """The displacement scale [m] over which `model` goes from sticking to gross sliding.
-
-    GMS: `max_i alpha_i s(0) / k_i` (the weakest element's breakaway); Maxwell-slip: `max_i Delta_i`; LuGre:
-    `s(0) / sigma0` (the bristle deflection at the static force); Dahl: `Fc / sigma0`. Other models have no
-    pre-sliding scale: pass `breakaway_displacement=` to `make_tribometer`.
+    """The displacement scale [m] over which `model` goes from sticking to gross sliding, as its family says
+    (`AbstractFrictionModel.breakaway_displacement`: GMS `max_i alpha_i s(0) / k_i`, Maxwell-slip `max_i Delta_i`,
+    LuGre `s(0) / sigma0`, Dahl `Fc / sigma0`). Other models have no pre-sliding scale: pass
+    `breakaway_displacement=` to `make_tribometer`.
     """
-    p = unwrap(model)
-    if isinstance(p, GMS):
-        return float(jnp.max(p.alpha * p.stribeck(0.0) / p.k))
-    if isinstance(p, MaxwellSlip):
-        return float(jnp.max(p.thresholds))
-    if isinstance(p, LuGre):
-        return float(p.stribeck(0.0) / p.sigma0)
-    if isinstance(p, Dahl):
-        return float(p.Fc / p.sigma0)
-    raise ValueError(
-        f"make_tribometer: {type(model).__name__} has no pre-sliding displacement scale to set the regime's "
-        "amplitude from; pass `breakaway_displacement=` (metres), e.g. 1e-5."
-    )
+    value = unwrap(model).breakaway_displacement()
+    if value is None:
+        raise ValueError(
+            f"make_tribometer: {type(model).__name__} has no pre-sliding displacement scale to set the regime's "
+            "amplitude from; pass `breakaway_displacement=` (metres), e.g. 1e-5."
+        )
+    return value
 
 
 def _breakaway_force(model: AbstractFrictionModel) -> float | None:
-    """The static (breakaway) force [N]: `s(0)` for GMS / LuGre, `Fc` for Dahl, `sum k_i Delta_i` for an LR/NLR
-    Maxwell-slip model; `None` where the model has none."""
-    p = unwrap(model)
-    if isinstance(p, (GMS, LuGre)):
-        return float(p.stribeck(0.0))
-    if isinstance(p, Dahl):
-        return float(p.Fc)
-    if isinstance(p, MaxwellSlip) and isinstance(p.force_map, SpringForces):
-        return float(jnp.sum(p.force_map.k * p.thresholds))
-    return None
+    """The static (breakaway) force [N] (`AbstractFrictionModel.breakaway_force`: `s(0)` for GMS / LuGre, `Fc` for
+    Dahl, `sum k_i Delta_i` for an LR/NLR Maxwell-slip model); `None` where the model has none."""
+    return unwrap(model).breakaway_force()
 
 
 def _offset(model: AbstractFrictionModel) -> float:
-    p = unwrap(model)
-    offset = getattr(p, "offset", None)
-    if offset is None and isinstance(p, MaxwellSlip):
-        offset = p.force_map.offset
-    return 0.0 if offset is None else float(offset)
+    return unwrap(model).force_offset()
 
 
 class _SlipIndicator(AbstractFrictionModel):
-    """Wraps a GMS or Maxwell-slip model: the same state, and as output 1.0 per element where it slips (GMS: its
-    slip indicator; Maxwell-slip: the clip is active), so `simulate` gives the slip pattern `(T, N)`."""
+    """Wraps a model with elements (GMS, Maxwell-slip): the same state, and as output 1.0 per element where it slips
+    (`AbstractFrictionModel.slipping`), so `simulate` gives the slip pattern `(T, N)`."""
 
-    model: GMS | MaxwellSlip
+    model: AbstractFrictionModel
 
     @property
     def requires(self) -> frozenset[str]:  # type: ignore[override]
@@ -102,10 +80,9 @@ class _SlipIndicator(AbstractFrictionModel):
 
     def step(self, state: Any, sample: MotionSample) -> tuple[Any, Array]:
         new_state, _ = self.model.step(state, sample)
-        if isinstance(self.model, GMS):
-            return new_state, new_state.slipping  # type: ignore[union-attr]
-        slipping = jnp.abs(state.delta + sample.dx) > unwrap(self.model.thresholds)
-        return new_state, slipping.astype(sample.dx.dtype)
+        slipping = self.model.slipping(state, new_state, sample)
+        assert slipping is not None, "a model with elements says where they slip"
+        return new_state, slipping
 
 
 def slipping_elements(model: AbstractFrictionModel, motion: Motion) -> np.ndarray | None:
@@ -114,7 +91,7 @@ def slipping_elements(model: AbstractFrictionModel, motion: Motion) -> np.ndarra
     Re-simulates the model's state from rest. `None` for models without elements (LuGre, Dahl, static curves).
     For a smooth model an element counts as slipping when its slip weight exceeds 1/2.
     """
-    if not isinstance(model, (GMS, MaxwellSlip)):
+    if model.num_elements is None:
         return None
     return np.asarray(simulate(_SlipIndicator(model), motion)) > 0.5
 

@@ -142,6 +142,8 @@ def feeds_back(model: AbstractModel) -> bool:
 
 
 MOTION_SIGNALS = frozenset({"x", "v", "dx", "dt", "a", "normal_force"})  # what `requires` may name
+NEGLIGIBLE = 1e-3  # a fraction of the force or of the elements below which a part of a model does nothing
+FS_BELOW_FC = "Fs < Fc (a Stribeck curve falling towards standstill)"
 
 
 class AbstractFrictionModel(AbstractModel):
@@ -158,6 +160,64 @@ class AbstractFrictionModel(AbstractModel):
 
     def samples(self, inputs: Motion) -> MotionSample:
         return inputs.samples(self.requires)
+
+    # What only a model family knows, asked by generic code (the tribometer, the demo, compare's notes and recipes)
+    # instead of switching on classes; each default says "none" and the families override it (DESIGN.md, v4).
+
+    drifts: ClassVar[bool] = False  # a force sensor's drift around the friction model (`fj.SensorDrift`)
+
+    def without_drift(self) -> AbstractFrictionModel:
+        """The model without its sensor drift (itself where it has none)."""
+        return self
+
+    def breakaway_displacement(self) -> float | None:
+        """The displacement scale [m] over which the model goes from sticking to gross sliding; None where it has
+        no pre-sliding scale."""
+        return None
+
+    def breakaway_force(self) -> float | None:
+        """The static (breakaway) force [N]; None where the model has none."""
+        return None
+
+    def force_offset(self) -> float:
+        """The constant force [N] the model adds (its `offset` field; 0 without one)."""
+        offset = getattr(self, "offset", None)
+        return 0.0 if offset is None else float(jax.numpy.asarray(offset))
+
+    @property
+    def num_elements(self) -> int | None:
+        """The number of elements of a multi-element model (GMS, Maxwell-slip); None for others."""
+        return None
+
+    def slipping(self, state: Any, new_state: Any, sample: MotionSample) -> Array | None:
+        """Per element, 1.0 where it slips in the step from `state` to `new_state`; None without elements."""
+        return None
+
+    def smoothing_scale(self) -> float:
+        """A smoothing width that is small for this family, in the unit it smooths (velocity: 1e-8 m/s)."""
+        return 1e-8
+
+    def stribeck_levels(self) -> tuple[Any, Any]:
+        """The Coulomb and static levels `(Fc, Fs)` [N] of the model's Stribeck curve, or None where it has none."""
+        stribeck = getattr(self, "stribeck", None)
+        levels = stribeck if stribeck is not None and hasattr(stribeck, "Fs") else self
+        return getattr(levels, "Fc", None), getattr(levels, "Fs", None)
+
+    def implausible(self, record_excursion: float | None = None, *, bounds: bool = True) -> list[str]:
+        """What is implausible in the model's values once fitted (empty when nothing is): here a Stribeck curve whose
+        static level is below its Coulomb level (`Fs < Fc`); families add their own (a damping held at its bound
+        0, elements that carry no force or never slip on a record whose reversals span `record_excursion` [m]).
+        `bounds=False` leaves out the "held at its bound" notes. Call it on the unwrapped model (`fj.unwrap`)."""
+        Fc, Fs = self.stribeck_levels()
+        if Fc is not None and Fs is not None and bool(jax.numpy.any(jax.numpy.asarray(Fs) < jax.numpy.asarray(Fc))):
+            return [FS_BELOW_FC]
+        return []
+
+    def held_at_zero(self, names: tuple[str, ...], bounds: bool) -> list[str]:
+        """The notes for the coefficients `names` that a fit left at their bound 0 (none with `bounds=False`)."""
+        if not bounds:
+            return []
+        return [f"{name} = 0 (held at its bound)" for name in names if float(jax.numpy.min(getattr(self, name))) <= 0.0]
 
     def check_inputs(self, inputs: Any) -> None:
         name = type(self).__name__

@@ -120,8 +120,5 @@ def run_demo(out: pathlib.Path, *, figure: bool = True) -> dict[str, Any]:
 
 
 def _demo_eps(model: Any) -> float:
-    if isinstance(model, GMS):
-        return 1e-11  # metres
-    if isinstance(model, MaxwellSlip):
-        return 1e-3  # fraction of a threshold
-    return 1e-8  # m/s
+    """A small smoothing width for `model`'s family, in the unit it smooths (`smoothing_scale`)."""
+    return model.smoothing_scale()

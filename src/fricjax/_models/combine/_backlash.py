@@ -21,6 +21,7 @@ from ..._smoothing import AbstractSmoothing, Exact, safe_div
 from ..._validation import got_model
 from .._base import AbstractFrictionModel
 from ..blackbox._regressors import advance_plays
+from ._wrapper import AbstractWrapper
 
 
 class BacklashState(eqx.Module):
@@ -31,7 +32,7 @@ class BacklashState(eqx.Module):
     play: Array
 
 
-class Backlash(AbstractFrictionModel):
+class Backlash(AbstractWrapper):
     """`model` driven through a play (backlash, dead zone) of total width `gap` [m].
 
     The element position `y` stays within `gap / 2` of the measured displacement `x`; with the normalised slack

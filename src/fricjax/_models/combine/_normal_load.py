@@ -8,7 +8,7 @@ an input of the model rather than a constant folded into its force levels.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -20,6 +20,7 @@ from ..._smoothing import is_concrete, safe_div
 from ..._validation import got_model
 from .._base import AbstractFrictionModel
 from .._state_maps import AffineMaps
+from ._wrapper import AbstractWrapper
 
 
 class NormalLoadState(eqx.Module):
@@ -29,7 +30,7 @@ class NormalLoadState(eqx.Module):
     scale: Array
 
 
-class NormalLoad(AbstractFrictionModel):
+class NormalLoad(AbstractWrapper):
     """`model`'s friction force scaled by the measured normal load: `F = (|N(t)| / reference) (F_model - b) + b`.
 
     `model` describes the device at the constant load `reference` [N]; at load `N(t)` (`Motion.normal_force`)
@@ -62,6 +63,7 @@ class NormalLoad(AbstractFrictionModel):
 
     model: AbstractFrictionModel
     reference: FixedScalar
+    transparent: ClassVar[bool] = True
 
     def __init__(self, model: AbstractFrictionModel, reference: ParamLike):
         if not isinstance(model, AbstractFrictionModel):

@@ -9,7 +9,7 @@ window's estimate in `fricjax compare`).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -21,6 +21,7 @@ from ..._inputs import MotionSample
 from ..._validation import got_model
 from .._base import AbstractFrictionModel
 from .._state_maps import AffineMaps
+from ._wrapper import AbstractWrapper
 
 
 class SensorDriftState(eqx.Module):
@@ -32,7 +33,7 @@ class SensorDriftState(eqx.Module):
     last: Array
 
 
-class SensorDrift(AbstractFrictionModel):
+class SensorDrift(AbstractWrapper):
     """`model`'s force plus a sensor drift that starts at 0 at each record's first sample (t = 0):
 
     - linear (`tau=None`): `drift(t) = rate * t`;
@@ -56,6 +57,8 @@ class SensorDrift(AbstractFrictionModel):
     model: AbstractFrictionModel
     rate: Parameter
     tau: Parameter | None
+    transparent: ClassVar[bool] = True
+    drifts: ClassVar[bool] = True
 
     def __init__(self, model: AbstractFrictionModel, rate: ParamLike = 0.0, tau: ParamLike | None = None):
         if not isinstance(model, AbstractFrictionModel):
@@ -68,6 +71,9 @@ class SensorDrift(AbstractFrictionModel):
     @property
     def requires(self) -> frozenset[str]:  # type: ignore[override]
         return self.model.requires | {"dt"}
+
+    def without_drift(self) -> AbstractFrictionModel:
+        return self.model
 
     def init_state(self) -> SensorDriftState:
         zero = jnp.zeros((), jnp.result_type(float))

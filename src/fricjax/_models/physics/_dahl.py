@@ -119,6 +119,15 @@ class Dahl(AbstractFrictionModel):
         level = float(np.max(np.abs(np.asarray(unwrap(self.Fc)))))
         return {"offset": level, "F0": level}  # N
 
+    def breakaway_displacement(self) -> float:
+        """`Fc / sigma0` [m]."""
+        p = unwrap(self)
+        return float(p.Fc / p.sigma0)
+
+    def breakaway_force(self) -> float:
+        """`Fc` [N]: Dahl's force saturates at the Coulomb level."""
+        return float(unwrap(self).Fc)
+
     def init_state(self) -> DahlState:
         return DahlState(F=jnp.asarray(unwrap(self.F0)))
 

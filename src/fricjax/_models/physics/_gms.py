@@ -23,7 +23,7 @@ from ..._constraints import (
 )
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
-from .._base import AbstractFrictionModel
+from .._base import NEGLIGIBLE, AbstractFrictionModel
 from ._stribeck import AbstractStribeck, checked_stribeck
 
 
@@ -129,6 +129,33 @@ class GMS(AbstractFrictionModel):
     @property
     def num_elements(self) -> int:
         return int(self.k.raw.shape[0]) if hasattr(self.k, "raw") else int(jnp.shape(self.k)[0])
+
+    def breakaway_displacement(self) -> float:
+        """`max_i alpha_i s(0) / k_i` [m]: the weakest element's breakaway."""
+        p = unwrap(self)
+        return float(jnp.max(p.alpha * p.stribeck(0.0) / p.k))
+
+    def breakaway_force(self) -> float:
+        """`s(0)` [N]: the Stribeck curve at standstill."""
+        return float(unwrap(self).stribeck(0.0))
+
+    def slipping(self, state: GMSState, new_state: GMSState, sample: MotionSample) -> Array:
+        """Each element's slip indicator after the step."""
+        return new_state.slipping
+
+    def smoothing_scale(self) -> float:
+        return 1e-11  # metres: GMS smooths its elements' stick / slip switch in displacement
+
+    def implausible(self, record_excursion: float | None = None, *, bounds: bool = True) -> list[str]:
+        p = unwrap(self)
+        notes = AbstractFrictionModel.implausible(p, record_excursion, bounds=bounds) + p.held_at_zero(
+            ("sigma2",), bounds
+        )
+        alpha = np.asarray(p.alpha)
+        idle = int(np.sum(alpha < NEGLIGIBLE))
+        if idle:
+            notes.append(f"{idle} of {alpha.size} GMS elements carry < {NEGLIGIBLE:g} of the force")
+        return notes
 
     def init_state(self) -> GMSState:
         k = unwrap(self.k)

@@ -127,6 +127,21 @@ class LuGre(AbstractFrictionModel):
         h = p.sigma0 * p.smoothing.abs(v_step) / s * samples.dt
         return shaped_like(self.init_state(), [AffineMaps(jnp.exp(-h), v_step * samples.dt * phi1(h))])
 
+    def breakaway_displacement(self) -> float:
+        """`s(0) / sigma0` [m]: the bristle deflection at the static force."""
+        p = unwrap(self)
+        return float(p.stribeck(0.0) / p.sigma0)
+
+    def breakaway_force(self) -> float:
+        """`s(0)` [N]: the Stribeck curve at standstill."""
+        return float(unwrap(self).stribeck(0.0))
+
+    def implausible(self, record_excursion: float | None = None, *, bounds: bool = True) -> list[str]:
+        p = unwrap(self)
+        return AbstractFrictionModel.implausible(p, record_excursion, bounds=bounds) + p.held_at_zero(
+            ("sigma1", "sigma2"), bounds
+        )
+
     def init_state(self) -> LuGreState:
         return LuGreState(z=jnp.asarray(unwrap(self.z0)))
 

@@ -27,7 +27,7 @@ from ..._constraints import (
 )
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact
-from .._base import AbstractFrictionModel
+from .._base import NEGLIGIBLE, AbstractFrictionModel
 from .._state_maps import AffineMaps, ClampMaps, held, shaped_like
 
 
@@ -236,6 +236,43 @@ class MaxwellSlip(AbstractFrictionModel):
             AffineMaps(held(jnp.ones_like(s), length), held(s, length)) for s in (state.dbar_history, state.x_history)
         ]
         return shaped_like(state, [delta, *histories])
+
+    def breakaway_displacement(self) -> float:
+        """`max_i Delta_i` [m]: the largest threshold."""
+        return float(jnp.max(unwrap(self).thresholds))
+
+    def breakaway_force(self) -> float | None:
+        """`sum_i k_i Delta_i` [N] for the spring (LR / NLR) force map; None for the FIR maps."""
+        p = unwrap(self)
+        if not isinstance(p.force_map, SpringForces):
+            return None
+        return float(jnp.sum(p.force_map.k * p.thresholds))
+
+    def force_offset(self) -> float:
+        return float(unwrap(self).force_map.offset)
+
+    def slipping(self, state: MaxwellSlipState, new_state: MaxwellSlipState, sample: MotionSample) -> Array:
+        """Where the element's clip is active (its deflection would pass its threshold)."""
+        slipping = jnp.abs(state.delta + sample.dx) > unwrap(self.thresholds)
+        return slipping.astype(sample.dx.dtype)
+
+    def smoothing_scale(self) -> float:
+        return 1e-3  # a fraction of a threshold: Maxwell-slip smooths its clips relative to each threshold
+
+    def implausible(self, record_excursion: float | None = None, *, bounds: bool = True) -> list[str]:
+        p = unwrap(self)
+        notes = AbstractFrictionModel.implausible(p, record_excursion, bounds=bounds)
+        if record_excursion is not None:
+            stuck = int(np.sum(np.asarray(p.thresholds) >= record_excursion))
+            if stuck == p.num_elements:
+                notes.append("every Maxwell-slip element stays stuck on this record (a linear spring)")
+            elif stuck:
+                notes.append(f"{stuck} of {p.num_elements} Maxwell-slip elements never slip on this record")
+        if isinstance(p.force_map, SpringForces):
+            k = np.asarray(p.force_map.k) * np.asarray(p.thresholds)
+            if k.sum() > 0 and np.sum(k < NEGLIGIBLE * k.sum()):
+                notes.append(f"{int(np.sum(k < NEGLIGIBLE * k.sum()))} Maxwell-slip elements carry almost no force")
+        return notes
 
     def init_state(self) -> MaxwellSlipState:
         thresholds = unwrap(self.thresholds)

@@ -83,6 +83,11 @@ class AbstractStaticFriction(AbstractFrictionModel):
 
         return self._law(v, sign, pick) + p.offset
 
+    def implausible(self, record_excursion: float | None = None, *, bounds: bool = True) -> list[str]:
+        p = unwrap(self)
+        notes = AbstractFrictionModel.implausible(p, record_excursion, bounds=bounds)
+        return notes + (p.held_at_zero(("Fv",), bounds) if hasattr(p, "Fv") else [])
+
     def init_state(self) -> tuple[()]:
         return ()
 

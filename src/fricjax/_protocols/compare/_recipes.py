@@ -10,7 +10,6 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-import equinox as eqx
 import numpy as np
 import optax
 
@@ -20,8 +19,7 @@ from ..._estimation._levenberg_marquardt import levenberg_marquardt
 from ..._estimation._solution import FitResult
 from ..._estimation._strategies import MultiStart, ParameterScaling
 from ..._metrics import nmse
-from ..._models.combine._normal_load import NormalLoad
-from ..._models.combine._sensor import SensorDrift
+from ..._models.combine._wrapper import inner_friction, with_inner_friction, wrapper_path
 from ._records import Split, TrainingRecords
 from ._scoring import SIGNIFICANT_T, VALIDATION_BLOCKS, free_run, paired_validation_gain
 from ._settings import DataScales, FitSettings
@@ -47,35 +45,25 @@ class ModelSpec:
         return self.label.replace("{elements}", "?" if k is None else str(np.shape(k)[-1]))
 
 
-WRAPPERS = (SensorDrift, NormalLoad)  # the sensor and the normal load around a friction model, outermost first
-
-
 def wrapper_prefix(model: Any) -> str:
-    """The dotted prefix of the friction model inside its wrappers (`"model."` per `SensorDrift` / `NormalLoad`)."""
-    prefix = ""
-    while isinstance(model, WRAPPERS):
-        prefix, model = prefix + "model.", model.model
-    return prefix
+    """The dotted prefix of the friction model inside its sensor / load wrappers (`"model."` for each)."""
+    return wrapper_path(model)
 
 
 def friction_of(model: Any) -> Any:
-    """The friction model inside its wrappers (`SensorDrift`, `NormalLoad`)."""
-    while isinstance(model, WRAPPERS):
-        model = model.model
-    return model
+    """The friction model inside its sensor / load wrappers (`fj.SensorDrift`, `fj.NormalLoad`)."""
+    return inner_friction(model)
 
 
 def with_friction(model: Any, friction: Any) -> Any:
-    """`model` with the friction model inside its wrappers replaced by `friction`."""
-    if isinstance(model, WRAPPERS):
-        return eqx.tree_at(lambda m: m.model, model, with_friction(model.model, friction))
-    return friction
+    """`model` with the friction model inside its sensor / load wrappers replaced by `friction`."""
+    return with_inner_friction(model, friction)
 
 
 def separable_paths(start: Any, paths: tuple[str, ...]) -> tuple[str, ...]:
     """The linear parameters of a (possibly wrapped) model: the friction model's, and the drift rate."""
     prefixed = tuple(wrapper_prefix(start) + path for path in paths)
-    return (*prefixed, "rate") if isinstance(start, SensorDrift) else prefixed
+    return (*prefixed, "rate") if getattr(start, "drifts", False) else prefixed
 
 
 def lm_recipe(separable: tuple[str, ...], starts: int, settings: FitSettings) -> Callable[..., FitResult]:

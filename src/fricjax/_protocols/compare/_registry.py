@@ -53,7 +53,7 @@ def _with_drift(spec: ModelSpec, kind: str) -> ModelSpec:
 
     def build(scales: DataScales) -> Any:
         model = inner(scales)
-        if isinstance(model, SensorDrift):  # identified with its drift (the linear-in-parameters models)
+        if getattr(model, "drifts", False):  # identified with its drift (the linear-in-parameters models)
             return model
         return SensorDrift(model, 0.0, None if kind == "linear" else scales.duration)
 

@@ -20,7 +20,6 @@ from ..._estimation._interrupts import abandonable, check_interrupt
 from ..._estimation._placement import check_device, choose_device, forced_device, resolve_device
 from ..._estimation._plausibility import half_excursion, implausible
 from ..._estimation._serialise import save_model
-from ..._models.combine._sensor import SensorDrift
 from ..._validation import nonnegative_int
 from ..._version import fricjax_version
 from ._checks import check_records_together, check_test_record, trained_on, unused_load_columns
@@ -135,10 +134,10 @@ def _fit_and_score_one(
     model = result.model
     label = spec.label_for(model)
     full_prediction = None if split.several else free_run(model, split.full)
-    carried = not split.several and isinstance(model, SensorDrift)
+    carried = not split.several and getattr(model, "drifts", False)
     carried = carried and any(carries_drift(t, settings.test_drift) for t in tests if t.record is not split.full)
     # the training record's force range without the drift, once per model: a carried drift is scaled by it
-    training_range = float(np.ptp(free_run(model.model, split.full))) if carried else None
+    training_range = float(np.ptp(free_run(model.without_drift(), split.full))) if carried else None
     predictions = {
         test.name: full_prediction
         if full_prediction is not None and test.record is split.full

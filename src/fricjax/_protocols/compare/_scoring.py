@@ -71,10 +71,9 @@ def predict_test_record(
     window, the record's offset and the model's initial state are fitted on the window (`fj.initialise`); otherwise
     the model runs from rest (and `score_prediction` takes the window's mean error as the offset)."""
     from ..._estimation._initialise import initialise
-    from ..._models.combine._sensor import SensorDrift
 
-    drifting = isinstance(model, SensorDrift)
-    friction = model.model if drifting else model
+    drifting = getattr(model, "drifts", False)
+    friction = model.without_drift() if drifting else model
     if carries_drift(test, test_drift):
         force = free_run(friction, test.record)
         if not drifting:
