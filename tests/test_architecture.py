@@ -204,10 +204,6 @@ def _concrete_model_classes() -> set[str]:
 # what still switches on a model class outside `_models` (issue 53, "knowledge on the models"): each entry is a
 # function still to move onto the model classes; the list may only shrink
 KNOWN_CLASS_SWITCHES = {
-    ("_estimation/_initial_guess.py", "initial_guesses"),  # each family's start from the record's scales
-    ("_protocols/_emps_idm.py", "<module>"),  # the static laws' regression forms (a table keyed by class)
-    ("_protocols/_emps_idm.py", "_friction_params"),
-    ("_protocols/_emps_idm.py", "_std"),
     ("_protocols/_emps_hybrid.py", "emps_hybrid_start"),  # a hybrid static law in the EMPS plant
     ("_systems/_emps.py", "resisting_force"),
 }

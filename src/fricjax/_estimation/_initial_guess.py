@@ -6,6 +6,7 @@ the breakaway displacement up to it, as reversals of every size between them loa
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from collections.abc import Sequence
 from typing import Any
@@ -14,13 +15,7 @@ import numpy as np
 
 from .._data._record import FrictionData
 from .._metrics import scaled_std
-from .._models.physics._dahl import Dahl
-from .._models.physics._gms import GMS
-from .._models.physics._lugre import LuGre
-from .._models.physics._lugre_backlash import LuGreBacklash
-from .._models.physics._maxwell_slip import MaxwellSlip
-from .._models.physics._static import BoPavelescu, Coulomb, CoulombViscous, Tustin
-from .._models.physics._stribeck import ExponentialStribeck
+from .._models._base import AbstractFrictionModel
 from .._smoothing import AbstractSmoothing, Exact
 from .._validation import positive_int
 from ._elements import (
@@ -32,8 +27,6 @@ from ._elements import (
 )
 from ._record_scales import RecordScales, as_records, linkage_gap
 from ._records import RecordBatch
-
-GUESSABLE = (Coulomb, CoulombViscous, Tustin, BoPavelescu, LuGre, LuGreBacklash, GMS, MaxwellSlip, Dahl)
 
 
 def initial_guess(
@@ -92,6 +85,44 @@ def _reversals(record: FrictionData) -> int | None:
     return int(np.sum(signs[1:] != signs[:-1]))
 
 
+@dataclasses.dataclass(frozen=True)
+class StartReader:
+    """What a family's start reads off its records (`AbstractFrictionModel.start_from_scales`): the records' scales
+    and the regressions of this layer, bound to the records."""
+
+    scales: RecordScales
+    records: Sequence[FrictionData]
+
+    def linkage_gap(self) -> tuple[float, float]:
+        """The gap [m] of a linkage with backlash and the stiffness [N/m] once it is closed."""
+        return linkage_gap(self.records, self.scales)
+
+    def maxwell_elements(self, elements: int, viscous: bool = False) -> Any:
+        """The thresholds, stiffnesses, offset and viscous slope of a Maxwell-slip regression (None without motion)."""
+        return maxwell_slip_elements(self.records, self.scales, elements, viscous=viscous)
+
+    def replace_small_elements(self, thresholds: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return replace_small_elements(thresholds, k)
+
+    def screen_gms_sliding_law(self, guess: Any) -> Any:
+        return screen_gms_sliding_law(guess, self.records)
+
+
+def _has_start(cls: type) -> bool:
+    return cls.start_from_scales.__func__ is not AbstractFrictionModel.start_from_scales.__func__  # type: ignore[attr-defined]
+
+
+def _with_starts() -> list[str]:
+    """The public friction model classes with a data-driven start, for the message of a class without one."""
+    found, pending = set(), list(AbstractFrictionModel.__subclasses__())
+    while pending:
+        cls = pending.pop()
+        pending += cls.__subclasses__()
+        if _has_start(cls) and cls.__module__.startswith("fricjax.") and not cls.__name__.startswith("_"):
+            found.add(cls.__name__)
+    return sorted(found)
+
+
 def initial_guesses(
     model: Any,
     data: FrictionData | Sequence[FrictionData] | dict[str, FrictionData] | RecordBatch,
@@ -102,12 +133,13 @@ def initial_guesses(
 ) -> list[Any]:
     """`initial_guess`'s starts from one reading of `data`: one start, or for GMS with `without_small_elements` the
     default start and, where replacing its small elements changes it, that one too (`initial_guess` returns the
-    last). `fricjax compare` fits GMS from each."""
-    cls = model if isinstance(model, type) else type(model)
-    if not issubclass(cls, GUESSABLE):
-        names = ", ".join(f"fj.{c.__name__}" for c in GUESSABLE)
+    last). `fricjax compare` fits GMS from each. Each family builds its own start from the scales read here
+    (`AbstractFrictionModel.start_from_scales`)."""
+    cls: Any = model if isinstance(model, type) else type(model)
+    if not (issubclass(cls, AbstractFrictionModel) and _has_start(cls)):
+        names = ", ".join(f"fj.{name}" for name in _with_starts())
         raise TypeError(f"initial_guess: no data-driven start for {cls.__name__}; it has one for {names}.")
-    if without_small_elements and not issubclass(cls, GMS):
+    if without_small_elements and not cls.replaces_small_elements:
         raise TypeError(f"initial_guess: `without_small_elements` is for fj.GMS starts, not {cls.__name__}.")
     if smoothing is None:
         smoothing = Exact() if isinstance(model, type) else getattr(model, "smoothing", Exact())
@@ -115,7 +147,7 @@ def initial_guesses(
     if elements is None:
         elements = 4 if isinstance(model, type) else element_count_of(model)
     elif elements == "auto":
-        elements = element_count(records) if issubclass(cls, (GMS, MaxwellSlip)) else 4  # others have no elements
+        elements = element_count(records) if cls.has_elements else 4  # others have no elements
     else:
         elements = positive_int(elements, "elements", "initial_guess", hint="(or 'auto')")
     if not any(float(scaled_std(np.asarray(r.force))) > 0 for r in records):
@@ -126,8 +158,7 @@ def initial_guesses(
     moves = [_reversals(r) for r in records]
     if all(count is None for count in moves):
         raise ValueError("initial_guess: the record does not move (no displacement or velocity); check the record.")
-    hysteretic = (LuGre, LuGreBacklash, GMS, MaxwellSlip, Dahl)
-    if issubclass(cls, hysteretic) and not any(count for count in moves if count is not None):
+    if cls.presliding and not any(count for count in moves if count is not None):
         warnings.warn(
             f"initial_guess: the record never reverses its motion, so {cls.__name__}'s pre-sliding stiffness (and "
             "its elements' breakaways) cannot be read from it; the start's values for them are rough guesses: "
@@ -141,66 +172,7 @@ def initial_guesses(
             "initial_guess: the record's force does not vary (no friction level to read a start from); check the "
             "force column, or build the start by hand."
         )
-    if cls is Coulomb:
-        return [Coulomb(Fc=s.Fc, offset=s.offset, smoothing=smoothing)]
-    if cls is CoulombViscous:
-        return [CoulombViscous(Fc=s.Fc, Fv=s.Fv, offset=s.offset, smoothing=smoothing)]
-    if cls is Tustin:
-        return [Tustin(Fc=s.Fc, Fs=s.Fs, vs=s.vs, Fv=s.Fv, offset=s.offset, smoothing=smoothing)]
-    if cls is BoPavelescu:
-        return [BoPavelescu(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0, Fv=s.Fv, offset=s.offset, smoothing=smoothing)]
-    stribeck = ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0)
-    if cls is LuGre:
-        return [LuGre(stribeck, sigma0=s.stiffness, sigma1=0.0, sigma2=s.Fv, offset=s.offset, smoothing=smoothing)]
-    if cls is LuGreBacklash:
-        gap, sigma0 = linkage_gap(records, s)
-        return [
-            LuGreBacklash(
-                stribeck, sigma0=sigma0, sigma1=0.0, sigma2=s.Fv, gap=gap, offset=s.offset, smoothing=smoothing
-            )
-        ]
-    if cls is GMS:
-        found = maxwell_slip_elements(records, s, elements, viscous=True)
-        if found is not None:  # the elements of a Maxwell-slip model of the record: stiffness and force shares
-            thresholds, k, offset, Fv = found
-            sets = [(thresholds, k)]
-            if without_small_elements:  # a second start where replacing the small elements changes the first
-                replaced = replace_small_elements(thresholds, k)
-                sets += [] if np.array_equal(replaced[1], k) else [replaced]
-            return [
-                screen_gms_sliding_law(
-                    GMS(
-                        stribeck,
-                        k=k_i,
-                        alpha=t_i * k_i / np.sum(t_i * k_i),
-                        C=10.0 * s.Fs,
-                        sigma2=Fv,
-                        offset=offset,
-                        smoothing=smoothing,
-                    ),
-                    records,
-                )  # fmt: skip
-                for t_i, k_i in sets
-            ]
-        shares = np.arange(elements, 0, -1, dtype=float)  # stiffer elements first
-        return [
-            GMS(
-                stribeck,
-                k=s.stiffness * shares / shares.sum(),
-                alpha=np.full(elements, 1.0 / elements),
-                C=10.0 * s.Fs,
-                sigma2=s.Fv,
-                offset=s.offset,
-                smoothing=smoothing,
-            )
-        ]
-    if cls is Dahl:
-        return [Dahl(sigma0=s.stiffness, Fc=s.Fc, offset=s.offset, smoothing=smoothing)]
-    found = maxwell_slip_elements(records, s, elements)
-    if found is None:  # no motion to regress on: the elements share the static level
-        thresholds = s.thresholds(elements)
-        return [
-            MaxwellSlip.nlr(k=s.Fs / elements / thresholds, thresholds=thresholds, offset=s.offset, smoothing=smoothing)
-        ]
-    thresholds, k, offset, _ = found
-    return [MaxwellSlip.nlr(k=k, thresholds=thresholds, offset=offset, smoothing=smoothing)]
+    starts = cls.start_from_scales(
+        StartReader(s, records), elements=elements, smoothing=smoothing, without_small_elements=without_small_elements
+    )
+    return list(starts or [])

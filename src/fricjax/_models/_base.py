@@ -12,6 +12,7 @@ before the scan.
 from __future__ import annotations
 
 import abc
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import equinox as eqx
@@ -165,6 +166,19 @@ class AbstractFrictionModel(AbstractModel):
     # instead of switching on classes; each default says "none" and the families override it (DESIGN.md, v4).
 
     drifts: ClassVar[bool] = False  # a force sensor's drift around the friction model (`fj.SensorDrift`)
+    presliding: ClassVar[bool] = False  # a pre-sliding stiffness (read off a record's reversals)
+    has_elements: ClassVar[bool] = False  # elements whose count a record may set (`fj.element_count`)
+    replaces_small_elements: ClassVar[bool] = False  # a second start without its small elements (`fj.initial_guess`)
+
+    @classmethod
+    def start_from_scales(
+        cls, reader: Any, *, elements: int, smoothing: Any, without_small_elements: bool = False
+    ) -> Sequence[AbstractFrictionModel] | None:
+        """Starting models of this family read off records (`fj.initial_guess`): `reader.scales` holds the record's
+        scales (`fj.RecordScales`: offset, Fc, Fs, vs, Fv, stiffness, `thresholds(n)`), and `reader` the readings of
+        the estimation layer (`maxwell_elements`, `linkage_gap`, `screen_gms_sliding_law`,
+        `replace_small_elements`). None: the family has no data-driven start."""
+        return None
 
     def without_drift(self) -> AbstractFrictionModel:
         """The model without its sensor drift (itself where it has none)."""

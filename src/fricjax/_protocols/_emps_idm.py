@@ -29,7 +29,7 @@ from .._data._emps import EMPSRecord
 from .._estimation._covariance import covariance
 from .._estimation._lstsq import LstsqResult, lstsq
 from .._metrics import numpy_rmse
-from .._models.physics._static import AbstractStaticFriction, BoPavelescu, Coulomb, CoulombViscous, Threlfall, Tustin
+from .._models.physics._static import AbstractStaticFriction, LawRegression
 from .._smoothing import AbstractSmoothing, Exact
 from .._systems._emps import EMPSPlant
 from .._validation import integer
@@ -41,40 +41,36 @@ from ._emps_idm_data import EMPSIDMData, emps_idm_data
 
 @dataclasses.dataclass(frozen=True)
 class _LawSpec:
-    """How a static law enters the IDM: its regressors, split into those fixed and those depending on the
-    nonlinear parameters. Coefficient names: `Fc`, `Fv`, and `dS = Fs - Fc` (the Stribeck amplitude)."""
+    """A static law with its regression form (`AbstractStaticFriction.regression_form`)."""
 
     law: type[AbstractStaticFriction]
-    viscous: bool
-    fixed_sign: bool  # a plain sign(v) column with coefficient Fc
-    nonlinear: tuple[str, ...]
-    # (v, nonlinear values) -> [(coefficient name, raw column)] of the terms that depend on the nonlinear values
-    terms: Callable[[np.ndarray, dict[str, float]], list[tuple[str, np.ndarray]]]
+    form: LawRegression
 
+    @classmethod
+    def of(cls, law: type[AbstractStaticFriction]) -> _LawSpec:
+        form = law.regression_form()
+        assert form is not None, f"{law.__name__} has no regression form"
+        return cls(law, form)
 
-def _threlfall_terms(v: np.ndarray, nl: dict[str, float]) -> list[tuple[str, np.ndarray]]:
-    ratio = np.minimum(np.abs(v) / nl["v0"], 1.0)
-    k = -np.expm1(-3.0 * ratio) / -np.expm1(-3.0)
-    return [("Fc", k * np.sign(v))]
+    @property
+    def viscous(self) -> bool:
+        return self.form.viscous
 
+    @property
+    def fixed_sign(self) -> bool:
+        return self.form.fixed_sign
 
-def _tustin_terms(v: np.ndarray, nl: dict[str, float]) -> list[tuple[str, np.ndarray]]:
-    return [("dS", np.exp(-np.abs(v) / nl["vs"]) * np.sign(v))]
+    @property
+    def nonlinear(self) -> tuple[str, ...]:
+        return self.form.nonlinear
 
+    @property
+    def amplitude(self) -> bool:
+        return self.form.amplitude
 
-def _bo_pavelescu_terms(v: np.ndarray, nl: dict[str, float]) -> list[tuple[str, np.ndarray]]:
-    return [("dS", np.exp(-((np.abs(v) / nl["vs"]) ** nl["delta"])) * np.sign(v))]
+    def terms(self, v: np.ndarray, nl: dict[str, float]) -> list[tuple[str, np.ndarray]]:
+        return self.form.terms(v, nl)
 
-
-_SPECS = {
-    Coulomb: _LawSpec(Coulomb, viscous=False, fixed_sign=True, nonlinear=(), terms=lambda v, nl: []),
-    CoulombViscous: _LawSpec(CoulombViscous, viscous=True, fixed_sign=True, nonlinear=(), terms=lambda v, nl: []),
-    Threlfall: _LawSpec(Threlfall, viscous=True, fixed_sign=False, nonlinear=("v0",), terms=_threlfall_terms),
-    Tustin: _LawSpec(Tustin, viscous=True, fixed_sign=True, nonlinear=("vs",), terms=_tustin_terms),
-    BoPavelescu: _LawSpec(
-        BoPavelescu, viscous=True, fixed_sign=True, nonlinear=("vs", "delta"), terms=_bo_pavelescu_terms
-    ),
-}
 
 DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {"v0": (1e-5, 0.1), "vs": (1e-5, 0.1), "delta": (0.25, 10.0)}
 """Search intervals of the nonlinear IDM parameters: `v0`, `vs` [m/s] and `delta` [-] (EMPS speeds reach
@@ -195,7 +191,7 @@ class EMPSIDMResult(eqx.Module):
     preprocessing: dict[str, Any]
 
     def _nonlinear(self) -> dict[str, float]:
-        return {name: float(self.params[name]) for name in _SPECS[self.law].nonlinear}  # type: ignore[arg-type]
+        return {name: float(self.params[name]) for name in _LawSpec.of(self.law).nonlinear}  # type: ignore[arg-type]
 
     def _coefficients(self, names: Sequence[tuple[str, int | None]]) -> np.ndarray:
         values: dict[str, Any] = {"M": self.M, "offset": self.offset, **self.params}
@@ -206,14 +202,14 @@ class EMPSIDMResult(eqx.Module):
     def predict(self, data: Any) -> np.ndarray:
         """The force `tau_hat` [N] the model gives on `data` (a record, `EMPSIDMData` or arrays), at the
         regression (decimated) rate."""
-        problem = _Problem(_SPECS[self.law], self.asymmetric, _as_idm_data(data, self.preprocessing))
+        problem = _Problem(_LawSpec.of(self.law), self.asymmetric, _as_idm_data(data, self.preprocessing))
         names, X = problem.design(self._nonlinear())
         return X @ self._coefficients(names)
 
     def relative_error_on(self, data: Any) -> float:
         """`100 ||tau - tau_hat|| / ||tau||` [%] on other data with these parameters (cross-test validation,
         e.g. on `DATA_EMPS_PULSES.mat`: 5.9824 % for the reference model)."""
-        problem = _Problem(_SPECS[self.law], self.asymmetric, _as_idm_data(data, self.preprocessing))
+        problem = _Problem(_LawSpec.of(self.law), self.asymmetric, _as_idm_data(data, self.preprocessing))
         names, X = problem.design(self._nonlinear())
         error = problem.y - X @ self._coefficients(names)
         return float(100.0 * numpy_rmse(error) / numpy_rmse(problem.y))
@@ -285,7 +281,8 @@ def fit_emps_idm(
     >>> fj.fit_emps_idm(train, fj.Tustin, asymmetric=True).friction()  # doctest: +SKIP
     ```
     """
-    if not isinstance(law, type) or law not in _SPECS:
+    form = getattr(law, "regression_form", None) if isinstance(law, type) else None
+    if form is None or form() is None:
         raise TypeError(
             "`law` must be one of the fricjax static law classes CoulombViscous, Threlfall, Tustin, BoPavelescu "
             f"or Coulomb (the class, not an instance); got {law!r}."
@@ -293,7 +290,7 @@ def fit_emps_idm(
     if not isinstance(asymmetric, bool):
         raise TypeError(f"`asymmetric` must be True or False, got {asymmetric!r}.")
     grid = integer(grid, "grid", "", minimum=3, hint="(grid points per nonlinear parameter)")
-    spec = _SPECS[law]
+    spec = _LawSpec.of(law)
     bounds = _check_bounds(spec, bounds)
     preprocessing = {"cutoff_hz": cutoff_hz, "decimation": decimation, "drop": drop}
     problem = _Problem(spec, asymmetric, _as_idm_data(data, preprocessing))
@@ -384,7 +381,7 @@ def _friction_params(
     spec: _LawSpec, names: Sequence[tuple[str, int | None]], theta: np.ndarray, nl: dict[str, float]
 ) -> dict[str, Param]:
     params: dict[str, Param] = {"Fc": _pick(names, theta, "Fc")}
-    if spec.law in (Tustin, BoPavelescu):
+    if spec.amplitude:
         params["Fs"] = _map_pair(lambda c, d: c + d, params["Fc"], _pick(names, theta, "dS"))
     params.update(nl)
     if spec.viscous:
@@ -399,7 +396,7 @@ def _std(spec: _LawSpec, names: Sequence[tuple[str, int | None]], cov: np.ndarra
         value = _pick(names, np.sqrt(variance), name)
         if value is not None:
             std[name] = value
-    if spec.law in (Tustin, BoPavelescu):  # Fs = Fc + dS: var = var(Fc) + var(dS) + 2 cov(Fc, dS)
+    if spec.amplitude:  # Fs = Fc + dS: var = var(Fc) + var(dS) + 2 cov(Fc, dS)
         index = {key: i for i, key in enumerate(names)}
 
         def fs_std(side: int | None) -> float:

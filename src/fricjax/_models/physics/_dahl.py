@@ -93,6 +93,13 @@ class Dahl(AbstractFrictionModel):
     requires: ClassVar[frozenset[str]] = frozenset({"x"})
     initial_state_fields: ClassVar[frozenset[str]] = frozenset({"F0"})
 
+    presliding: ClassVar[bool] = True
+
+    @classmethod
+    def start_from_scales(cls, reader: Any, *, elements: int, smoothing: Any, **_: Any) -> list[Dahl]:
+        s = reader.scales
+        return [cls(sigma0=s.stiffness, Fc=s.Fc, offset=s.offset, smoothing=smoothing)]
+
     def __init__(
         self,
         sigma0: ParamLike,

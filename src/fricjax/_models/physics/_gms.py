@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -24,7 +24,7 @@ from ..._constraints import (
 from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._base import NEGLIGIBLE, AbstractFrictionModel
-from ._stribeck import AbstractStribeck, checked_stribeck
+from ._stribeck import AbstractStribeck, ExponentialStribeck, checked_stribeck
 
 
 class GMSState(eqx.Module):
@@ -90,6 +90,53 @@ class GMS(AbstractFrictionModel):
         1  # packed, unroll 1: ~110 ns per step against ~430 plain (benchmarks/README.md)
     )
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"sigma2"})
+
+    presliding: ClassVar[bool] = True
+    has_elements: ClassVar[bool] = True
+    replaces_small_elements: ClassVar[bool] = True
+
+    @classmethod
+    def start_from_scales(
+        cls, reader: Any, *, elements: int, smoothing: Any, without_small_elements: bool = False
+    ) -> list[GMS]:
+        """The elements of a Maxwell-slip model of the records (stiffnesses and force shares), the sliding law screened
+        on a small grid; without elements to regress on, `elements` equal shares of the static force. With
+        `without_small_elements`, also the start whose small elements are replaced, where that changes it."""
+        s = reader.scales
+        stribeck = ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0)
+        found = reader.maxwell_elements(elements, viscous=True)
+        if found is not None:
+            thresholds, k, offset, Fv = found
+            sets = [(thresholds, k)]
+            if without_small_elements:
+                replaced = reader.replace_small_elements(thresholds, k)
+                sets += [] if np.array_equal(replaced[1], k) else [replaced]
+            return [
+                reader.screen_gms_sliding_law(
+                    cls(
+                        stribeck,
+                        k=k_i,
+                        alpha=t_i * k_i / np.sum(t_i * k_i),
+                        C=10.0 * s.Fs,
+                        sigma2=Fv,
+                        offset=offset,
+                        smoothing=smoothing,
+                    )
+                )
+                for t_i, k_i in sets
+            ]
+        shares = np.arange(elements, 0, -1, dtype=float)  # stiffer elements first
+        return [
+            cls(
+                stribeck,
+                k=s.stiffness * shares / shares.sum(),
+                alpha=np.full(elements, 1.0 / elements),
+                C=10.0 * s.Fs,
+                sigma2=s.Fv,
+                offset=s.offset,
+                smoothing=smoothing,
+            )
+        ]
 
     def __init__(
         self,

@@ -15,7 +15,7 @@ from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact, is_concrete
 from .._base import AbstractFrictionModel
 from .._state_maps import AffineMaps, shaped_like
-from ._stribeck import AbstractStribeck, checked_stribeck
+from ._stribeck import AbstractStribeck, ExponentialStribeck, checked_stribeck
 
 
 def phi1(h: Array) -> Array:
@@ -87,6 +87,14 @@ class LuGre(AbstractFrictionModel):
     requires: ClassVar[frozenset[str]] = frozenset({"v", "dt"})
     initial_state_fields: ClassVar[frozenset[str]] = frozenset({"z0"})
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"sigma1", "sigma2"})
+
+    presliding: ClassVar[bool] = True
+
+    @classmethod
+    def start_from_scales(cls, reader: Any, *, elements: int, smoothing: Any, **_: Any) -> list[LuGre]:
+        s = reader.scales
+        stribeck = ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0)
+        return [cls(stribeck, sigma0=s.stiffness, sigma1=0.0, sigma2=s.Fv, offset=s.offset, smoothing=smoothing)]
 
     def __init__(
         self,

@@ -4,7 +4,7 @@ linkage; LuGre: Canudas de Wit et al. 1995, worden2007 §3.2 eqs. 3-5; the devic
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -17,7 +17,7 @@ from ..._inputs import MotionSample
 from ..._smoothing import AbstractSmoothing, Exact
 from .._base import AbstractFrictionModel
 from ._lugre import _nonnegative
-from ._stribeck import AbstractStribeck, checked_stribeck
+from ._stribeck import AbstractStribeck, ExponentialStribeck, checked_stribeck
 
 
 class LuGreBacklashState(eqx.Module):
@@ -88,6 +88,15 @@ class LuGreBacklash(AbstractFrictionModel):
     requires: ClassVar[frozenset[str]] = frozenset({"v", "dt"})
     initial_state_fields: ClassVar[frozenset[str]] = frozenset({"w0"})
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"sigma1", "sigma2"})
+
+    presliding: ClassVar[bool] = True
+
+    @classmethod
+    def start_from_scales(cls, reader: Any, *, elements: int, smoothing: Any, **_: Any) -> list[LuGreBacklash]:
+        s = reader.scales
+        stribeck = ExponentialStribeck(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0)
+        gap, sigma0 = reader.linkage_gap()
+        return [cls(stribeck, sigma0=sigma0, sigma1=0.0, sigma2=s.Fv, gap=gap, offset=s.offset, smoothing=smoothing)]
 
     def __init__(
         self,

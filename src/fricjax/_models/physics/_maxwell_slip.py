@@ -150,6 +150,23 @@ class MaxwellSlip(AbstractFrictionModel):
 
     requires: ClassVar[frozenset[str]] = frozenset({"x"})
 
+    presliding: ClassVar[bool] = True
+    has_elements: ClassVar[bool] = True
+
+    @classmethod
+    def start_from_scales(cls, reader: Any, *, elements: int, smoothing: Any, **_: Any) -> list[MaxwellSlip]:
+        """An NLR model: the elements of the records' Maxwell-slip regression; without motion to regress on,
+        `elements` thresholds up to the breakaway sharing the static force."""
+        s = reader.scales
+        found = reader.maxwell_elements(elements)
+        if found is None:
+            thresholds = s.thresholds(elements)
+            return [
+                cls.nlr(k=s.Fs / elements / thresholds, thresholds=thresholds, offset=s.offset, smoothing=smoothing)
+            ]
+        thresholds, k, offset, _ = found
+        return [cls.nlr(k=k, thresholds=thresholds, offset=offset, smoothing=smoothing)]
+
     def __init__(self, thresholds: Any, force_map: AbstractForceMap, *, smoothing: AbstractSmoothing = Exact()):
         dtype = model_dtype(thresholds.value if isinstance(thresholds, Fixed) else thresholds)
         if not isinstance(force_map, AbstractForceMap):

@@ -12,6 +12,8 @@ switch by the matching smooth step; `Exact()` (default) is the paper's equation 
 from __future__ import annotations
 
 import abc
+import dataclasses
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import equinox as eqx
@@ -52,6 +54,24 @@ def _coefficient(value: ParamLike, name: str, *, is_positive: bool, dtype: Any =
     return real(array, name)
 
 
+@dataclasses.dataclass(frozen=True)
+class LawRegression:
+    """How a static law enters a linear regression of the force (the EMPS inverse-dynamics identification,
+    `fj.fit_emps_idm`): its columns, split into those fixed and those depending on the nonlinear parameters.
+    Coefficient names: `Fc`, `Fv`, and `dS = Fs - Fc` (the Stribeck amplitude, where `amplitude`)."""
+
+    viscous: bool  # a `v` column with coefficient Fv
+    fixed_sign: bool  # a plain sign(v) column with coefficient Fc
+    nonlinear: tuple[str, ...]  # the parameters the columns below depend on
+    # (v, nonlinear values) -> [(coefficient name, column)] of the terms that depend on the nonlinear values
+    terms: Callable[[np.ndarray, dict[str, float]], list[tuple[str, np.ndarray]]]
+    amplitude: bool = False  # a Stribeck amplitude dS: Fs = Fc + dS
+
+
+def _no_terms(v: np.ndarray, nl: dict[str, float]) -> list[tuple[str, np.ndarray]]:
+    return []
+
+
 class AbstractStaticFriction(AbstractFrictionModel):
     """A memoryless friction law F(v); `model(v)` evaluates it, `simulate` runs it as a (stateless) scan."""
 
@@ -60,6 +80,11 @@ class AbstractStaticFriction(AbstractFrictionModel):
 
     requires: ClassVar[frozenset[str]] = frozenset({"v"})
     nonnegative_fields: ClassVar[frozenset[str]] = frozenset({"Fv"})
+
+    @classmethod
+    def regression_form(cls) -> LawRegression | None:
+        """How the law enters a linear regression of the force (`fj.fit_emps_idm`); None where it has no such form."""
+        return None
 
     def parameter_ranges(self) -> dict[str, float]:
         Fc = getattr(self, "Fc", None)
@@ -118,6 +143,15 @@ class Coulomb(AbstractStaticFriction):
 
     Fc: SidedParameter
 
+    @classmethod
+    def regression_form(cls) -> LawRegression:
+        return LawRegression(viscous=False, fixed_sign=True, nonlinear=(), terms=_no_terms)
+
+    @classmethod
+    def start_from_scales(cls, reader: Any, *, elements: int, smoothing: Any, **_: Any) -> list[Coulomb]:
+        s = reader.scales
+        return [cls(Fc=s.Fc, offset=s.offset, smoothing=smoothing)]
+
     def __init__(self, Fc: ParamLike, *, offset: ParamLike = 0.0, smoothing: AbstractSmoothing = Exact()):
         dtype = model_dtype(Fc, offset)
         self.Fc = _coefficient(Fc, "Fc", is_positive=True, dtype=dtype)
@@ -138,6 +172,15 @@ class CoulombViscous(AbstractStaticFriction):
 
     Fc: SidedParameter
     Fv: SidedParameter
+
+    @classmethod
+    def regression_form(cls) -> LawRegression:
+        return LawRegression(viscous=True, fixed_sign=True, nonlinear=(), terms=_no_terms)
+
+    @classmethod
+    def start_from_scales(cls, reader: Any, *, elements: int, smoothing: Any, **_: Any) -> list[CoulombViscous]:
+        s = reader.scales
+        return [cls(Fc=s.Fc, Fv=s.Fv, offset=s.offset, smoothing=smoothing)]
 
     def __init__(
         self, Fc: ParamLike, Fv: ParamLike, *, offset: ParamLike = 0.0, smoothing: AbstractSmoothing = Exact()
@@ -167,6 +210,14 @@ class Threlfall(AbstractStaticFriction):
     Fc: SidedParameter
     Fv: SidedParameter
     v0: SidedParameter
+
+    @classmethod
+    def regression_form(cls) -> LawRegression:
+        def terms(v: np.ndarray, nl: dict[str, float]) -> list[tuple[str, np.ndarray]]:
+            ratio = np.minimum(np.abs(v) / nl["v0"], 1.0)
+            return [("Fc", -np.expm1(-3.0 * ratio) / -np.expm1(-3.0) * np.sign(v))]
+
+        return LawRegression(viscous=True, fixed_sign=False, nonlinear=("v0",), terms=terms)
 
     def __init__(
         self,
@@ -224,6 +275,18 @@ class BoPavelescu(AbstractStribeckLaw):
     ```
     """
 
+    @classmethod
+    def regression_form(cls) -> LawRegression:
+        def terms(v: np.ndarray, nl: dict[str, float]) -> list[tuple[str, np.ndarray]]:
+            return [("dS", np.exp(-((np.abs(v) / nl["vs"]) ** nl["delta"])) * np.sign(v))]
+
+        return LawRegression(viscous=True, fixed_sign=True, nonlinear=("vs", "delta"), terms=terms, amplitude=True)
+
+    @classmethod
+    def start_from_scales(cls, reader: Any, *, elements: int, smoothing: Any, **_: Any) -> list[BoPavelescu]:
+        s = reader.scales
+        return [cls(Fc=s.Fc, Fs=s.Fs, vs=s.vs, delta=2.0, Fv=s.Fv, offset=s.offset, smoothing=smoothing)]
+
     def __init__(
         self,
         Fc: ParamLike,
@@ -254,6 +317,18 @@ class Tustin(AbstractStribeckLaw):
     **Arguments:** `Fc` [N], `Fs` [N], `vs` [m/s] (> 0); `Fv` [N·s/m] (>= 0); each scalar or (+, -) pair;
     `offset` [N]; `smoothing`.
     """
+
+    @classmethod
+    def regression_form(cls) -> LawRegression:
+        def terms(v: np.ndarray, nl: dict[str, float]) -> list[tuple[str, np.ndarray]]:
+            return [("dS", np.exp(-np.abs(v) / nl["vs"]) * np.sign(v))]
+
+        return LawRegression(viscous=True, fixed_sign=True, nonlinear=("vs",), terms=terms, amplitude=True)
+
+    @classmethod
+    def start_from_scales(cls, reader: Any, *, elements: int, smoothing: Any, **_: Any) -> list[Tustin]:
+        s = reader.scales
+        return [cls(Fc=s.Fc, Fs=s.Fs, vs=s.vs, Fv=s.Fv, offset=s.offset, smoothing=smoothing)]
 
     def __init__(
         self,
