@@ -201,14 +201,6 @@ def _concrete_model_classes() -> set[str]:
     return {name for name in bases if not name.startswith("Abstract") and is_model(name)}
 
 
-# what still switches on a model class outside `_models` (issue 53, "knowledge on the models"): each entry is a
-# function still to move onto the model classes; the list may only shrink
-KNOWN_CLASS_SWITCHES = {
-    ("_protocols/_emps_hybrid.py", "emps_hybrid_start"),  # a hybrid static law in the EMPS plant
-    ("_systems/_emps.py", "resisting_force"),
-}
-
-
 def test_no_code_outside_the_models_switches_on_a_model_class():
     """DESIGN.md v4: what only a model family knows is a method of its class (`breakaway_displacement`,
     `implausible`, `slipping`, `smoothing_scale`, `without_drift`, wrappers' `model` walk), so that a new friction model
@@ -254,7 +246,4 @@ def test_no_code_outside_the_models_switches_on_a_model_class():
                 hit = set().union(set(), *(names(k) for k in node.keys if k is not None))
             if hit:
                 found.add((relative, where))
-    assert found <= KNOWN_CLASS_SWITCHES, sorted(found - KNOWN_CLASS_SWITCHES)
-    assert found == KNOWN_CLASS_SWITCHES, (
-        f"moved onto the models, drop from KNOWN_CLASS_SWITCHES: {sorted(KNOWN_CLASS_SWITCHES - found)}"
-    )
+    assert not found, f"switches on model classes outside _models (make it a method of the class): {sorted(found)}"

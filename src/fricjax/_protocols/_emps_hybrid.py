@@ -84,7 +84,7 @@ def emps_hybrid_start(
     standard deviation (centred at 0, N); `force_scale` the residual's force unit [N]."""
     _check_plant(physics)
     _check_record(record, "record", 2)
-    if isinstance(physics.friction, HybridFriction):
+    if physics.friction.reads_plant:
         raise TypeError("emps_hybrid_start: `physics` already has a HybridFriction; give the plant of a static law.")
     qm = np.asarray(record.qm, np.float64)
     stats = {

@@ -46,7 +46,6 @@ from .._constraints import Parameter, ParamLike, as_float_array, model_dtype, po
 from .._inputs import InputRecord
 from .._metrics import rmse
 from .._models._base import AbstractSystem
-from .._models.combine._hybrid import HybridFriction
 from .._models.physics._static import AbstractStaticFriction
 from .._simulate import simulate
 from .._smoothing import is_concrete
@@ -95,9 +94,7 @@ class EMPSPlant(eqx.Module):
         A `HybridFriction` whose residual reads the position `q` [m] or the drive force `force` [N] gets them
         too (the simulators pass both); a static law ignores them."""
         p = unwrap(self)
-        if isinstance(p.friction, HybridFriction):
-            return p.friction(v, q, force) + p.offset
-        return p.friction(v) + p.offset
+        return p.friction.plant_force(v, q, force) + p.offset
 
     def acceleration(self, v: ArrayLike, force: ArrayLike, q: ArrayLike | None = None) -> Array:
         """`q'' = (force - F_f(v) - offset) / M` [m/s^2] for drive force `force` [N] (at position `q` [m])."""

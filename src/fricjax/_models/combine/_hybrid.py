@@ -18,7 +18,7 @@ them); trained by simulation error, the residual learns the force the law misses
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -178,6 +178,11 @@ class HybridFriction(AbstractStaticFriction):
         x = (jnp.stack(signals, axis=-1) - p.center) / p.scale
         hidden = jnp.tanh(x @ p.W.T + p.b)
         return p.force_scale * (hidden @ p.d)
+
+    reads_plant: ClassVar[bool] = True
+
+    def plant_force(self, v: ParamLike, q: ParamLike | None = None, u: ParamLike | None = None) -> Array:
+        return self(v, q, u)
 
     def __call__(self, v: ParamLike, q: ParamLike | None = None, u: ParamLike | None = None) -> Array:  # type: ignore[override]
         """Friction force `law(v) + F_res(v, q, u) + offset` [N] (velocity [m/s], position [m], force [N])."""

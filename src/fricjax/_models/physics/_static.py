@@ -86,6 +86,13 @@ class AbstractStaticFriction(AbstractFrictionModel):
         """How the law enters a linear regression of the force (`fj.fit_emps_idm`); None where it has no such form."""
         return None
 
+    reads_plant: ClassVar[bool] = False  # the law reads the plant's position and drive force too (a hybrid residual)
+
+    def plant_force(self, v: ParamLike, q: ParamLike | None = None, u: ParamLike | None = None) -> Array:
+        """The friction force [N] in a plant (`fj.EMPSPlant`) at velocity `v` [m/s], position `q` [m] and drive force
+        `u` [N]; a static law reads `v` only."""
+        return self(v)
+
     def parameter_ranges(self) -> dict[str, float]:
         Fc = getattr(self, "Fc", None)
         return {} if Fc is None else {"offset": float(np.max(np.abs(np.asarray(unwrap(Fc)))))}  # N
