@@ -139,6 +139,7 @@ from ._models.combine._normal_load import NormalLoadState as NormalLoadState
 from ._models.combine._sensor import SensorDrift as SensorDrift
 from ._models.combine._sensor import SensorDriftState as SensorDriftState
 from ._models.combine._tangent import TangentGradients as TangentGradients
+from ._models.combine._wrapper import AbstractWrapper as AbstractWrapper
 from ._models.physics._dahl import Dahl as Dahl
 from ._models.physics._dahl import DahlState as DahlState
 from ._models.physics._gms import GMS as GMS
