@@ -20,7 +20,6 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from .._constraints import AbstractUnwrappable
 from .._data._record import FrictionData
 from .._smoothing import AbstractSmoothing, Smooth, exact, with_smoothing
 from .._validation import nonnegative_float, nonnegative_int, optional, positive_int, seed_value
@@ -51,6 +50,7 @@ from ._records import (
 from ._sharding import shard_batch
 from ._solution import FitFailed, Solution
 from ._solvers import as_solver
+from ._stop_messages import scaling_hint, stopping_reason
 from ._strategies import (
     AbstractStrategy,
     Continuation,
@@ -325,7 +325,7 @@ def fit(
     chosen = _host_take(best_ys, best)
     best_losses = [row[original] for row in search.history["train_loss"]]
     if code == "max_steps":  # no stopping rule ended the fit: the tolerance rule, the solver's verdict, the budget
-        code, message = _stopping_reason(solver, outcome, converged, best, steps, best_losses, diverged[best])
+        code, message = stopping_reason(solver, outcome, converged, best, steps, best_losses, diverged[best])
     message += screened
     if code != "diverged" and diverged.any() and not diverged.all():
         message += f" ({int(diverged.sum())} of {count} starts diverged and were discarded)"
@@ -344,7 +344,7 @@ def fit(
                 "fj.ParameterScaling(), which scales each by its magnitude or physical range)"
             )
         else:
-            message += _scaling_hint(params0)
+            message += scaling_hint(params0)
     fitted = problem.materialise(chosen[0], static)
     if losses is not None:  # the returned model's losses, as the problem scores it (no further program)
         train_loss, val_loss = losses
@@ -484,26 +484,6 @@ def _several_records(
     return batch, validation, RecordsLoss(loss, nuisances), freeze
 
 
-def _scaling_hint(params: Any) -> str:
-    """Advice for a fit that stopped short without `scaling`: the trained real (not log-stored) parameters above
-    1e3, which a solver steps as stored (a damping of 7e4 N s/m barely moves), and the fix; "" if none. (Small
-    ones are not named: a network's weights start near 0, and scaling would slow them down.)"""
-    large = []
-    leaves = jax.tree_util.tree_leaves_with_path(params, is_leaf=lambda n: isinstance(n, AbstractUnwrappable))
-    for path, leaf in leaves:
-        if isinstance(leaf, AbstractUnwrappable) or not eqx.is_inexact_array(leaf):
-            continue
-        magnitude = float(np.max(np.abs(np.asarray(leaf)))) if np.size(leaf) else 0.0
-        if magnitude > 1e3:
-            large.append(f"{jax.tree_util.keystr(path).lstrip('.')} = {magnitude:.3g}")
-    if not large:
-        return ""
-    return (
-        f" (large real parameters, {', '.join(large[:3])}, are stepped as stored: pass "
-        "scaling=fj.ParameterScaling(), which scales each by its magnitude)"
-    )
-
-
 def _survivors(scores: np.ndarray, keep: int, count: int, how: str) -> tuple[np.ndarray, str]:
     """The `keep` best starts by `scores`, and the initial one (start 0) with them; the message's note."""
     survivors = np.argsort(scores, kind="stable")[:keep]
@@ -512,25 +492,6 @@ def _survivors(scores: np.ndarray, keep: int, count: int, how: str) -> tuple[np.
         survivors = np.append(survivors, 0)
         note += " with the initial start"
     return survivors, note + ")"
-
-
-def _stopping_reason(
-    solver: Any, outcome: Any, converged: str, best: int, steps: int, losses: list[Any], best_diverged: bool
-) -> tuple[str, str]:
-    """The result code and sentence of a fit that no stopping rule (divergence, early stopping) ended."""
-    if converged:  # the tolerance rule ended the last stage
-        return "successful", converged
-    if solver.kind != "optax" and outcome is not None and outcome.results:
-        code = outcome.results[best]
-        if code == "successful":
-            return code, f"the {solver.name} converged"
-        if code == "max_steps":
-            return code, f"the {solver.name} reached max_steps = {steps} before converging"
-        state = jax.tree_util.tree_map(lambda a: a[best], outcome.states)
-        return code, f"the {solver.name} failed ({solver.failure(state)}); the best model seen was kept"
-    if best_diverged:
-        return "diverged", "the chosen start diverged; its last good parameters were kept"
-    return "max_steps", _budget_message(steps, losses)
 
 
 def _no_worse_than_start(
@@ -568,32 +529,6 @@ def _split(total: int, parts: int) -> list[int]:
     for i in range(total - sum(base)):
         base[i] += 1
     return base
-
-
-def _budget_message(steps: int, losses: list[Any]) -> str:
-    """Why a fit without a convergence test stopped at its budget, in a sentence: still improving, or levelled off."""
-    finite = [float(x) for x in losses if np.isfinite(x)]
-    if len(finite) < 2:
-        return f"ran the full budget of {steps} steps (no convergence test for optax solvers)"
-    previous, last = finite[-2], finite[-1]
-    change = (previous - last) / max(abs(previous), 1e-300)
-    best = min(finite)
-    if last > 2 * best and best > 0:  # falling again, but far above where it was: the steps overshoot
-        return (
-            f"stopped at the step budget ({steps} steps) with the loss at {last / best:.3g}x the best seen "
-            f"({best:.4g}): the steps overshoot; the best model seen is returned: lower the learning rate"
-        )
-    if change > 1e-3:
-        return (
-            f"stopped at the step budget ({steps} steps) while the loss was still falling ({100 * change:.2g} % over "
-            "the last check): not converged; raise `steps` to go on"
-        )
-    if change < -1e-3:
-        return (
-            f"stopped at the step budget ({steps} steps) with the loss rising or oscillating at the end "
-            f"({100 * -change:.2g} % up over the last check); the best model seen is returned: lower the learning rate"
-        )
-    return f"ran the full budget of {steps} steps; the loss had levelled off (change {100 * change:.2g} % at the end)"
 
 
 def _progress_bar(progress: bool, steps: int, kind: str) -> Any:
