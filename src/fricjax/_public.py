@@ -80,6 +80,7 @@ from ._estimation._solution import RESULTS as RESULTS
 from ._estimation._solution import FitFailed as FitFailed
 from ._estimation._solution import FitResult as FitResult
 from ._estimation._solution import Solution as Solution
+from ._estimation._solvers import AbstractHostSolver as AbstractHostSolver
 from ._estimation._solvers import AbstractSolver as AbstractSolver
 from ._estimation._solvers import OptaxSolver as OptaxSolver
 from ._estimation._solvers import OptimistixSolver as OptimistixSolver

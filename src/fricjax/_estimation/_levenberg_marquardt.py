@@ -29,7 +29,7 @@ optimistix's loop took 1.7 s (benchmarks/README.md).
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -40,7 +40,7 @@ import numpy as np
 from .._lapack_threads import thin_svd
 from .._validation import nonnegative_float
 from ._solution import RESULTS
-from ._solvers import AbstractSolver, tree_finite
+from ._solvers import AbstractHostSolver, tree_finite
 
 # optimistix's `ClassicalTrustRegion`: accept at 1 % of the predicted decrease, grow the step size 3.5x at 99 %,
 # shrink it 4x on a rejected trial
@@ -128,11 +128,12 @@ def _judge(
     return new_state, accept, evaluated | finite
 
 
-class LevenbergMarquardt(AbstractSolver):
+class LevenbergMarquardt(AbstractHostSolver):
     """Levenberg-Marquardt for least-squares problems (`problem.residuals`), fricjax's own: what
     `fj.levenberg_marquardt()` returns. optimistix's algorithm (the damped Gauss-Newton step with `lambda = 1 /
-    step_size` and a classical trust region), with its steps driven from the host (`steps_on_host`): each step is
-    one call of a compiled program that evaluates the residuals and their Jacobian at every start's trial point.
+    step_size` and a classical trust region), with its steps driven from the host (an `AbstractHostSolver`): each
+    step is one call of a compiled program that evaluates the residuals and their Jacobian at every start's trial
+    point.
 
     **Arguments:** `rtol`, `atol`: a start has converged on an accepted step that moves every parameter by less
     than `atol + rtol * |parameter|` and changes the cost (half the sum of squared residuals) by less than
@@ -157,9 +158,6 @@ class LevenbergMarquardt(AbstractSolver):
 
     rtol: float = eqx.field(static=True, default=1e-10)
     atol: float = eqx.field(static=True, default=1e-12)
-
-    #: the loop calls `evaluate` (compiled) and `propose` / `judge` (NumPy) instead of compiling `step` into its loop
-    steps_on_host: ClassVar[bool] = True
 
     def __check_init__(self) -> None:
         for name in ("rtol", "atol"):

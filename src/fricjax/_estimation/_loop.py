@@ -30,7 +30,7 @@ from .._smoothing import on_host
 from ._interrupts import check_interrupt, interruptible
 from ._sharding import shard_batch
 from ._solution import RESULTS
-from ._solvers import AbstractSolver, tree_finite
+from ._solvers import AbstractHostSolver, AbstractSolver, tree_finite
 
 MAPPED = eqx.if_array(0)  # a batch's arrays along axis 0; its other leaves (a model's functions) shared
 
@@ -196,7 +196,7 @@ def run_in_pieces(
 def run_steps_on_host(
     solver: Any, problem: Any, ys: Any, states: Any, args: Any, n: int, batched_args: bool = False
 ) -> tuple[Any, Any, Any, Any, Any, Any]:
-    """`run_steps` for a solver whose steps are driven from the host (`steps_on_host`, fricjax's Levenberg-
+    """`run_steps` for a solver whose steps are driven from the host (an `AbstractHostSolver`, fricjax's Levenberg-
     Marquardt): up to `n` steps, each one call of `evaluate_starts` for every start's trial point and the
     solver's `propose` / `judge` in NumPy; the same returns as `run_steps` (states: the solver's batched NumPy
     state). Starts that converged or met a non-finite start stay where they are."""
@@ -253,11 +253,7 @@ def start_losses(solver: Any, problem: Any, ys: Any, args: Any) -> tuple[np.ndar
     """Training and validation loss of every start (NumPy), as `batched_losses`; for a single start of a solver
     that steps on the host, on a problem without validation data, from the solver's own compiled evaluation (a
     fit then compiles one program for its steps and its scores)."""
-    if (
-        getattr(solver, "steps_on_host", False)
-        and _batch_size(ys) == 1
-        and getattr(problem, "validation", None) is None
-    ):
+    if isinstance(solver, AbstractHostSolver) and _batch_size(ys) == 1 and getattr(problem, "validation", None) is None:
         flat, structure = _rows(ys)
         loss = np.asarray(evaluate_starts(solver, problem, jax.device_put(flat), structure, args, False)[2])
         return loss, np.full(loss.shape, np.nan)
@@ -400,7 +396,7 @@ def run_stage(
     """`budget` solver steps from `search.ys`, in chunks of `check_every` with the host-side checks between them.
     `states` are initial solver states (default: `solver.init` of every start, inside the loop's program)."""
     outcome = StageOutcome()
-    host = getattr(solver, "steps_on_host", False)
+    host = isinstance(solver, AbstractHostSolver)
     if states is None and not solver.restarts_at_checks and not host:
         states = init_states(solver, problem, search.ys, args, batched_args)
     done, restart = 0, True

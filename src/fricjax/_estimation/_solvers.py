@@ -83,6 +83,29 @@ class AbstractSolver(eqx.Module):
         return "unknown failure"
 
 
+class AbstractHostSolver(AbstractSolver):
+    """A solver whose steps the loop drives from the host (`_loop.run_steps_on_host`): each step evaluates every
+    start's trial point in one compiled program (`evaluate`), and the solver proposes the trial (`propose`) and judges
+    it (`judge`) in NumPy, from a state of its own (`start_state`). The loop asks the class, never an attribute:
+    fricjax's Levenberg-Marquardt is one."""
+
+    @abc.abstractmethod
+    def evaluate(self, problem: Any, y: Any, args: Any) -> tuple[Any, jax.Array, jax.Array]:
+        """At a point: the point as evaluated (projected), the products the solver needs, the loss."""
+
+    @abc.abstractmethod
+    def start_state(self, xp: Any, flat: Any) -> Any:
+        """The solver's state for the starts `flat` (one row each), in the array module `xp`."""
+
+    @abc.abstractmethod
+    def propose(self, xp: Any, state: Any, flat: Any) -> Any:
+        """The step to each start's next trial point."""
+
+    @abc.abstractmethod
+    def judge(self, xp: Any, state: Any, flat: Any, trial: Any, products: Any, loss: Any) -> tuple[Any, Any, Any]:
+        """The new state, which trials are accepted, and which evaluations were sound (finite)."""
+
+
 class OptaxSolver(AbstractSolver):
     """An optax `GradientTransformation` as a solver: value and gradient of `problem.objective`, the transformation's
     update (extra arguments `value`, `grad`, `value_fn` for L-BFGS' line search), then the projection onto the
