@@ -1,10 +1,11 @@
 """`fit`: gradient-based identification of any fricjax model through its simulator: the driver.
 
-It builds the `Problem` (which parameters move, which are solved by least squares, bounds, scaling), draws the
-starts, and runs the one optimisation loop (`_loop.run_stage`) for each smoothing stage; then it picks the best
-start, checks the result against the start, scores it and says why it stopped (`Solution`). Solvers: any optax
-`GradientTransformation`, optimistix least-squares solver or minimiser, or `fj.AbstractSolver`. This replaces the
-GA + Nelder-Mead of worden2007 §4.4 / parlitz2004 §III-C / amthor §II-B.
+`fit` is a short driver of four phases: the arguments checked (`_fit_arguments.checked_arguments`), the `Problem`
+built (which parameters move, which are solved by least squares, bounds, scaling) with its starts
+(`_build_problem`), the one optimisation loop (`_loop.run_stage`) run for each smoothing stage (`_run_stages`), and
+the best start picked, checked against the start, scored and said why it stopped (`_solution`: a `Solution`).
+Solvers: any optax `GradientTransformation`, optimistix least-squares solver or minimiser, or `fj.AbstractSolver`.
+This replaces the GA + Nelder-Mead of worden2007 §4.4 / parlitz2004 §III-C / amthor §II-B.
 """
 
 from __future__ import annotations
@@ -18,54 +19,38 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
-from .._data._record import FrictionData
 from .._smoothing import AbstractSmoothing, Smooth, exact, with_smoothing
-from .._validation import nonnegative_float, nonnegative_int, optional, positive_int, seed_value
+from ._fit_arguments import DEFAULT_SOLVER, FitState, checked_arguments
 from ._loop import Search, run_stage, start_losses, trees_equal
-from ._losses import AbstractLoss, SimulationLoss
+from ._losses import AbstractLoss
 from ._placement import choose_device, to_device
 from ._problem import (
     Problem,
     Selector,
     evaluate,
     gauss_newton_std,
-    held_paths,
     nonnegative_flags,
     nonnegative_mask,
     parameter_specs,
-    selector_items,
-    selector_paths,
 )
 from ._records import (
     Nuisances,
-    RecordBatch,
     RecordsLoss,
-    as_record_batch,
-    check_burn_in,
-    check_records,
     record_nuisances,
 )
 from ._sharding import shard_batch
 from ._solution import FitFailed, Solution
-from ._solvers import as_solver
 from ._stop_messages import scaling_hint, stopping_reason
 from ._strategies import (
     AbstractStrategy,
     Continuation,
-    EarlyStopping,
     FitPlan,
     MultiStart,
     ParameterScaling,
-    Separable,
-    Tolerance,
 )
 
 __all__ = ["DEFAULT_SOLVER", "fit"]
-
-# one object, so that repeated fits with the default solver hit the same compilation
-DEFAULT_SOLVER = optax.adam(1e-2)
 
 
 def fit(
@@ -170,210 +155,205 @@ def fit(
     """
     arguments = dict(locals())
     if device is not None:
-        counts = [getattr(s, "count", 1) for s in (multistart, *strategies) if isinstance(s, MultiStart)]
-        batched = (isinstance(multistart, int) and multistart > 1) or any(count > 1 for count in counts)
-        target, reason = choose_device(model, data, device, batched)
-        if target is not None:  # the same fit, on `target`
-            arguments.update(
-                device=None, **{k: to_device(arguments[k], target) for k in ("model", "data", "validation")}
-            )
-            with jax.default_device(target):
-                solution = fit(**arguments)
-            return dataclasses.replace(solution, message=f"{solution.message} (on {target.platform}: {reason})")
+        moved = _on_chosen_device(arguments)
+        if moved is not None:
+            return moved
     start_time = time.perf_counter()
-    loss = SimulationLoss() if loss is None else loss
-    if not isinstance(loss, AbstractLoss):
-        raise TypeError(f"fit: `loss` must be a fricjax loss (fj.SimulationLoss(), ...), got {type(loss).__name__}.")
-    both = sorted(set(selector_paths(train)) & set(selector_paths(freeze))) if train is not None else []
-    if both:  # the user's own freeze: the nuisances a fit to several records holds per record are not theirs
-        raise ValueError(
-            f"fit: {', '.join(map(repr, both))} is in both `train` and `freeze`; name a parameter in one of them "
-            "(`freeze` narrows `train`: train='stribeck', freeze='stribeck.vs')."
-        )
-    if isinstance(data, (list, tuple, dict, RecordBatch)):  # several records: shared parameters, per-record nuisances
-        data, validation, loss, freeze = _several_records(
-            model, data, validation, validation_burn_in, loss, nuisances, freeze
-        )
-        validation_burn_in = None
-    elif nuisances is not None:
-        raise ValueError(
-            "fit: `nuisances` are per-record parameters of a fit to several records; pass a list of records as `data`."
-        )
-    elif isinstance(validation, (list, tuple, dict, RecordBatch)):
-        raise ValueError("fit: a list of validation records needs a list of training records as `data`.")
-    check_records(model, data, validation, loss)
-    steps = positive_int(steps, "steps", "fit")
-    eval_every = optional(positive_int, eval_every, "eval_every", "fit")
-    seed = seed_value(seed, "seed", "fit")
-    solver = as_solver(DEFAULT_SOLVER if solver is None else solver)
-    for strategy in strategies:
-        if not isinstance(strategy, AbstractStrategy):
-            raise TypeError(
-                "fit: `strategies` takes fj.AbstractStrategy objects (fj.MultiStart, fj.Continuation, "
-                f"fj.ParameterScaling, fj.Separable, fj.EarlyStopping, fj.Tolerance), got {type(strategy).__name__}."
-            )
-    strategies = [*_keyword_strategies(scaling, multistart, continuation, separable, patience, tolerance), *strategies]
-    val_loss_fn = loss.validation_loss() if validation_burn_in is None else _burn_in_loss(loss, validation_burn_in)
-    if validation is not None and getattr(val_loss_fn, "burn_in", 0) >= validation.length:
-        raise ValueError(
-            f"fit: the validation burn-in ({getattr(val_loss_fn, 'burn_in', 0)} samples) leaves nothing to score "
-            f"in a validation record of {validation.length} samples; lower `validation_burn_in` or pass more data."
-        )
-    check_burn_in(loss, data, "data", "fit")
-    if isinstance(validation, RecordBatch):
-        check_burn_in(val_loss_fn, validation, "validation", "fit")
+    fitting = checked_arguments(arguments)
+    _build_problem(fitting, arguments)
+    bar = _progress_bar(progress, fitting.steps, fitting.solver.kind)
+    search = Search(fitting.ys0, fitting.validation is not None, start_time, bar)
+    _run_stages(fitting, search)
+    solution = _solution(fitting, search, start_time, compute_std)
+    if throw and not solution.success:
+        raise FitFailed(solution)
+    return solution
 
-    # the plan: each strategy wraps the problem (before and after parameter selection), in the order given
-    plan = FitPlan(model=model, seed=seed)
-    for strategy in strategies:
+
+def _on_chosen_device(arguments: dict[str, Any]) -> Solution | None:
+    """The same fit on the device `choose_device` picks (`device="auto"` etc.), or None to run it here."""
+    multistart, strategies = arguments["multistart"], arguments["strategies"]
+    counts = [getattr(s, "count", 1) for s in (multistart, *strategies) if isinstance(s, MultiStart)]
+    batched = (isinstance(multistart, int) and multistart > 1) or any(count > 1 for count in counts)
+    target, reason = choose_device(arguments["model"], arguments["data"], arguments["device"], batched)
+    if target is None:
+        return None
+    moved = {k: to_device(arguments[k], target) for k in ("model", "data", "validation")}
+    with jax.default_device(target):
+        solution = fit(**{**arguments, **moved, "device": None})
+    return dataclasses.replace(solution, message=f"{solution.message} (on {target.platform}: {reason})")
+
+
+def _build_problem(f: FitState, a: dict[str, Any]) -> None:
+    """The plan (each strategy wraps the problem, before and after parameter selection, in the order given), the
+    `Problem` and the batch of starts."""
+    plan = FitPlan(model=f.model, seed=f.seed)
+    for strategy in f.strategies:
         plan = strategy.prepare(plan)
-    model, separable, tolerance, patience = plan.model, plan.separable, plan.tolerance, plan.patience
-    if patience is not None and validation is None:
+    model, separable, f.tolerance, f.patience = plan.model, plan.separable, plan.tolerance, plan.patience
+    if f.patience is not None and f.validation is None:
         raise ValueError(
             "fit: `patience` (fj.EarlyStopping) stops on the validation loss, and no `validation` record was passed; "
             "pass `validation=` (a record not trained on) or drop `patience` (for a stop on the training loss: "
             "`tolerance=`)."
         )
-    own_width = _smoothing_width(model)  # the history's `eps` of a stage that keeps the model's own width
-    spec, linear_spec = parameter_specs(model, train, freeze, separable, loss, data)
-    params0, static = eqx.partition(model, spec)
-    plan = dataclasses.replace(plan, params0=params0, starts=MultiStart(1, 0.0).draw(params0, seed))
-    for strategy in strategies:
+    f.model = model
+    f.own_width = _smoothing_width(model)  # the history's `eps` of a stage that keeps the model's own width
+    f.spec, f.linear_spec = parameter_specs(model, a["train"], f.freeze, separable, f.loss, f.data)
+    f.params0, f.static = eqx.partition(model, f.spec)
+    plan = dataclasses.replace(plan, params0=f.params0, starts=MultiStart(1, 0.0).draw(f.params0, f.seed))
+    for strategy in f.strategies:
         plan = strategy.transform(plan)
-    problem = Problem(
-        loss=loss,
-        linear_spec=linear_spec,
-        linear_nonnegative=nonnegative_flags(model, linear_spec, separable),
-        nonnegative=eqx.partition(nonnegative_mask(model), spec)[0],
+    f.plan = plan
+    f.problem = Problem(
+        loss=f.loss,
+        linear_spec=f.linear_spec,
+        linear_nonnegative=nonnegative_flags(model, f.linear_spec, separable),
+        nonnegative=eqx.partition(nonnegative_mask(model), f.spec)[0],
         scales=plan.scales,
-        data=data,
-        validation=validation,
-        val_loss=val_loss_fn,
+        data=f.data,
+        validation=f.validation,
+        val_loss=f.val_loss_fn,
     )
-    count = jax.tree_util.tree_leaves(plan.starts)[0].shape[0] if jax.tree_util.tree_leaves(plan.starts) else 1
-    if isinstance(loss, RecordsLoss):
-        loss, extra0 = loss.bind_and_start(model, data)
-        problem = dataclasses.replace(problem, loss=loss, val_loss=loss.validation_loss())
+    f.count = jax.tree_util.tree_leaves(plan.starts)[0].shape[0] if jax.tree_util.tree_leaves(plan.starts) else 1
+    if isinstance(f.loss, RecordsLoss):
+        f.loss, extra0 = f.loss.bind_and_start(model, f.data)
+        f.problem = dataclasses.replace(f.problem, loss=f.loss, val_loss=f.loss.validation_loss())
     else:
-        extra0 = loss.init_extra(model, data)
+        extra0 = f.loss.init_extra(model, f.data)
     extras = jax.tree_util.tree_map(
-        lambda e: jax.device_put(np.broadcast_to(np.asarray(e), (count,) + e.shape)), extra0
+        lambda e: jax.device_put(np.broadcast_to(np.asarray(e), (f.count,) + e.shape)), extra0
     )
-    ys0 = shard_batch((plan.starts, extras))  # the starts spread over the local devices (identity on one)
+    f.ys0 = shard_batch((plan.starts, extras))  # the starts spread over the local devices (identity on one)
+    f.linear_only = not any(eqx.is_array(leaf) for leaf in jax.tree_util.tree_leaves(f.params0))
 
-    bar = _progress_bar(progress, steps, solver.kind)
-    search = Search(ys0, validation is not None, start_time, bar)
-    linear_only = not any(eqx.is_array(leaf) for leaf in jax.tree_util.tree_leaves(params0))
-    code, message, outcome, converged, screened = "max_steps", "", None, "", ""
-    if linear_only:  # only separable (linear) parameters: one least-squares solve is the whole fit
-        code, message = "successful", "only linear parameters: solved by least squares"
-        search.best_scores = np.zeros(count)
+
+def _run_stages(f: FitState, search: Search) -> None:
+    """The smoothing stages of the fit (one unless a continuation asks for more), each run by the loop
+    (`run_stage`), the first one screening the starts where a multi-start asks for it."""
+    if f.linear_only:  # only separable (linear) parameters: one least-squares solve is the whole fit
+        f.code, f.message = "successful", "only linear parameters: solved by least squares"
+        search.best_scores = np.zeros(f.count)
     else:
-        for eps, budget in zip(plan.stages, _split(steps, len(plan.stages)), strict=True):
+        for eps, budget in zip(f.plan.stages, _split(f.steps, len(f.plan.stages)), strict=True):
             if budget == 0:
                 continue
             if eps is not None:
-                static = eqx.partition(with_smoothing(model, Smooth(jnp.asarray(eps, dtype=float))), spec)[1]
+                f.static = eqx.partition(with_smoothing(f.model, Smooth(jnp.asarray(eps, dtype=float))), f.spec)[1]
                 # losses at different widths are not comparable: each stage starts its own best-so-far
-                search.restart(*start_losses(solver, problem, search.ys, static))
-            if solver.kind == "optax":
-                check_every = eval_every or max(1, steps // 50)
+                search.restart(*start_losses(f.solver, f.problem, search.ys, f.static))
+            if f.solver.kind == "optax":
+                check_every = f.eval_every or max(1, f.steps // 50)
             else:  # solvers with their own convergence test run their budget unless a tolerance asks for checks
                 # at least 5 steps a check: LM rejects runs of trial steps, and a window of one rejected step
                 # reads as no change (`--steps 10` stopped at step 3 as converged)
-                check_every = budget if tolerance is None else (eval_every or min(budget, max(5, budget // 8)))
-            screening, plan = plan.screen, dataclasses.replace(plan, screen=None)  # the first stage screens
+                check_every = budget if f.tolerance is None else (f.eval_every or min(budget, max(5, budget // 8)))
+            screening, f.plan = f.plan.screen, dataclasses.replace(f.plan, screen=None)  # the first stage screens
             if screening is not None and screening[0] == 0:  # forward screening: each start's loss, no step
-                search.restart(*start_losses(solver, problem, search.ys, static))
-                survivors, screened = _survivors(search.best_scores, screening[1], count, "by their loss at the start")
+                search.restart(*start_losses(f.solver, f.problem, search.ys, f.static))
+                survivors, f.screened = _survivors(
+                    search.best_scores, screening[1], f.count, "by their loss at the start"
+                )
                 search.keep(survivors)
                 screening = None
             first = budget if screening is None else max(1, min(budget - 1, round(screening[0] * budget)))
             for part in (first, budget - first):
                 if part == 0:
                     continue
-                outcome = run_stage(
-                    solver,
-                    problem,
+                f.outcome = run_stage(
+                    f.solver,
+                    f.problem,
                     search,
-                    static,
+                    f.static,
                     budget=part,
                     check_every=min(check_every, part),
-                    tolerance=tolerance,
-                    patience=patience if validation is not None else None,
-                    eps=own_width if eps is None else eps,
+                    tolerance=f.tolerance,
+                    patience=f.patience if f.validation is not None else None,
+                    eps=f.own_width if eps is None else eps,
                 )
-                if outcome.stop is not None or screening is None:
+                if f.outcome.stop is not None or screening is None:
                     break
-                survivors, screened = _survivors(search.best_scores, screening[1], count, "")
+                survivors, f.screened = _survivors(search.best_scores, screening[1], f.count, "")
                 search.keep(survivors)
                 screening = None
-            assert outcome is not None  # budget >= 1: the first part ran
-            converged = outcome.converged
-            if outcome.stop is not None:
-                code, message = outcome.stop, outcome.message
+            assert f.outcome is not None  # budget >= 1: the first part ran
+            f.converged = f.outcome.converged
+            if f.outcome.stop is not None:
+                f.code, f.message = f.outcome.stop, f.outcome.message
                 break
     search.close()
 
+
+def _solution(f: FitState, search: Search, start_time: float, compute_std: bool) -> Solution:
+    """The best start's best snapshot, never worse than the start, scored and said why it stopped."""
     # choose the best start; keep its best snapshot
     best_ys, best_scores, diverged = search.best_ys, search.best_scores, search.diverged
     if np.isfinite(best_scores).any():
         best = int(np.argmin(best_scores))
         original = int(search.active[best])  # its index among all the starts (screening keeps some)
     else:  # every start diverged before the first check: fall back to the initial parameters
-        best, original, best_ys = 0, 0, ys0
+        best, original, best_ys = 0, 0, f.ys0
     chosen = _host_take(best_ys, best)
     best_losses = [row[original] for row in search.history["train_loss"]]
-    if code == "max_steps":  # no stopping rule ended the fit: the tolerance rule, the solver's verdict, the budget
-        code, message = stopping_reason(solver, outcome, converged, best, steps, best_losses, diverged[best])
-    message += screened
-    if code != "diverged" and diverged.any() and not diverged.all():
-        message += f" ({int(diverged.sum())} of {count} starts diverged and were discarded)"
+    if f.code == "max_steps":  # no stopping rule ended the fit: the tolerance rule, the solver's verdict, the budget
+        f.code, f.message = stopping_reason(
+            f.solver, f.outcome, f.converged, best, f.steps, best_losses, diverged[best]
+        )
+    f.message += f.screened
+    if f.code != "diverged" and diverged.any() and not diverged.all():
+        f.message += f" ({int(diverged.sum())} of {f.count} starts diverged and were discarded)"
     losses, kept = None, ""
-    if not linear_only:  # never worse than the start: the initial model, scored as the starts are chosen
-        chosen, kept, losses = _no_worse_than_start(solver, problem, chosen, ys0, static, validation is not None)
+    if not f.linear_only:  # never worse than the start: the initial model, scored as the starts are chosen
+        chosen, kept, losses = _no_worse_than_start(
+            f.solver, f.problem, chosen, f.ys0, f.static, f.validation is not None
+        )
         if kept:
-            message += "; " + kept
-        elif code != "diverged" and trees_equal(chosen[0], _host_take(ys0, 0)[0]):
+            f.message += "; " + kept
+        elif f.code != "diverged" and trees_equal(chosen[0], _host_take(f.ys0, 0)[0]):
             kept = "no step improved on the model the fit was given, which is returned unchanged"
-            message += "; " + kept
-    if plan.scales is None and (code != "successful" or kept) and code != "diverged":
-        if kept and solver.kind == "optax":  # a learning rate far from every parameter's size
-            message += (
+            f.message += "; " + kept
+    if f.plan.scales is None and (f.code != "successful" or kept) and f.code != "diverged":
+        if kept and f.solver.kind == "optax":  # a learning rate far from every parameter's size
+            f.message += (
                 " (real parameters are stepped as stored: for physical models pass scaling="
                 "fj.ParameterScaling(), which scales each by its magnitude or physical range)"
             )
         else:
-            message += scaling_hint(params0)
-    fitted = problem.materialise(chosen[0], static)
+            f.message += scaling_hint(f.params0)
+    fitted = f.problem.materialise(chosen[0], f.static)
     if losses is not None:  # the returned model's losses, as the problem scores it (no further program)
         train_loss, val_loss = losses
     else:
-        train_loss = float(evaluate(loss, fitted, chosen[1], data))
-        val_loss = float(evaluate(val_loss_fn, fitted, None, validation)) if validation is not None else float("nan")
-    exact_val = float(evaluate(val_loss_fn, exact(fitted), None, validation)) if validation is not None else np.nan
-    if validation is not None and not np.isfinite(val_loss) and code != "diverged":
-        code = "diverged"
-        message = (
-            f"the validation loss of the returned model is not finite ({val_loss}); check the validation data "
-            "(NaN, scale) or the model's behaviour on it; " + message
+        train_loss = float(evaluate(f.loss, fitted, chosen[1], f.data))
+        val_loss = (
+            float(evaluate(f.val_loss_fn, fitted, None, f.validation)) if f.validation is not None else float("nan")
         )
-    if not np.isfinite(train_loss) and code == "diverged":  # no finite loss was ever seen: not a divergence
-        message = (
+    exact_val = (
+        float(evaluate(f.val_loss_fn, exact(fitted), None, f.validation)) if f.validation is not None else np.nan
+    )
+    if f.validation is not None and not np.isfinite(val_loss) and f.code != "diverged":
+        f.code = "diverged"
+        f.message = (
+            f"the validation loss of the returned model is not finite ({val_loss}); check the validation data "
+            "(NaN, scale) or the model's behaviour on it; " + f.message
+        )
+    if not np.isfinite(train_loss) and f.code == "diverged":  # no finite loss was ever seen: not a divergence
+        f.message = (
             f"the training loss is not finite ({train_loss}) at the start already, so no step could improve it: check "
             "the initial parameters against the data (a force that overflows, the square root or logarithm of a "
             "negative value in a custom model) and the data (NaN, scale); the initial model is returned"
         )
-    elif not np.isfinite(train_loss) and code != "solver_failed":
-        code, message = "diverged", f"the training loss of the returned model is not finite ({train_loss}); " + message
+    elif not np.isfinite(train_loss) and f.code != "solver_failed":
+        returned = f"the training loss of the returned model is not finite ({train_loss}); "
+        f.code, f.message = "diverged", returned + f.message
     std = None
     if compute_std and np.isfinite(train_loss):
-        std = gauss_newton_std(fitted, spec, linear_spec, loss, chosen[1], data)
+        std = gauss_newton_std(fitted, f.spec, f.linear_spec, f.loss, chosen[1], f.data)
     history = search.history
     solution = Solution(
         model=fitted,
-        result=code,
-        message=message,
+        result=f.code,
+        message=f.message,
         history={
             "step": np.asarray(history["step"]),
             "train_loss": np.asarray(best_losses),
@@ -386,30 +366,19 @@ def fit(
         exact_val_loss=float(exact_val),
         evaluations=search.step_count,
         wall_time=time.perf_counter() - start_time,
-        num_starts=count,
+        num_starts=f.count,
         best_start=original,
         std=std,
         extra=chosen[1],
-        records=record_nuisances(loss, fitted, chosen[1], data) if isinstance(loss, RecordsLoss) else None,
+        records=record_nuisances(f.loss, fitted, chosen[1], f.data) if isinstance(f.loss, RecordsLoss) else None,
         start_kept=bool(kept),
     )
-    if throw and not solution.success:
-        raise FitFailed(solution)
     return solution
 
 
 # ----------------------------------------------------------------------------------------------------------------
 # helpers
 # ----------------------------------------------------------------------------------------------------------------
-
-
-def _burn_in_loss(loss: AbstractLoss, burn_in: Any) -> SimulationLoss:
-    """The free-run validation loss with `burn_in` samples not scored; a `SimulationLoss`'s simulator options carry
-    over (they change how the loop runs, and the values by round-off: the fit scores training and validation alike)."""
-    burn_in = nonnegative_int(burn_in, "validation_burn_in", "fit")
-    if isinstance(loss, SimulationLoss):
-        return SimulationLoss(burn_in=burn_in, derivatives=loss.derivatives, batching=loss.batching)
-    return SimulationLoss(burn_in=burn_in)
 
 
 def _smoothing_width(model: Any) -> float:
@@ -422,66 +391,6 @@ def _smoothing_width(model: Any) -> float:
         if isinstance(leaf, AbstractSmoothing)
     }
     return widths.pop() if len(widths) == 1 else float("nan")
-
-
-def _keyword_strategies(
-    scaling: Any, multistart: Any, continuation: Any, separable: Any, patience: Any, tolerance: Any
-) -> list[AbstractStrategy]:
-    """The strategies `fit`'s keywords stand for (thin compatibility: each keyword is one strategy)."""
-    out: list[AbstractStrategy] = []
-    if continuation is not None:
-        if not isinstance(continuation, Continuation):
-            raise TypeError(
-                f"fit: `continuation` must be fj.Continuation(eps_start, eps_end, stages), got {continuation!r}."
-            )
-        out.append(continuation)
-    if separable:
-        out.append(Separable(separable))
-    if scaling is not None:
-        if not isinstance(scaling, ParameterScaling):
-            raise TypeError(f"fit: `scaling` must be fj.ParameterScaling(...), got {scaling!r}.")
-        out.append(scaling)
-    if multistart is not None:
-        if isinstance(multistart, bool) or not isinstance(multistart, (int, np.integer, MultiStart)):
-            raise TypeError(f"fit: `multistart` must be a count or fj.MultiStart(count, spread), got {multistart!r}.")
-        out.append(
-            multistart
-            if isinstance(multistart, MultiStart)
-            else MultiStart(positive_int(multistart, "multistart", "fit"))
-        )
-    if patience is not None:
-        out.append(EarlyStopping(positive_int(patience, "patience", "fit")))
-    if tolerance is not None:
-        out.append(Tolerance(nonnegative_float(tolerance, "tolerance", "fit")))
-    return out
-
-
-def _several_records(
-    model: Any, data: Any, validation: Any, validation_burn_in: Any, loss: Any, nuisances: Any, freeze: Any
-) -> tuple[RecordBatch, Any, RecordsLoss, Any]:
-    """A fit to several records: the padded batches, the loss summed over records, and the model's own offsets
-    frozen where each record has one (and the fields that set its state at rest, where each record's initial state
-    is estimated)."""
-    nuisances = Nuisances() if nuisances is None else nuisances
-    if not isinstance(nuisances, Nuisances):
-        raise TypeError(f"fit: `nuisances` must be fj.Nuisances(offset=, drift=, initial_state=), got {nuisances!r}.")
-    if isinstance(loss, RecordsLoss):
-        loss = loss.loss
-    batch = as_record_batch(data, model, "data")
-    if isinstance(validation, FrictionData):
-        validation = [validation]
-    if isinstance(validation, (list, tuple, dict)):
-        burn_in = (
-            None if validation_burn_in is None else nonnegative_int(validation_burn_in, "validation_burn_in", "fit")
-        )
-        starts = None if burn_in is None else [burn_in] * len(validation)
-        validation = as_record_batch(validation, model, "validation", starts)
-    elif validation is not None and not isinstance(validation, RecordBatch):
-        raise TypeError(f"fit: `validation` must be records like `data`, got {type(validation).__name__}.")
-    held = held_paths(model, nuisances)  # one offset and one initial state per record replace the model's own
-    if held:
-        freeze = (*selector_items(freeze), *held)
-    return batch, validation, RecordsLoss(loss, nuisances), freeze
 
 
 def _survivors(scores: np.ndarray, keep: int, count: int, how: str) -> tuple[np.ndarray, str]:
