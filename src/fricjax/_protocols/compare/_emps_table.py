@@ -16,7 +16,7 @@ from ..._estimation._plausibility import FS_BELOW_FC
 from ..._models.physics._static import BoPavelescu, CoulombViscous, Threlfall, Tustin
 from ..._version import fricjax_version
 from .._emps_idm import fit_emps_idm
-from ._output import earlier_outputs, keep_copies, strict_json, versions, write_atomic
+from ._output import backups, earlier_outputs, keep_copies, strict_json, versions, write_atomic
 from ._settings import CompareError
 
 
@@ -73,7 +73,7 @@ def emps_table(out: pathlib.Path) -> None:
             if "Fs" in params and np.any(np.asarray(params["Fs"]) < np.asarray(params["Fc"])):
                 text += f"; {FS_BELOW_FC}"
             print(f"{name:34s} {float(result.relative_error):18.4f} {test_error:18.4f}  {text}")
-    keep_copies(out, ["report.json"], earlier_outputs(out))
+    keep_copies(out, backups(out, ["report.json"], earlier_outputs(out)))
     write_atomic(
         out / "report.json",
         strict_json({"data": "emps", "fricjax": fricjax_version(), "versions": versions(), "idm": rows}),

@@ -60,21 +60,30 @@ def earlier_outputs(out: pathlib.Path) -> set[str]:
     return names
 
 
-def keep_copies(out: pathlib.Path, names: list[str], ours: set[str]) -> list[pathlib.Path]:
-    """Copy each file of `out` that a run is about to replace and that no earlier fricjax run wrote (not in `ours`)
-    to `NAME.bak` (`NAME.bak2`, ... where taken), saying so: nothing of the user's is lost. **Returns:** the copies."""
-    copies: list[pathlib.Path] = []
+def backups(out: pathlib.Path, names: list[str], ours: set[str]) -> list[tuple[str, pathlib.Path]]:
+    """For each file of `out` that a run is about to replace and that no earlier fricjax run wrote (not in `ours`),
+    the free name to keep it under: `NAME.bak` (`NAME.bak2`, ... where taken)."""
+    planned: list[tuple[str, pathlib.Path]] = []
     for name in names:
         target = out / name
         if name in ours or not target.is_file():
             continue
         backup = target.with_name(f"{target.name}.bak")
         number = 1
-        while os.path.lexists(backup):
+        while os.path.lexists(backup) or backup in (b for _, b in planned):
             number += 1
             backup = target.with_name(f"{target.name}.bak{number}")
+        planned.append((name, backup))
+    return planned
+
+
+def keep_copies(out: pathlib.Path, planned: list[tuple[str, pathlib.Path]]) -> list[pathlib.Path]:
+    """Copy the user's files `planned` (`backups`) to their backup names, saying so: nothing of the user's is lost.
+    **Returns:** the copies (none when one fails: the error says so)."""
+    copies: list[pathlib.Path] = []
+    for name, backup in planned:
         try:
-            shutil.copy2(target, backup)
+            shutil.copy2(out / name, backup)
         except OSError as err:
             for copy in copies:
                 copy.unlink(missing_ok=True)
@@ -330,11 +339,12 @@ class Staging:
                 raise CompareError(
                     f"--out {self.out}: {name} is a folder; move it away or choose another --out (nothing was written)"
                 )
-        copies = keep_copies(self.out, self.names, earlier_outputs(self.out))
+        planned = backups(self.out, self.names, earlier_outputs(self.out))
         moves: list[tuple[pathlib.Path, pathlib.Path]] = []  # the renames done, to undo in reverse
         created: list[pathlib.Path] = []  # the folders made in `out`, to remove again
         current = ""
-        self._write_journal()
+        self._write_journal(planned)
+        copies = keep_copies(self.out, planned)  # after the journal: a run killed from here on is undone, copies too
         with hold_signals():
             try:
                 for index, current in enumerate(self.names):
@@ -367,16 +377,22 @@ class Staging:
                     "(the previous files are back)"
                 ) from None
 
-    def _write_journal(self) -> None:
+    def _write_journal(self, planned: list[tuple[str, pathlib.Path]]) -> None:
         """Record, before the first move, what publishing will do (`JOURNAL_NAME`: the names in order, each staged
-        file's identity, the folders of `out` it creates), so that a run killed part-way (SIGKILL, a power cut)
-        can be rolled back by the next one (`remove_stale_staging`)."""
+        file's identity, the folders of `out` it creates, the backups of the user's files it makes, `planned`), so
+        that a run killed part-way (SIGKILL, a power cut) can be rolled back by the next one
+        (`remove_stale_staging`)."""
         staged = {}
         for name in self.names:
             info = (self.new / name).stat()
             staged[name] = [info.st_ino, info.st_size, info.st_mtime_ns]
         folders = {str(f.relative_to(self.out)) for name in self.names for f in self._folders(name) if not f.exists()}
-        journal = {"names": self.names, "staged": staged, "created": sorted(folders, key=len)}
+        journal = {
+            "names": self.names,
+            "staged": staged,
+            "created": sorted(folders, key=len),
+            "copies": [str(backup.relative_to(self.out)) for _, backup in planned],
+        }
         try:
             (self.root / JOURNAL_NAME).write_text(json.dumps(journal))
         except OSError as err:
@@ -474,6 +490,9 @@ def _roll_back(folder: pathlib.Path, out: pathlib.Path) -> bool:
             f"then delete {folder}"
         )
         return False
+    for copy in journal.get("copies", []) if isinstance(journal.get("copies"), list) else []:
+        if isinstance(copy, str) and copy.endswith(tuple(f".bak{n}" for n in ("", *range(2, 100)))):
+            (out / copy).unlink(missing_ok=True)  # the user's file is back in place: its copy goes
     (folder / JOURNAL_NAME).unlink(missing_ok=True)
     if moves:
         print(f"note: a run killed while publishing into {out} was undone: {len(moves)} renames reversed")
