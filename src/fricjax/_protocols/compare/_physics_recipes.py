@@ -21,6 +21,7 @@ from ..._estimation._levenberg_marquardt import levenberg_marquardt
 from ..._estimation._record_scales import RecordScales
 from ..._estimation._solution import FitResult
 from ..._estimation._strategies import Continuation, MultiStart, ParameterScaling
+from ..._models.combine._wrapper import inner_friction, with_inner_friction, wrapper_path
 from ..._models.physics._gms import GMS
 from ..._models.physics._lugre import LuGre
 from ..._models.physics._lugre_backlash import LuGreBacklash
@@ -28,7 +29,7 @@ from ..._models.physics._maxwell_slip import MaxwellSlip
 from ..._models.physics._static import BoPavelescu
 from ..._models.physics._stribeck import ExponentialStribeck
 from ..._smoothing import Smooth
-from ._recipes import ModelSpec, friction_of, lm_recipe, with_friction, wrapper_prefix
+from ._recipes import ModelSpec, lm_recipe
 from ._records import Split, TrainingRecords
 from ._scoring import SIGNIFICANT_T, paired_validation_gain
 from ._settings import DataScales, FitSettings
@@ -122,7 +123,7 @@ def _validation_chooses(
     regression's: 3.54 / 3.68 % on the 0.25 Hz / 0.5 Hz records, from the spread one 2.59 / 2.53 %)."""
 
     def run(start: Any, split: Split | TrainingRecords, seed: int, progress: bool) -> FitResult:
-        other = with_friction(start, alternative(DataScales.from_data(split.train_records)))
+        other = with_inner_friction(start, alternative(DataScales.from_data(split.train_records)))
         results = []
         for name, begin in (("the regression's elements", start), ("elements spread to the breakaway", other)):
             result = recipe(begin, split, seed, progress)
@@ -209,9 +210,9 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         train, records = split.fit_arguments(start, drift=settings.drift != "none")
         scales = DataScales.from_data(split.train_records)
         eps = max(1e-3 * scales.dx, 1e-12)
-        prefix = wrapper_prefix(start)
+        prefix = wrapper_path(start)
         guesses = initial_guesses(
-            friction_of(start), split.train_records, smoothing=Smooth(eps), without_small_elements=True
+            inner_friction(start), split.train_records, smoothing=Smooth(eps), without_small_elements=True
         )
         count = max(SCREENED_GMS_STARTS, settings.starts)
         names = ("data-driven start", "data-driven start, its small elements replaced")
@@ -227,7 +228,7 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         multistart = MultiStart(count, spread=1.0, distribution="log-uniform", keep=SCREENED_GMS_KEEP, screen=0.0)
         results = []
         for name, begin in zip(names, guesses, strict=False):
-            result = fit(with_friction(start, begin), train, multistart=multistart, seed=seed, **lm)
+            result = fit(with_inner_friction(start, begin), train, multistart=multistart, seed=seed, **lm)
             result = dataclasses.replace(result, message=f"{name}, {count} screened starts, LM: {result.message}")
             results.append(polish(result, train, lm, eps))
         best = min(results, key=_choice_key)
@@ -236,10 +237,12 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
 
     def run(start: Any, split: Split | TrainingRecords, seed: int, progress: bool) -> FitResult:
         result = fit_from(start, split, seed, progress)
-        elements = int(np.shape(unwrap(friction_of(start)).k)[-1])
+        elements = int(np.shape(unwrap(inner_friction(start)).k)[-1])
         if settings.gms_elements != "auto" or elements <= DEFAULT_GMS_ELEMENTS:
             return result
-        fewer = with_friction(start, _gms_structure(DataScales.from_data(split.train_records), DEFAULT_GMS_ELEMENTS))
+        fewer = with_inner_friction(
+            start, _gms_structure(DataScales.from_data(split.train_records), DEFAULT_GMS_ELEMENTS)
+        )
         smaller = fit_from(fewer, split, seed, progress)
         keep, why = _significantly_better(smaller, result, split)
         chosen = result if keep else smaller

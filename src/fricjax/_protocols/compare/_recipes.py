@@ -19,7 +19,7 @@ from ..._estimation._levenberg_marquardt import levenberg_marquardt
 from ..._estimation._solution import FitResult
 from ..._estimation._strategies import MultiStart, ParameterScaling
 from ..._metrics import nmse
-from ..._models.combine._wrapper import inner_friction, with_inner_friction, wrapper_path
+from ..._models.combine._wrapper import inner_friction, wrapper_path
 from ._records import Split, TrainingRecords
 from ._scoring import SIGNIFICANT_T, VALIDATION_BLOCKS, free_run, paired_validation_gain
 from ._settings import DataScales, FitSettings
@@ -40,29 +40,14 @@ class ModelSpec:
         """The label of `model` (a start or a fitted model of this family): `{elements}` filled in."""
         if "{elements}" not in self.label:
             return self.label
-        friction = unwrap(friction_of(model)) if model is not None else None
+        friction = unwrap(inner_friction(model)) if model is not None else None
         k = getattr(friction, "k", None)
         return self.label.replace("{elements}", "?" if k is None else str(np.shape(k)[-1]))
 
 
-def wrapper_prefix(model: Any) -> str:
-    """The dotted prefix of the friction model inside its sensor / load wrappers (`"model."` for each)."""
-    return wrapper_path(model)
-
-
-def friction_of(model: Any) -> Any:
-    """The friction model inside its sensor / load wrappers (`fj.SensorDrift`, `fj.NormalLoad`)."""
-    return inner_friction(model)
-
-
-def with_friction(model: Any, friction: Any) -> Any:
-    """`model` with the friction model inside its sensor / load wrappers replaced by `friction`."""
-    return with_inner_friction(model, friction)
-
-
 def separable_paths(start: Any, paths: tuple[str, ...]) -> tuple[str, ...]:
     """The linear parameters of a (possibly wrapped) model: the friction model's, and the drift rate."""
-    prefixed = tuple(wrapper_prefix(start) + path for path in paths)
+    prefixed = tuple(wrapper_path(start) + path for path in paths)
     return (*prefixed, "rate") if getattr(start, "drifts", False) else prefixed
 
 
