@@ -1,8 +1,8 @@
 """The `fricjax` program (its console script calls `main`) and `python -m fricjax`.
 
 Its first statement makes SIGINT and SIGTERM set a flag (`_estimation._interrupts`), before the command line is
-imported: a signal at any moment after Python's own start-up (~10 ms) ends the run with exit status 130 and nothing
-written, without a traceback. Importing `fricjax` as a library changes no signal handler.
+imported: a signal at any moment after Python's start-up and these first imports (~60 ms) ends the run with exit
+status 130 and nothing written, without a traceback. Importing `fricjax` as a library changes no signal handler.
 """
 
 from ._estimation._interrupts import catch_signals
