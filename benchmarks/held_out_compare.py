@@ -116,8 +116,8 @@ def truth_started_fit(truth: fj.GMS, files: dict[str, tuple[pathlib.Path, float]
     validation losses (mean squares [N^2]), Stribeck parameters and test NMSE ratio to the true model on every
     test record. Where both fits reach the same losses but extrapolate differently, no search on this record can
     tell them apart."""
-    from fricjax._estimation._levenberg_marquardt import levenberg_marquardt
-    from fricjax._estimation._strategies import ParameterScaling
+    from fricjax._estimation.loop._levenberg_marquardt import levenberg_marquardt
+    from fricjax._estimation.loop._strategies import ParameterScaling
     from fricjax._protocols.compare._records import split_record
     from fricjax._protocols.compare._settings import DataScales
     from fricjax.compare import TestRecord, load_record_spec, predict_test_record, score_prediction

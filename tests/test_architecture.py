@@ -117,10 +117,40 @@ def test_dependencies_point_one_way():
     assert not wrong, "imports against the layering of DESIGN.md:\n" + "\n".join(sorted(wrong))
 
 
+# the estimation layer's rooms, lowest first (src/fricjax/_estimation/__init__.py): the loop and the linear algebra,
+# then what a fit minimises, then the drivers, then what runs before a fit and the families' own fitters
+ESTIMATION_ROOMS = [{"linear", "loop"}, {"problem"}, {"_fit", "_fit_arguments", "_sweep"}, {"initial", "families"}]
+
+
+def test_the_estimation_rooms_import_one_way():
+    """Inside `_estimation/`, a sub-package imports only from its own room or lower ones, never across a room of its
+    own rank (`linear` and `loop` know nothing of each other), so the folder tree is the architecture."""
+
+    def room(module: str) -> int | None:
+        parts = module.split(".")
+        if parts[:2] != ["fricjax", "_estimation"] or len(parts) < 3:
+            return None
+        for index, rooms in enumerate(ESTIMATION_ROOMS):
+            if parts[2] in rooms:
+                return index
+        raise AssertionError(f"{module} is in no room of the estimation layer; add it to ESTIMATION_ROOMS")
+
+    wrong = []
+    for module, targets in _graph(deferred=True).items():
+        mine = room(module)
+        for target in targets:
+            theirs = room(target)
+            if mine is None or theirs is None or target.split(".")[2] == module.split(".")[2]:
+                continue
+            if theirs > mine or (theirs == mine and mine != 2):
+                wrong.append(f"{module} -> {target}")
+    assert not wrong, "imports against the rooms of _estimation:\n" + "\n".join(sorted(wrong))
+
+
 def test_one_scan_over_time():
     """`lax.scan` and `lax.associative_scan` appear in the package `_simulate/` (time: every recursion along a
     record runs there, the NARX play operators and the BGBM's error filter included) and in the estimation loop
-    over optimiser steps (`_estimation/_loop.py`; the sweep driver's own until it moves there), nowhere else."""
+    over optimiser steps (`_estimation/loop/_loop.py`; the sweep driver's own until it moves there), nowhere else."""
     users = sorted(
         str(p.relative_to(PACKAGE))
         for p in PACKAGE.rglob("*.py")
@@ -128,7 +158,7 @@ def test_one_scan_over_time():
     )
     in_simulate = {user for user in users if user.startswith("_simulate/")}
     assert in_simulate, users
-    assert set(users) - in_simulate <= {"_estimation/_loop.py", "_estimation/_sweep.py"}, users
+    assert set(users) - in_simulate <= {"_estimation/loop/_loop.py", "_estimation/_sweep.py"}, users
 
 
 def test_tests_and_notebooks_import_public_names_only():

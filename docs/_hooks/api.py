@@ -62,32 +62,19 @@ SECTIONS = (
         "Fitting",
         (
             "_estimation._fit",
-            "_estimation._solution",
-            "_estimation._solvers",
-            "_estimation._levenberg_marquardt",
-            "_estimation._least_squares",
-            "_estimation._problem",
-            "_estimation._losses",
-            "_estimation._strategies",
             "_estimation._sweep",
-            "_estimation._sharding",
-            "_estimation._serialise",
+            "_estimation.loop",
+            "_estimation.problem",
+            "_data._model_files",
         ),
         "`fj.fit` and `fj.least_squares` over the one optimisation loop: `Solution` and `RESULTS`, solvers "
-        "(`AbstractSolver`, fricjax's Levenberg-Marquardt and the optax / optimistix adapters), losses and strategies, sweeps of many "
-        "configurations in one program, model files.",
+        "(`AbstractSolver`, fricjax's Levenberg-Marquardt and the optax / optimistix adapters), losses and "
+        "strategies, sweeps of many configurations in one program, model files.",
     ),
     Section(
         "linear.md",
         "Least squares and term selection",
-        (
-            "_estimation._lstsq",
-            "_estimation._covariance",
-            "_estimation._term_selection",
-            "_estimation._ensemble_fit",
-            "_estimation._polynomial_narx",
-            "_estimation",
-        ),
+        ("_estimation.linear", "_estimation.families", "_estimation"),
         "One linear-algebra kernel: least squares, covariance, forward orthogonal term selection (ERR / PRESS), "
         "and the identification functions built on it.",
     ),

@@ -125,7 +125,7 @@ def notebook_markdown(path: pathlib.Path, stem: str) -> tuple[str, dict[str, byt
                     "    This page is the notebook "
                     f"[`notebooks/{stem}.ipynb`]({stem}.ipynb) run at its smoke size (`FRICJAX_SMOKE=1`: shorter "
                     "records, fewer models and steps than the figures quoted in its text, which are measured at "
-                    "full size). Run it yourself: `pip install -e \".[notebooks]\"`, then `jupyter lab notebooks/` "
+                    'full size). Run it yourself: `pip install -e ".[notebooks]"`, then `jupyter lab notebooks/` '
                     "(unset `FRICJAX_SMOKE` for the full size).",
                     "",
                 ]

@@ -1,11 +1,11 @@
 """The `fricjax` program (its console script calls `main`) and `python -m fricjax`.
 
-Its first statement makes SIGINT and SIGTERM set a flag (`_estimation._interrupts`), before the command line is
+Its first statement makes SIGINT and SIGTERM set a flag (`_estimation.loop._interrupts`), before the command line is
 imported: a signal at any moment after Python's start-up and these first imports (~60 ms) ends the run with exit
 status 130 and nothing written, without a traceback. Importing `fricjax` as a library changes no signal handler.
 """
 
-from ._estimation._interrupts import catch_signals
+from ._estimation.loop._interrupts import catch_signals
 
 catch_signals()
 

@@ -31,7 +31,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     **Returns:** the exit status (0 success, 2 a one-line input error, 130 interrupted: Ctrl-C or SIGTERM,
     after which nothing was written to the output folder).
     """
-    from ._estimation._interrupts import check_interrupt, stop_on_signals  # no JAX: installed in milliseconds
+    from ._estimation.loop._interrupts import check_interrupt, stop_on_signals  # no JAX: installed in milliseconds
 
     # first of all, before the arguments are parsed and long before JAX loads: from here on SIGINT / SIGTERM only
     # set a flag, and the run stops at its next check (before the command starts, between models, within a fit,

@@ -11,7 +11,7 @@ Measured on the 2-core CPU of benchmarks/README.md (jaxlib 0.10.2, SciPy 1.17.1,
 JAX program with OpenBLAS's default threads, against 0.204 s and 0.254 s on one thread; beside a notebook running
 fits it took 0.35-33 s (an unrecorded run). A notebook's linear-in-parameters fits once stalled in CI far past their
 usual time (cause not established), and the kernel NARX solver already avoids two LAPACK calls at once because they
-deadlocked (`_estimation/_kernel_narx.py`). The price: a large factorisation alone on a quiet machine loses
+deadlocked (`_estimation/families/_kernel_narx.py`). The price: a large factorisation alone on a quiet machine loses
 OpenBLAS's second core (the direct kernel solve of 4 000 samples 1.04 -> 1.22 s,
 `results/kernel-blas-threads.jsonl`).
 
@@ -33,7 +33,7 @@ threads in `lapack_dgesdd_ffi -> ParallelBatchMap -> BlockingCounter::Wait`). A 
 inline on its own thread and never waits (`chunk_size >= batch_count`); jax's sources after 0.11.0 compile the
 pool path out of open-source builds (jax commit 859992407d). `thin_svd` is an SVD that stays one matrix per LAPACK
 call under any `vmap`, for code that is vmapped (`LocalModel`'s local fits); the kernel NARX solvers loop their
-factorisations with `lax.map` (no `batch_size`) for the same reason (`_estimation/_kernel_solvers.py`).
+factorisations with `lax.map` (no `batch_size`) for the same reason (`_estimation/families/_kernel_solvers.py`).
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ cores only as far as XLA's intra-op threads split its operations (little, for a 
 therefore also adds `--xla_force_host_platform_device_count=N` (N the cores this process may use, at most
 `MAX_HOST_DEVICES`, and at most the CPUs of a cgroup CPU quota, as `docker --cpus` sets; `FRICJAX_HOST_DEVICES=N`
 to choose, 1 for one device), and `fj.shard_batch` spreads a batch of
-at least `MIN_ROWS_PER_DEVICE` rows per device over them (`_estimation/_sharding.py`). A single computation runs on
+at least `MIN_ROWS_PER_DEVICE` rows per device over them (`_estimation/loop/_sharding.py`). A single computation runs on
 the first device as before. On the 2-core CPU of benchmarks/README.md: a vmap over 1024 LuGre models 5.4x a numba
 trajectory's throughput sharded over two devices against 2.5x on one; the default `fricjax compare` 38 s against 40 s.
 Left alone when `XLA_FLAGS` already sets the device count, or with `FRICJAX_KEEP_XLA_FLAGS`.

@@ -20,7 +20,7 @@ than the first: `rows_on_test`), `plot_test_records` (each model's NMSE on each;
 ```
 """
 
-from ._estimation._plausibility import implausible as implausible
+from ._estimation.loop._plausibility import implausible as implausible
 from ._protocols.compare._blackbox_recipes import linear_in_parameters_models as linear_in_parameters_models
 from ._protocols.compare._ensembles import add_ensembles as add_ensembles
 from ._protocols.compare._figures import distinct_models as distinct_models

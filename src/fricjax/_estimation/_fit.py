@@ -22,10 +22,20 @@ import numpy as np
 
 from .._smoothing import AbstractSmoothing, Smooth, exact, with_smoothing
 from ._fit_arguments import DEFAULT_SOLVER, FitState, checked_arguments
-from ._loop import Search, run_stage, start_losses, trees_equal
-from ._losses import AbstractLoss
-from ._placement import choose_device, to_device
-from ._problem import (
+from .loop._loop import Search, run_stage, start_losses, trees_equal
+from .loop._placement import choose_device, to_device
+from .loop._sharding import shard_batch
+from .loop._solution import FitFailed, Solution
+from .loop._stop_messages import scaling_hint, stopping_reason
+from .loop._strategies import (
+    AbstractStrategy,
+    Continuation,
+    FitPlan,
+    MultiStart,
+    ParameterScaling,
+)
+from .problem._losses import AbstractLoss
+from .problem._problem import (
     Problem,
     Selector,
     evaluate,
@@ -34,20 +44,10 @@ from ._problem import (
     nonnegative_mask,
     parameter_specs,
 )
-from ._records import (
+from .problem._records import (
     Nuisances,
     RecordsLoss,
     record_nuisances,
-)
-from ._sharding import shard_batch
-from ._solution import FitFailed, Solution
-from ._stop_messages import scaling_hint, stopping_reason
-from ._strategies import (
-    AbstractStrategy,
-    Continuation,
-    FitPlan,
-    MultiStart,
-    ParameterScaling,
 )
 
 __all__ = ["DEFAULT_SOLVER", "fit"]

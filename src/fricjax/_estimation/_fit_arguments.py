@@ -12,22 +12,8 @@ import optax
 
 from .._data._record import FrictionData
 from .._validation import nonnegative_float, nonnegative_int, optional, positive_int, seed_value
-from ._losses import AbstractLoss, SimulationLoss
-from ._problem import (
-    held_paths,
-    selector_items,
-    selector_paths,
-)
-from ._records import (
-    Nuisances,
-    RecordBatch,
-    RecordsLoss,
-    as_record_batch,
-    check_burn_in,
-    check_records,
-)
-from ._solvers import as_solver
-from ._strategies import (
+from .loop._solvers import as_solver
+from .loop._strategies import (
     AbstractStrategy,
     Continuation,
     EarlyStopping,
@@ -35,6 +21,20 @@ from ._strategies import (
     ParameterScaling,
     Separable,
     Tolerance,
+)
+from .problem._losses import AbstractLoss, SimulationLoss
+from .problem._problem import (
+    held_paths,
+    selector_items,
+    selector_paths,
+)
+from .problem._records import (
+    Nuisances,
+    RecordBatch,
+    RecordsLoss,
+    as_record_batch,
+    check_burn_in,
+    check_records,
 )
 
 # one object, so that repeated fits with the default solver hit the same compilation

@@ -24,12 +24,12 @@ import optax
 from .._constraints import trainable_filter
 from .._data._record import FrictionData
 from .._validation import got_model, nonnegative_int, positive_int
-from ._loop import Search, batched_losses, run_stage
-from ._losses import AbstractLoss, SimulationLoss
-from ._problem import Problem, held_paths, parameter_specs
-from ._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch, check_burn_in, check_records
-from ._sharding import shard_batch
-from ._solvers import OptaxSolver
+from .loop._loop import Search, batched_losses, run_stage
+from .loop._sharding import shard_batch
+from .loop._solvers import OptaxSolver
+from .problem._losses import AbstractLoss, SimulationLoss
+from .problem._problem import Problem, held_paths, parameter_specs
+from .problem._records import Nuisances, RecordBatch, RecordsLoss, as_record_batch, check_burn_in, check_records
 
 
 def stack_models(models: Sequence[Any]) -> Any:

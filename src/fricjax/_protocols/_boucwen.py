@@ -18,7 +18,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._data._boucwen import BoucWenRecord
-from .._estimation._losses import AbstractLoss
+from .._estimation.problem._losses import AbstractLoss
 from .._metrics import numpy_rmse, scaled_std
 from .._simulate import simulate
 from .._systems._boucwen import boucwen_inputs

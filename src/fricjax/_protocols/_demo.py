@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from .._estimation._interrupts import check_interrupt
+from .._estimation.loop._interrupts import check_interrupt
 from .._inputs import Motion
 from .._metrics import nrmse
 from .._models.physics._dahl import Dahl

@@ -32,7 +32,7 @@ import optimistix as optx
 from jaxtyping import Array, Float
 
 from .._data._emps import EMPSRecord
-from .._estimation._least_squares import least_squares
+from .._estimation.loop._least_squares import least_squares
 from .._models._base import AbstractModel
 from .._simulate import run
 from .._systems._emps import EMPSPlant, emps_open_loop_rmse_mm

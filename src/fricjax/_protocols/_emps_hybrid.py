@@ -28,11 +28,11 @@ from jaxtyping import Array, Float
 from .._data._emps import EMPSRecord
 from .._data._preprocessing import butter_filtfilt
 from .._estimation._fit import fit
-from .._estimation._levenberg_marquardt import levenberg_marquardt
-from .._estimation._lstsq import lstsq
-from .._estimation._solution import FitResult
-from .._estimation._strategies import ParameterScaling
-from .._estimation._term_selection import select_terms
+from .._estimation.linear._lstsq import lstsq
+from .._estimation.linear._term_selection import select_terms
+from .._estimation.loop._levenberg_marquardt import levenberg_marquardt
+from .._estimation.loop._solution import FitResult
+from .._estimation.loop._strategies import ParameterScaling
 from .._metrics import numpy_rmse
 from .._models.combine._hybrid import HybridFriction
 from .._smoothing import Smooth, with_smoothing

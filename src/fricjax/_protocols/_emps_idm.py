@@ -26,8 +26,8 @@ import numpy as np
 import scipy.optimize
 
 from .._data._emps import EMPSRecord
-from .._estimation._covariance import covariance
-from .._estimation._lstsq import LstsqResult, lstsq
+from .._estimation.linear._covariance import covariance
+from .._estimation.linear._lstsq import LstsqResult, lstsq
 from .._metrics import numpy_rmse
 from .._models.physics._static import AbstractStaticFriction, LawRegression
 from .._smoothing import AbstractSmoothing, Exact

@@ -44,10 +44,10 @@ from jaxtyping import Array, Float
 
 from .._data._emps import EMPSRecord
 from .._estimation._fit import fit
-from .._estimation._levenberg_marquardt import levenberg_marquardt
-from .._estimation._losses import AbstractLoss
-from .._estimation._solution import FitResult
-from .._estimation._strategies import Continuation, ParameterScaling
+from .._estimation.loop._levenberg_marquardt import levenberg_marquardt
+from .._estimation.loop._solution import FitResult
+from .._estimation.loop._strategies import Continuation, ParameterScaling
+from .._estimation.problem._losses import AbstractLoss
 from .._inputs import InputRecord
 from .._models.physics._static import AbstractStaticFriction, CoulombViscous
 from .._smoothing import Smooth, with_smoothing

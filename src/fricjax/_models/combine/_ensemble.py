@@ -15,7 +15,7 @@ signals; the ensemble `requires` their union.
   stop when none does.
 
 The fitting (`fit_weighted_ensemble`, `select_forward`) lives in the estimation layer
-(`fricjax._estimation._ensemble_fit`, on `fj.lstsq` and `fj.select_terms`), which this module does not import.
+(`fricjax._estimation.families._ensemble_fit`, on `fj.lstsq` and `fj.select_terms`), which this module does not import.
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ from .._base import AbstractFrictionModel
 
 # The deprecated `WeightedEnsemble.fit` reaches `fj.fit_weighted_ensemble` through this slot: the fitting lives in the
 # estimation layer, which this module may not import (DESIGN.md: no import runs upward); that layer's
-# `fricjax._estimation._ensemble_fit` fills the slot when it is imported, as `import fricjax` does. It goes with the
-# method once no caller is left.
+# `fricjax._estimation.families._ensemble_fit` fills the slot when it is imported, as `import fricjax` does. It goes
+# with the method once no caller is left.
 DEPRECATED_FIT: dict[str, Callable[..., Any]] = {}
 
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..._estimation._fit import fit
-from ..._estimation._solution import FitResult
+from ..._estimation.loop._solution import FitResult
 from ..._metrics import nmse
 from ..._models.combine._sensor import SensorDrift
 from ..._smoothing import Smooth
@@ -97,7 +97,7 @@ def linear_in_parameters_models(settings: FitSettings) -> dict[str, ModelSpec]:
       state of a hysteresis with non-local memory). The chosen model's coefficients are then refined by output
       error (Levenberg-Marquardt, as the physics models).
     """
-    from ..._estimation._polynomial_narx import identify_polynomial_narx
+    from ..._estimation.families._polynomial_narx import identify_polynomial_narx
     from ..._models.blackbox._regressors import NARXRegressors
 
     def drift(scales: DataScales) -> Any:
@@ -139,7 +139,7 @@ def _kernel_narx(settings: FitSettings) -> Callable[..., FitResult]:
     past force is fed back (N_AR 0 or 1). Without a fed-back force the model is linear in its weights along the
     free run, so the sensor drift (`--drift`) is then fitted with them by least squares, the validation part
     keeping it only if it predicts better."""
-    from ..._estimation._kernel_narx import identify_kernel_narx
+    from ..._estimation.families._kernel_narx import identify_kernel_narx
 
     def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
         began = time.perf_counter()
@@ -188,7 +188,7 @@ def _wavelet_network(settings: FitSettings) -> ModelSpec:
     and 20 play operators (as the neural models), the validation part choosing; then the output weights by least
     squares (with play regressors; they enter the free run linearly) and every weight by output error (NOE, as the
     neural models)."""
-    from ..._estimation._wavelet_narx import identify_wavelet_narx
+    from ..._estimation.families._wavelet_narx import identify_wavelet_narx
 
     def papers(scales: DataScales) -> Any:
         assert scales.train is not None
@@ -222,7 +222,7 @@ def _local_models(settings: FitSettings) -> Callable[..., FitResult]:
     (`identify_local_model`). Coordinates: the displacement and velocity at lags 0..(m-1) tau and, as for the
     neural models, 20 play operators of the displacement (thresholds 0.01-1 x the record's half range; the papers'
     displacement delays alone stay at 15-35 % on the mixed regime); a linear sensor drift (`--drift none`: none)."""
-    from ..._estimation._local_models import identify_local_model
+    from ..._estimation.families._local_models import identify_local_model
 
     def run(start: Any, split: Split, seed: int, progress: bool) -> FitResult:
         began = time.perf_counter()

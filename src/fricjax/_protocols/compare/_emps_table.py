@@ -12,7 +12,7 @@ import numpy as np
 from ..._constraints import parameter_unit
 from ..._data._emps import load_emps
 from ..._data._folder import data_folder
-from ..._estimation._plausibility import FS_BELOW_FC
+from ..._estimation.loop._plausibility import FS_BELOW_FC
 from ..._models.physics._static import BoPavelescu, CoulombViscous, Threlfall, Tustin
 from ..._version import fricjax_version
 from .._emps_idm import fit_emps_idm

@@ -18,7 +18,7 @@ def add_ensembles(rows: list[ModelScore], split: Split, tests: list[TestRecord] 
     """Average and least-squares-weighted ensembles (weights with intercept fitted on the validation part,
     parlitz2004 §IV-H, emps-ensemble §3.3), and the PRESS forward selection of worden2007 §7, scored on every
     test record like the single models (default: the split's test part)."""
-    from ..._estimation._ensemble_fit import fit_weighted_ensemble, select_forward
+    from ..._estimation.families._ensemble_fit import fit_weighted_ensemble, select_forward
     from ..._models.combine._ensemble import AverageEnsemble
 
     if len(rows) < 2:

@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from ..._estimation._interrupts import check_interrupt, hold_signals, on_abandon
+from ..._estimation.loop._interrupts import check_interrupt, hold_signals, on_abandon
 from ._settings import CompareError
 
 STAGING_PREFIX = ".partial-"  # the staging folders inside --out

@@ -14,13 +14,13 @@ from typing import Any
 import numpy as np
 
 from ..._constraints import unwrap
-from ..._estimation._elements import element_count, maxwell_slip_elements
 from ..._estimation._fit import fit
-from ..._estimation._initial_guess import initial_guess, initial_guesses
-from ..._estimation._levenberg_marquardt import levenberg_marquardt
-from ..._estimation._record_scales import RecordScales
-from ..._estimation._solution import FitResult
-from ..._estimation._strategies import Continuation, MultiStart, ParameterScaling
+from ..._estimation.initial._elements import element_count, maxwell_slip_elements
+from ..._estimation.initial._initial_guess import initial_guess, initial_guesses
+from ..._estimation.initial._record_scales import RecordScales
+from ..._estimation.loop._levenberg_marquardt import levenberg_marquardt
+from ..._estimation.loop._solution import FitResult
+from ..._estimation.loop._strategies import Continuation, MultiStart, ParameterScaling
 from ..._models.combine._wrapper import inner_friction, with_inner_friction, wrapper_path
 from ..._models.physics._gms import GMS
 from ..._models.physics._lugre import LuGre

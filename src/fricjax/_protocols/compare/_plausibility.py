@@ -1,5 +1,5 @@
 """The fit's advice put in the command line's terms (`command_line_advice`); what is implausible in a fitted
-physics model is `_estimation._plausibility.implausible` (`Solution.summary()` reads it too)."""
+physics model is `_estimation.loop._plausibility.implausible` (`Solution.summary()` reads it too)."""
 
 from __future__ import annotations
 

@@ -15,9 +15,9 @@ import optax
 
 from ..._constraints import unwrap
 from ..._estimation._fit import fit
-from ..._estimation._levenberg_marquardt import levenberg_marquardt
-from ..._estimation._solution import FitResult
-from ..._estimation._strategies import MultiStart, ParameterScaling
+from ..._estimation.loop._levenberg_marquardt import levenberg_marquardt
+from ..._estimation.loop._solution import FitResult
+from ..._estimation.loop._strategies import MultiStart, ParameterScaling
 from ..._metrics import nmse
 from ..._models.combine._wrapper import inner_friction, wrapper_path
 from ._records import Split, TrainingRecords

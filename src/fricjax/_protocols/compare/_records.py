@@ -221,7 +221,7 @@ class TrainingRecords:
     def validation_batch(self, model: Any) -> Any:
         """The validation records as one `fj.RecordBatch`: each training record simulated from its start with only
         its validation part scored, or the `--validation` records whole."""
-        from ..._estimation._records import RecordBatch
+        from ..._estimation.problem._records import RecordBatch
 
         requires = _signals(model)
         if self.validation:
@@ -235,7 +235,7 @@ class TrainingRecords:
     def fit_arguments(self, model: Any, drift: bool = False) -> tuple[Any, dict[str, Any]]:
         """`fj.fit`'s data and validation arguments: the train parts as a list, the validation batch, and the
         per-record nuisances (offset and initial state always; a linear drift per record with `drift`)."""
-        from ..._estimation._records import Nuisances, RecordBatch
+        from ..._estimation.problem._records import Nuisances, RecordBatch
 
         requires = _signals(model)
         train = RecordBatch.from_records(self.train_records, names=self.names, requires=requires, argument="--data")

@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from ..._estimation._interrupts import abandonable, check_interrupt
-from ..._estimation._placement import check_device, choose_device, forced_device, resolve_device
-from ..._estimation._plausibility import half_excursion, implausible
-from ..._estimation._serialise import save_model
+from ..._data._model_files import save_model
+from ..._estimation.loop._interrupts import abandonable, check_interrupt
+from ..._estimation.loop._placement import check_device, choose_device, forced_device, resolve_device
+from ..._estimation.loop._plausibility import half_excursion, implausible
 from ..._validation import nonnegative_int
 from ..._version import fricjax_version
 from ._checks import check_records_together, check_test_record, trained_on, unused_load_columns

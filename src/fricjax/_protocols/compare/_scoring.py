@@ -70,7 +70,7 @@ def predict_test_record(
     length are assumed (the tribometer's drift reaches its level at each record's end). With `init="state"` and a
     window, the record's offset and the model's initial state are fitted on the window (`fj.initialise`); otherwise
     the model runs from rest (and `score_prediction` takes the window's mean error as the offset)."""
-    from ..._estimation._initialise import initialise
+    from ..._estimation.initial._initialise import initialise
 
     drifting = getattr(model, "drifts", False)
     friction = model.without_drift() if drifting else model

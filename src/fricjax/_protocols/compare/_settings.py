@@ -10,7 +10,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..._data._record import FrictionData, concatenate
-from ..._estimation._record_scales import as_records
+from ..._estimation.initial._record_scales import as_records
 from ..._validation import nonnegative_float, positive_int
 
 

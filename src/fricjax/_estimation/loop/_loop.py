@@ -26,7 +26,7 @@ import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 
-from .._smoothing import on_host
+from ..._smoothing import on_host
 from ._interrupts import check_interrupt, interruptible
 from ._sharding import shard_batch
 from ._solution import RESULTS

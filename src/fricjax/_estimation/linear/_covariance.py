@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._smoothing import is_concrete
+from ..._smoothing import is_concrete
 from ._lstsq import _as_arrays, _column_norms, _default_rcond, _matmul, _svd
 
 

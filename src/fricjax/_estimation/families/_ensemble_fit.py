@@ -13,15 +13,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike
 
-from .._constraints import as_float_array
-from .._data._record import FrictionData
-from .._models._base import AbstractFrictionModel
-from .._models.combine._ensemble import DEPRECATED_FIT, WeightedEnsemble, _as_members
-from .._simulate import simulate
-from .._smoothing import is_concrete
-from .._validation import optional, positive_int
-from ._lstsq import lstsq
-from ._term_selection import select_terms
+from ..._constraints import as_float_array
+from ..._data._record import FrictionData
+from ..._models._base import AbstractFrictionModel
+from ..._models.combine._ensemble import DEPRECATED_FIT, WeightedEnsemble, _as_members
+from ..._simulate import simulate
+from ..._smoothing import is_concrete
+from ..._validation import optional, positive_int
+from ..linear._lstsq import lstsq
+from ..linear._term_selection import select_terms
 
 
 def fit_weights(

@@ -10,7 +10,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from .._constraints import AbstractUnwrappable
+from ..._constraints import AbstractUnwrappable
 
 
 def scaling_hint(params: Any) -> str:

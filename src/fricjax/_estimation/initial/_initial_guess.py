@@ -13,11 +13,12 @@ from typing import Any
 
 import numpy as np
 
-from .._data._record import FrictionData
-from .._metrics import scaled_std
-from .._models._base import AbstractFrictionModel
-from .._smoothing import AbstractSmoothing, Exact
-from .._validation import positive_int
+from ..._data._record import FrictionData
+from ..._metrics import scaled_std
+from ..._models._base import AbstractFrictionModel
+from ..._smoothing import AbstractSmoothing, Exact
+from ..._validation import positive_int
+from ..problem._records import RecordBatch
 from ._elements import (
     element_count,
     element_count_of,
@@ -26,7 +27,6 @@ from ._elements import (
     screen_gms_sliding_law,
 )
 from ._record_scales import RecordScales, as_records, linkage_gap
-from ._records import RecordBatch
 
 
 def initial_guess(

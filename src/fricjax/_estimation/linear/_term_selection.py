@@ -14,8 +14,8 @@ from typing import Literal, NamedTuple
 import numpy as np
 from jaxtyping import ArrayLike, Float
 
-from .._smoothing import is_concrete
-from .._validation import positive_int
+from ..._smoothing import is_concrete
+from ..._validation import positive_int
 from ._lstsq import _as_arrays, lstsq
 
 

@@ -37,8 +37,8 @@ import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 
-from .._lapack_threads import thin_svd
-from .._validation import nonnegative_float
+from ..._lapack_threads import thin_svd
+from ..._validation import nonnegative_float
 from ._solution import RESULTS
 from ._solvers import AbstractHostSolver, tree_finite
 

@@ -23,9 +23,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._constraints import AbstractUnwrappable, Positive
-from .._smoothing import AbstractSmoothing, Smooth, is_concrete, on_host, with_smoothing
-from .._validation import nonnegative_float, positive_float, positive_int
+from ..._constraints import AbstractUnwrappable, Positive
+from ..._smoothing import AbstractSmoothing, Smooth, is_concrete, on_host, with_smoothing
+from ..._validation import nonnegative_float, positive_float, positive_int
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,9 +12,9 @@ from typing import Any
 import equinox as eqx
 import numpy as np
 
-from .._constraints import PARAMETER_UNITS as PARAMETER_UNITS
-from .._constraints import parameter_arrays, parameter_line, parameter_units, unwrap
-from .._smoothing import exact
+from ..._constraints import PARAMETER_UNITS as PARAMETER_UNITS
+from ..._constraints import parameter_arrays, parameter_line, parameter_units, unwrap
+from ..._smoothing import exact
 from ._plausibility import implausible
 
 

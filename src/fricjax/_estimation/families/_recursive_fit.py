@@ -20,11 +20,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._data._record import FrictionData
-from .._simulate import simulate
-from .._systems._recursive import RecursiveLeastSquares, RegressionData
-from ._problem import _where
-from ._solution import Solution
+from ..._data._record import FrictionData
+from ..._simulate import simulate
+from ..._systems._recursive import RecursiveLeastSquares, RegressionData
+from ..loop._solution import Solution
+from ..problem._problem import _where
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

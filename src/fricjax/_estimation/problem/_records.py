@@ -23,14 +23,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._constraints import unwrap
-from .._data._record import FrictionData
-from .._inputs import Motion
-from .._metrics import scaled_std
-from .._models._base import AbstractModel, feeds_back
-from .._simulate import check_force_shape, run
-from .._smoothing import is_concrete
-from .._validation import got_model, same_sample_time
+from ..._constraints import unwrap
+from ..._data._record import FrictionData
+from ..._inputs import Motion
+from ..._metrics import scaled_std
+from ..._models._base import AbstractModel, feeds_back
+from ..._simulate import check_force_shape, run
+from ..._smoothing import is_concrete
+from ..._validation import got_model, same_sample_time
 from ._losses import AbstractLoss, JacobianGroups, OneStepLoss, leading_groups
 
 __all__ = [

@@ -18,15 +18,15 @@ from typing import Any, Literal
 import equinox as eqx
 import numpy as np
 
-from .._constraints import unwrap
-from .._models.blackbox._regressors import NARXRegressors
-from .._models.blackbox._wavelet import WaveletNARX
-from .._smoothing import AbstractSmoothing
-from .._validation import nonnegative_int, optional, positive_int
-from ._lstsq import LstsqResult, lstsq
-from ._regressor_rows import teacher_forced_rows
-from ._solution import Solution
-from ._term_selection import TermSelection, select_terms
+from ..._constraints import unwrap
+from ..._models.blackbox._regressors import NARXRegressors
+from ..._models.blackbox._wavelet import WaveletNARX
+from ..._smoothing import AbstractSmoothing
+from ..._validation import nonnegative_int, optional, positive_int
+from ..linear._lstsq import LstsqResult, lstsq
+from ..linear._regressor_rows import teacher_forced_rows
+from ..linear._term_selection import TermSelection, select_terms
+from ..loop._solution import Solution
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

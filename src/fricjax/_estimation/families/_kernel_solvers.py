@@ -23,12 +23,12 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 
-from .._constraints import unwrap
-from .._data._record import FrictionData
-from .._models.blackbox._kernel import AbstractKernel, ExponentialKernel, KernelNARX, PolynomialKernel
-from .._models.blackbox._regressors import NARXRegressors
-from .._validation import nonnegative_int
-from ._regressor_rows import teacher_forced_rows
+from ..._constraints import unwrap
+from ..._data._record import FrictionData
+from ..._models.blackbox._kernel import AbstractKernel, ExponentialKernel, KernelNARX, PolynomialKernel
+from ..._models.blackbox._regressors import NARXRegressors
+from ..._validation import nonnegative_int
+from ..linear._regressor_rows import teacher_forced_rows
 
 # the memory [bytes] of one block of kernel rows in the matrix-free products
 _BLOCK_BYTES = 2**25

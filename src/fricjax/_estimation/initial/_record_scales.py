@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from .._data._record import FrictionData
-from ._records import RecordBatch
+from ..._data._record import FrictionData
+from ..problem._records import RecordBatch
 
 
 @dataclasses.dataclass(frozen=True)

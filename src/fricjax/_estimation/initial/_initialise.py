@@ -16,12 +16,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from .._constraints import unwrap
-from .._data._record import FrictionData
-from .._inputs import Motion
-from .._models._base import AbstractModel
-from ._losses import SimulationLoss
-from ._records import Nuisances, RecordBatch, RecordExtra, RecordsLoss, record_nmse
+from ..._constraints import unwrap
+from ..._data._record import FrictionData
+from ..._inputs import Motion
+from ..._models._base import AbstractModel
+from ..problem._losses import SimulationLoss
+from ..problem._records import Nuisances, RecordBatch, RecordExtra, RecordsLoss, record_nmse
 
 __all__ = ["Initialisation", "initialise"]
 
@@ -42,7 +42,7 @@ class Initialisation:
     def predict(self, model: Any, motion: Motion) -> np.ndarray:
         """The record's force as `model` predicts it from these nuisances: the free run from `state0` plus the
         offset and drift [N] (NumPy, over the whole `motion`)."""
-        from .._simulate import simulate
+        from ..._simulate import simulate
 
         force = np.asarray(simulate(model, motion, self.state0), dtype=float)
         t = np.arange(force.shape[-1]) * float(np.asarray(motion.dt)) if self.drift else 0.0

@@ -19,17 +19,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._constraints import Fixed
-from .._data._record import FrictionData
-from .._metrics import numpy_nmse
-from .._models.blackbox._local import KINDS, LocalModel, delay_columns
-from .._models.blackbox._regressors import PlayOperators
-from .._models.combine._sensor import SensorDrift
-from .._simulate import simulate
-from .._validation import integer, integers
-from ._regressor_rows import play_states, teacher_forced_rows
-from ._solution import Solution
-from ._sweep import stack_models
+from ..._constraints import Fixed
+from ..._data._record import FrictionData
+from ..._metrics import numpy_nmse
+from ..._models.blackbox._local import KINDS, LocalModel, delay_columns
+from ..._models.blackbox._regressors import PlayOperators
+from ..._models.combine._sensor import SensorDrift
+from ..._simulate import simulate
+from ..._validation import integer, integers
+from .._sweep import stack_models
+from ..linear._regressor_rows import play_states, teacher_forced_rows
+from ..loop._solution import Solution
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

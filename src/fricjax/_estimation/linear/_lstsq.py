@@ -24,8 +24,8 @@ import numpy as np
 import scipy.optimize
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from .._lapack_threads import thin_svd
-from .._smoothing import is_concrete
+from ..._lapack_threads import thin_svd
+from ..._smoothing import is_concrete
 
 # ----------------------------------------------------------------------------------------------------------------
 # shared pieces: dispatch, checks, column scaling, the truncated / damped SVD solve

@@ -9,10 +9,10 @@ from typing import Any
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._constraints import unwrap
-from .._inputs import MotionSample
-from .._models.blackbox._regressors import NARXRegressors, PlayOperators
-from .._simulate import run
+from ..._constraints import unwrap
+from ..._inputs import MotionSample
+from ..._models.blackbox._regressors import NARXRegressors, PlayOperators
+from ..._simulate import run
 
 
 def play_states(operators: PlayOperators, samples: MotionSample) -> Float[Array, "T K"] | None:

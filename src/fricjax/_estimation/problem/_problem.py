@@ -15,17 +15,17 @@ import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 
-from .._constraints import AbstractUnwrappable, Fixed, trainable_filter, unwrap
-from .._data._record import FrictionData
-from .._metrics import scaled_std
-from .._simulate import run, simulate
-from .._smoothing import on_host
-from ._covariance import parameter_std
+from ..._constraints import AbstractUnwrappable, Fixed, trainable_filter, unwrap
+from ..._data._record import FrictionData
+from ..._metrics import scaled_std
+from ..._simulate import run, simulate
+from ..._smoothing import on_host
+from ..linear._covariance import parameter_std
+from ..linear._lstsq import lstsq
+from ..loop._solvers import dense_gauss_newton
+from ..loop._strategies import submodels, where_from_path
 from ._losses import AbstractLoss, SimulationLoss
-from ._lstsq import lstsq
 from ._records import RecordsLoss
-from ._solvers import dense_gauss_newton
-from ._strategies import submodels, where_from_path
 
 # ----------------------------------------------------------------------------------------------------------------
 # parameter selection

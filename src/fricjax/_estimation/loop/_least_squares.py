@@ -17,7 +17,7 @@ import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 
-from .._validation import positive_int
+from ..._validation import positive_int
 from ._levenberg_marquardt import levenberg_marquardt
 from ._loop import Search, run_stage
 from ._solution import FitFailed, Solution

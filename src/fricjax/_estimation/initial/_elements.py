@@ -12,13 +12,15 @@ from typing import Any
 import equinox as eqx
 import numpy as np
 
-from .._constraints import unwrap
-from .._data._record import FrictionData
-from .._models.physics._gms import GMS
-from .._models.physics._maxwell_slip import MaxwellSlip, SpringForces
-from .._models.physics._stribeck import ExponentialStribeck
-from .._simulate import simulate
-from .._validation import nonnegative_float, positive_int
+from ..._constraints import unwrap
+from ..._data._record import FrictionData
+from ..._models.physics._gms import GMS
+from ..._models.physics._maxwell_slip import MaxwellSlip, SpringForces
+from ..._models.physics._stribeck import ExponentialStribeck
+from ..._simulate import simulate
+from ..._validation import nonnegative_float, positive_int
+from .._sweep import stack_models
+from ..problem._records import padded_record
 from ._record_scales import (
     RecordScales,
     as_records,
@@ -28,8 +30,6 @@ from ._record_scales import (
     record_of_each_sample,
     with_viscous_slope,
 )
-from ._records import padded_record
-from ._sweep import stack_models
 
 _SIMULATE_EACH = eqx.filter_jit(eqx.filter_vmap(simulate, in_axes=(0, None)))  # a batch of models, one record
 

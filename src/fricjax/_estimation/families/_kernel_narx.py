@@ -35,17 +35,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._constraints import unwrap
-from .._data._record import FrictionData
-from .._metrics import numpy_nmse
-from .._models.blackbox._kernel import ExponentialKernel, KernelNARX
-from .._models.blackbox._regressors import NARXRegressors
-from .._simulate import simulate
-from .._smoothing import AbstractSmoothing
-from .._validation import integer as check_integer
-from .._validation import is_integer, optional, positive_float, positive_int
+from ..._constraints import unwrap
+from ..._data._record import FrictionData
+from ..._metrics import numpy_nmse
+from ..._models.blackbox._kernel import ExponentialKernel, KernelNARX
+from ..._models.blackbox._regressors import NARXRegressors
+from ..._simulate import simulate
+from ..._smoothing import AbstractSmoothing
+from ..._validation import integer as check_integer
+from ..._validation import is_integer, optional, positive_float, positive_int
+from ..loop._solution import Solution
 from ._kernel_solvers import _block, _gram_times_jit, _kernel, _Rows, _solve, _Solved
-from ._solution import Solution
 
 KERNELS = ("polynomial", "exponential")
 SOLVERS = ("direct", "cg", "nystrom")

@@ -17,12 +17,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._constraints import unwrap
-from .._data._record import FrictionData
-from .._metrics import scaled_std
-from .._models._base import feeds_back
-from .._simulate import check_options, run, split_time_signals
-from .._validation import integer, nonnegative_float, nonnegative_int
+from ..._constraints import unwrap
+from ..._data._record import FrictionData
+from ..._metrics import scaled_std
+from ..._models._base import feeds_back
+from ..._simulate import check_options, run, split_time_signals
+from ..._validation import integer, nonnegative_float, nonnegative_int
 
 
 class JacobianGroups(NamedTuple):

@@ -18,11 +18,11 @@ from typing import Any
 import equinox as eqx
 import jax
 
-from .._constraints import unwrap
-from .._data._record import FrictionData
-from .._models._base import AbstractModel
-from .._simulate import on_accelerator
-from .._simulate._parallel import has_parallel_form
+from ..._constraints import unwrap
+from ..._data._record import FrictionData
+from ..._models._base import AbstractModel
+from ..._simulate import on_accelerator
+from ..._simulate._parallel import has_parallel_form
 
 DEVICES = ("auto", "cpu", "gpu", "accelerator")  # "gpu": the accelerator, by its usual name
 # `device="auto"` keeps a single fit on the accelerator from this many samples on when the model has a

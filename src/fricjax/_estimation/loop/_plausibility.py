@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from .._constraints import unwrap
-from .._models._base import FS_BELOW_FC, NEGLIGIBLE
+from ..._constraints import unwrap
+from ..._models._base import FS_BELOW_FC, NEGLIGIBLE
 
 __all__ = ["FS_BELOW_FC", "NEGLIGIBLE", "half_excursion", "implausible"]
 

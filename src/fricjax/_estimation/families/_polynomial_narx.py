@@ -13,15 +13,15 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .._constraints import unwrap
-from .._data._record import FrictionData
-from .._models.blackbox._polynomial import PolynomialNARX, Terms, evaluate_monomials, monomial_terms
-from .._models.blackbox._regressors import NARXRegressors
-from .._models.combine._sensor import SensorDrift
-from .._validation import is_real, nonnegative_int, positive_int
-from ._regressor_rows import teacher_forced_rows
-from ._solution import Solution
-from ._term_selection import TermSelection, select_terms
+from ..._constraints import unwrap
+from ..._data._record import FrictionData
+from ..._models.blackbox._polynomial import PolynomialNARX, Terms, evaluate_monomials, monomial_terms
+from ..._models.blackbox._regressors import NARXRegressors
+from ..._models.combine._sensor import SensorDrift
+from ..._validation import is_real, nonnegative_int, positive_int
+from ..linear._regressor_rows import teacher_forced_rows
+from ..linear._term_selection import TermSelection, select_terms
+from ..loop._solution import Solution
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
