@@ -300,7 +300,7 @@ def test_a_sweep_over_several_records_holds_what_fit_holds():
     swept = fj.sweep([start], records[:2], steps=40, learning_rate=1e-2, validation=records[2])
     alone = fj.fit(start, records[:2], solver=optax.adam(1e-2), steps=40)
     np.testing.assert_allclose(swept.train_loss[0], alone.train_loss, rtol=1e-6)
-    assert float(np.asarray(fj.unwrap(swept.models).z0)[0]) == 0.0 and np.isfinite(swept.val_loss[0])
+    assert float(np.asarray(fj.unwrap(swept.model).z0)[0]) == 0.0 and np.isfinite(swept.val_loss[0])
     with pytest.raises(TypeError, match=r"cannot take one learning rate per configuration .*optax.lbfgs"):
         fj.sweep([_start(), _start()], _record(), optimiser=optax.lbfgs, steps=2)
 

@@ -206,7 +206,7 @@ def test_identification_recovers_a_known_model(record):
     _, motion, clean, _ = record
     result = fj.identify_polynomial_narx(fj.FrictionData(motion, clean), regressors=regressors(), degree=3)
     assert isinstance(result, fj.Solution) and result.code == "successful" and "7 of 83" in result.message
-    assert result.summary().startswith("PolynomialNARXResult: successful")
+    assert result.summary().startswith("Solution (PolynomialNARXSelection): successful")
     assert len(result.candidates) == 83
     model = result.model
     assert sorted(model.terms) == sorted(TERMS), model.describe()

@@ -60,11 +60,11 @@ def test_sweep_equals_each_configuration_alone():
     ]
     models = [fj.MLPNARX.init(reg, 4, key=jax.random.PRNGKey(seed)) for reg, seed, _ in configs]
     result = fj.sweep(models, data, loss=loss, learning_rate=[rate for *_, rate in configs], steps=STEPS, checks=4)
-    assert result.train_loss.shape == (3,) and not result.diverged.any()
+    assert result.train_loss.shape == (3,) and "diverged" not in result.codes
     assert result.history["train_loss"].shape == (4, 3)
     for i, (model, (*_, rate)) in enumerate(zip(models, configs, strict=True)):
         reference = alone(model, data, loss, rate)
-        np.testing.assert_allclose(result.model(i).W, reference.W, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(result[i].model.W, reference.W, rtol=1e-9, atol=1e-12)
         assert result.train_loss[i] == pytest.approx(float(loss(reference, None, data)), rel=1e-9)
         assert result.train_loss[i] < float(loss(model, None, data))
 
@@ -102,10 +102,10 @@ def test_masked_configuration_trains_like_the_smaller_model():
     result = fj.sweep([full, masked], data, loss=loss, learning_rate=1e-2, steps=STEPS)
     trained_small = alone(small, data, loss, 1e-2)
     np.testing.assert_allclose(
-        fj.simulate(result.model(1), data.motion), fj.simulate(trained_small, data.motion), rtol=1e-8, atol=1e-10
+        fj.simulate(result[1].model, data.motion), fj.simulate(trained_small, data.motion), rtol=1e-8, atol=1e-10
     )
-    np.testing.assert_allclose(np.asarray(result.model(1).W)[:3][:, keep], trained_small.W, rtol=1e-8, atol=1e-10)
-    np.testing.assert_array_equal(np.asarray(result.model(1).W)[3:], np.asarray(full.W)[3:])  # masked units untouched
+    np.testing.assert_allclose(np.asarray(result[1].model.W)[:3][:, keep], trained_small.W, rtol=1e-8, atol=1e-10)
+    np.testing.assert_array_equal(np.asarray(result[1].model.W)[3:], np.asarray(full.W)[3:])  # masked units untouched
 
 
 @pytest.mark.slow  # about 3 s
@@ -114,10 +114,10 @@ def test_sweep_keeps_finite_parameters_when_a_configuration_diverges():
     models = [fj.GSNN.init(regressors(data), 2, key=jax.random.PRNGKey(s)) for s in (0, 1)]
     result = fj.sweep(models, data, learning_rate=[1e-2, 1e6], steps=4, validation=data, validation_burn_in=10)
     for i in range(2):
-        leaves = jax.tree_util.tree_leaves(eqx.filter(result.model(i), eqx.is_inexact_array))
+        leaves = jax.tree_util.tree_leaves(eqx.filter(result[i].model, eqx.is_inexact_array))
         assert all(np.all(np.isfinite(np.asarray(leaf))) for leaf in leaves)
     assert np.isfinite(result.train_loss[0]) and np.isfinite(result.val_loss[0])
-    assert result.best == 0
+    assert result.best_configuration == 0 and result.codes == ("max_steps", "diverged"), result.codes
 
 
 @pytest.mark.slow  # fast tier trimmed (2026-11-27): an error message

@@ -26,6 +26,7 @@ from .._data._record import FrictionData
 from .._validation import got_model, nonnegative_int, positive_int
 from .loop._loop import Search, batched_losses, run_stage
 from .loop._sharding import shard_batch
+from .loop._solution import RESULTS, Solution
 from .loop._solvers import OptaxSolver
 from .problem._losses import AbstractLoss, SimulationLoss
 from .problem._problem import Problem, held_paths, parameter_specs
@@ -116,32 +117,6 @@ def _same(a: Any, b: Any) -> bool:
         return True
 
 
-@dataclasses.dataclass(frozen=True)
-class SweepResult:
-    """The outcome of `fj.sweep`: `models` (stacked, leading axis B: index with `result.model(i)`), each
-    configuration where its training loss was lowest, its start and each check (so never worse than its start),
-    `train_loss` and `val_loss` (B,) of the returned models, `history` (`step`, `train_loss` of shape (checks, B):
-    the loss after each check), `diverged` (B,) bools (a configuration whose loss became non-finite: it keeps its
-    best finite parameters), and `wall_time` [s] (compilation included)."""
-
-    models: Any
-    train_loss: np.ndarray
-    val_loss: np.ndarray
-    history: dict[str, np.ndarray]
-    diverged: np.ndarray
-    wall_time: float
-
-    def model(self, i: int) -> Any:
-        """Configuration `i` as an ordinary (unbatched) model."""
-        return jax.tree_util.tree_map(lambda leaf: leaf[i] if eqx.is_array(leaf) else leaf, self.models)
-
-    @property
-    def best(self) -> int:
-        """The index with the lowest validation loss (training loss when no validation data was given)."""
-        scores = self.val_loss if np.isfinite(self.val_loss).any() else self.train_loss
-        return int(np.nanargmin(np.where(np.isfinite(scores), scores, np.nan)))
-
-
 def sweep(
     models: Any,
     data: Any,
@@ -155,7 +130,7 @@ def sweep(
     checks: int = 10,
     progress: bool = False,
     nuisances: Nuisances | None = None,
-) -> SweepResult:
+) -> Solution:
     """Train a batch of configurations side by side in one vmap-ed, jit-compiled program.
 
     **Arguments:**
@@ -173,7 +148,12 @@ def sweep(
     With several local devices the configurations are sharded over them (`fj.shard_batch`: as many devices as
     divide the batch); the results are those of one device.
 
-    **Returns:** a `SweepResult`.
+    **Returns:** one batched `fj.Solution`: `model` the stacked configurations (`solution[i]` is configuration
+    `i`'s own `Solution`, its model unbatched), each where its training loss was lowest (its start and each check:
+    never worse than its start); `train_loss`, `val_loss` `(B,)` of the returned models; `history` (`step`, and
+    `train_loss` of shape `(checks, B)`: the loss after each check); `result` per configuration, `max_steps` (a sweep
+    runs its `steps`; no convergence test) or `diverged` (its loss became non-finite: it keeps its best finite
+    parameters), named by `codes`; `best_configuration`; `wall_time` [s] (compilation included).
 
     ```python
     >>> import jax, numpy as np, fricjax as fj
@@ -278,13 +258,21 @@ def sweep(
     val_loss = np.full(count, np.nan)
     if validation is not None:
         val_loss = np.asarray(_batch_loss(trained, val_loss_fn, None, validation))
-    return SweepResult(
-        models=trained,
+    diverged = np.asarray(search.diverged, dtype=bool)
+    bad = int(diverged.sum())
+    outcome = f"{bad} of {count} diverged (each kept its best finite parameters); " if bad else ""
+    return Solution(
+        model=trained,
+        result=jax.vmap(lambda bad: RESULTS.where(bad, RESULTS.diverged, RESULTS.max_steps))(jnp.asarray(diverged)),
+        message=f"{outcome}each configuration ran {steps} optimiser steps (a sweep has no convergence test) and is "
+        "returned at its lowest training loss",
+        history={"step": np.asarray(search.history["step"]), "train_loss": np.asarray(search.history["train_loss"])},
         train_loss=train_loss,
         val_loss=val_loss,
-        history={"step": np.asarray(search.history["step"]), "train_loss": np.asarray(search.history["train_loss"])},
-        diverged=search.diverged,
+        exact_val_loss=np.full(count, np.nan),
+        evaluations=steps,
         wall_time=time.perf_counter() - start_time,
+        num_starts=count,
     )
 
 

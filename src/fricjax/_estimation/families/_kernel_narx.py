@@ -26,7 +26,6 @@ when two run at once, as a QR's orthogonal factor and the eigendecomposition tha
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from typing import Any, Literal, NamedTuple
 
@@ -71,11 +70,10 @@ class KernelNARXCandidate(NamedTuple):
     free_run_nmse: float
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class KernelNARXResult(Solution):
-    """A `fj.Solution` (result code, message, `summary()`) of `identify_kernel_narx`, with:
+class KernelNARXSearch(eqx.Module):
+    """What `identify_kernel_narx` returns besides the model, as its `fj.Solution`'s typed `aux` (the fields read
+    through: `solution.ridge` is `solution.aux.ridge`):
 
-    - `model`: the identified `fj.KernelNARX` (the chosen candidate).
     - `ridge`: its ridge (regularisation) parameter rho.
     - `train_nmse`: NMSE [%] of its one-step prediction on the training rows.
     - `validation_nmse`: NMSE [%] of its free run on the validation part (NaN without validation).
@@ -113,7 +111,7 @@ def identify_kernel_narx(
     max_steps: int = 1000,
     block_size: int | None = None,
     seed: int = 0,
-) -> KernelNARXResult:
+) -> Solution:
     """Identify a kernel Volterra series or kernel NARX model (`fj.KernelNARX`) by kernel ridge regression.
 
     The kernel-method paper §2-3: the regressor rows `phi_k` of the record under teacher forcing (normalised lags
@@ -162,7 +160,8 @@ def identify_kernel_narx(
     - `block_size`: rows per block of the kernel matvec (default: blocks of about 32 MB).
     - `seed`: for the random landmarks.
 
-    **Returns:** a `KernelNARXResult(model, ridge, train_nmse, validation_nmse, candidates, solver_steps)`.
+    **Returns:** a `fj.Solution`: its `model` is the identified `fj.KernelNARX` (the chosen candidate); its `aux` a
+    `KernelNARXSearch` (ridge, train_nmse, validation_nmse, candidates, solver_steps).
 
     ```python
     >>> import numpy as np, fricjax as fj
@@ -287,17 +286,19 @@ def identify_kernel_narx(
         measured = np.asarray(validation.force, np.float64)[validation_burn_in:]
         score = float(numpy_nmse(measured, prediction))  # scaled before squaring: forces of 1e200 N score too
         candidate = candidates[chosen] = candidate._replace(free_run_nmse=score if np.isfinite(score) else np.inf)
-    return KernelNARXResult(
+    return Solution(
         model=model,
         message=f"the candidate with the lowest validation score of {len(candidates)} (ridge {candidate.ridge:g}); "
         "its coefficients by regularised least squares",
         train_loss=train_nmse / 100.0,
         val_loss=candidate.free_run_nmse / 100.0,
-        ridge=candidate.ridge,
-        train_nmse=train_nmse,
-        validation_nmse=candidate.free_run_nmse,
-        candidates=tuple(candidates),
-        solver_steps=steps,
+        aux=KernelNARXSearch(
+            ridge=candidate.ridge,
+            train_nmse=train_nmse,
+            validation_nmse=candidate.free_run_nmse,
+            candidates=tuple(candidates),
+            solver_steps=steps,
+        ),
     )
 
 

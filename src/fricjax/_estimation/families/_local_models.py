@@ -10,7 +10,6 @@ local model "is unable to extrapolate the trend in the force time series"; their
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from typing import Any, Literal
 
@@ -32,12 +31,10 @@ from ..linear._regressor_rows import play_states, teacher_forced_rows
 from ..loop._solution import Solution
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class LocalModelResult(Solution):
-    """A `fj.Solution` (result code, message, `summary()`) of `identify_local_model`, with:
+class LocalModelSearch(eqx.Module):
+    """What `identify_local_model` returns besides the model, as its `fj.Solution`'s typed `aux` (the fields read
+    through: `solution.scores` is `solution.aux.scores`):
 
-    - `model`: the best `LocalModel`, its training set the whole training record (from `burn_in` on); with
-      `drift=True` wrapped in `fj.SensorDrift(model, rate)` (the local model then holds the detrended forces).
     - `scores`: the validation free-run NMSE [%] of every configuration, shape
       `(len(embedding), len(delay), len(neighbours))` (`inf` where the prediction was not finite).
     - `rates`: the fitted drift rates [N/s], same shape (zeros without `drift`).
@@ -70,7 +67,7 @@ def identify_local_model(
     plays: Any = None,
     drift: bool = False,
     burn_in: int | None = None,
-) -> LocalModelResult:
+) -> Solution:
     """Identify a local model (`fj.LocalModel`, parlitz2004 §III-F) by a grid search scored on a validation record.
 
     1. Training set: the record `data`'s delay vectors (`LocalModel.from_data`: each of `signals` at lags
@@ -107,7 +104,9 @@ def identify_local_model(
     - `drift`: fit the sensor drift (returns `fj.SensorDrift(local_model, rate)`).
     - `burn_in`: training samples not used as points (default: the grid's largest lag).
 
-    **Returns:** a `LocalModelResult(model, scores, rates, embedding, delay, neighbours, best)`.
+    **Returns:** a `fj.Solution`: its `model` is the best `LocalModel`, its training set the whole training record
+    (from `burn_in` on); with `drift=True` wrapped in `fj.SensorDrift(model, rate)` (the local model then holds the
+    detrended forces); its `aux` a `LocalModelSearch` (scores, rates, embedding, delay, neighbours, best).
 
     ```python
     >>> import numpy as np, fricjax as fj
@@ -231,17 +230,19 @@ def identify_local_model(
     )
     if drift:
         model = SensorDrift(model, rate)
-    return LocalModelResult(
+    return Solution(
         model=model,
         message=f"(embedding, delay, neighbours) = {best}: the lowest validation free-run NMSE of {scores.size} "
         "configurations",
         val_loss=float(scores[i, j, l]) / 100.0,
-        scores=scores,
-        rates=rates,
-        embedding=grids["embedding"],
-        delay=grids["delay"],
-        neighbours=grids["neighbours"],
-        best=best,
+        aux=LocalModelSearch(
+            scores=scores,
+            rates=rates,
+            embedding=grids["embedding"],
+            delay=grids["delay"],
+            neighbours=grids["neighbours"],
+            best=best,
+        ),
     )
 
 

@@ -7,10 +7,10 @@ implementation of the package), and the coefficients are their least-squares sol
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from typing import Any, Literal
 
+import equinox as eqx
 import numpy as np
 
 from ..._constraints import unwrap
@@ -24,12 +24,10 @@ from ..linear._term_selection import TermSelection, select_terms
 from ..loop._solution import Solution
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class PolynomialNARXResult(Solution):
-    """A `fj.Solution` (result code, message, `summary()`) of `identify_polynomial_narx`, with:
+class PolynomialNARXSelection(eqx.Module):
+    """What `identify_polynomial_narx` returns besides the model, as its `fj.Solution`'s typed `aux` (the fields read
+    through: `solution.selection` is `solution.aux.selection`):
 
-    - `model`: the identified `PolynomialNARX` (its terms in the order they were selected), wrapped in
-      `fj.SensorDrift` when a `drift` was identified with it.
     - `selection`: the `TermSelection` of `select_terms` (ERR of each term, PRESS and RSS traces, ...); its
       `indices` index `candidates`.
     - `candidates`: every candidate monomial, as exponent tuples over the regressor vector.
@@ -52,7 +50,7 @@ def identify_polynomial_narx(
     regressors: NARXRegressors | None = None,
     burn_in: int | None = None,
     drift: Literal["linear"] | float | None = None,
-) -> PolynomialNARXResult:
+) -> Solution:
     """Identify a polynomial NARX model (`fj.PolynomialNARX`) from a record by FROLS term selection.
 
     1. Regressors: `x_k = [u_k, ..., u_{k-n_u}, F_{k-1}, ..., F_{k-n_y}]`, the input `signals` and the
@@ -90,7 +88,9 @@ def identify_polynomial_narx(
     - `drift`: `None` (default: no sensor drift), `"linear"`, or the leaky integrator's time constant `tau` [s]
       (e.g. the record's duration).
 
-    **Returns:** a `PolynomialNARXResult(model, selection, candidates)`.
+    **Returns:** a `fj.Solution`: its `model` is the identified `PolynomialNARX` (its terms in the order they were
+    selected), wrapped in `fj.SensorDrift` when a `drift` was identified with it; its `aux` a
+    `PolynomialNARXSelection` (selection, candidates).
 
     ```python
     >>> import numpy as np, fricjax as fj
@@ -158,10 +158,12 @@ def identify_polynomial_narx(
     model: PolynomialNARX | SensorDrift = PolynomialNARX(regressors, terms, selection.coefficients, selection.intercept)
     if drift is not None:
         model = SensorDrift(model, float(selection.fixed_coefficients[0]), tau)
-    return PolynomialNARXResult(
+    return Solution(
         model=model,
         message=f"{len(terms)} of {len(candidates)} candidate terms chosen by forward orthogonal regression "
         f"({criterion}); coefficients by least squares",
-        selection=selection,
-        candidates=candidates,
+        aux=PolynomialNARXSelection(
+            selection=selection,
+            candidates=candidates,
+        ),
     )

@@ -11,7 +11,6 @@ temperature). With forgetting 1 the final estimate is the batch least-squares on
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
@@ -27,10 +26,10 @@ from ..loop._solution import Solution
 from ..problem._problem import _where
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class RecursiveFitResult(Solution):
-    """A `fj.Solution` (result code, message, `summary()`) of `recursive_fit`, with: `model` with the final
-    estimate; `theta` `(T, P)`, the estimate after every sample (flattened in tree order of the selected fields);
+class RecursiveFitTrace(eqx.Module):
+    """What `recursive_fit` returns besides the model, as its `fj.Solution`'s typed `aux` (the fields read
+    through: `solution.theta` is `solution.aux.theta`; the solution's `model` holds the final estimate): `theta`
+    `(T, P)`, the estimate after every sample (flattened in tree order of the selected fields);
     `prediction` `(T,)` [N], the a-priori one-step prediction of the force (with the estimate before the sample);
     `regression`, the `fj.RegressionData`."""
 
@@ -48,7 +47,7 @@ def recursive_fit(
     p0: float = 1e4,
     method: str = "ud",
     one_step: bool = False,
-) -> RecursiveFitResult:
+) -> Solution:
     """Estimate the parameters of `model` selected by `linear` (dotted paths, e.g. `"force_map.theta"`, or
     `where` callables; they must enter the force linearly) online along `data`, by recursive least squares.
 
@@ -101,10 +100,12 @@ def recursive_fit(
     out = simulate(estimator, regression)
     theta = out["theta"]
     fitted = eqx.combine(unravel(theta[-1]), rest)
-    return RecursiveFitResult(
+    return Solution(
         model=fitted,
         message=f"recursive least squares ({method}) over {data.length} samples; the model holds the final estimate",
-        theta=np.asarray(theta),
-        prediction=np.asarray(out["prediction"] + f0),
-        regression=regression,
+        aux=RecursiveFitTrace(
+            theta=np.asarray(theta),
+            prediction=np.asarray(out["prediction"] + f0),
+            regression=regression,
+        ),
     )

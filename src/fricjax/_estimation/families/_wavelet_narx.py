@@ -11,7 +11,6 @@ loss=fj.SimulationLoss())` (see its docstring).
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from typing import Any, Literal
 
@@ -29,11 +28,10 @@ from ..linear._term_selection import TermSelection, select_terms
 from ..loop._solution import Solution
 
 
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class WaveletNARXResult(Solution):
-    """A `fj.Solution` (result code, message, `summary()`) of `identify_wavelet_narx`, with:
+class WaveletNARXSelection(eqx.Module):
+    """What `identify_wavelet_narx` returns besides the model, as its `fj.Solution`'s typed `aux` (the fields read
+    through: `solution.selection` is `solution.aux.selection`):
 
-    - `model`: the identified `WaveletNARX` (wavelets, then scaling functions, each in the order selected).
     - `selection`: the `TermSelection` of the orthogonal-least-squares choice of units (`select_terms`, with the
       linear part and the offset in the model from the start); its `indices` index the candidate units: index
       `i < C * levels` is the wavelet at centre `i % C` with dilation `i // C`, index `C * levels + i` the scaling
@@ -67,7 +65,7 @@ def identify_wavelet_narx(
     smoothing: AbstractSmoothing | None = None,
     regressors: NARXRegressors | None = None,
     burn_in: int | None = None,
-) -> WaveletNARXResult:
+) -> Solution:
     """Identify a wavelet-network NARX model (`fj.WaveletNARX`, MATLAB's `wavenet`) from a record.
 
     1. Regressors: `x_k = [u_k, ..., u_{k-n_u}, (plays), F_{k-1}, ..., F_{k-n_y}]`, the input `signals` and the
@@ -124,7 +122,8 @@ def identify_wavelet_narx(
       `input_lags` / `output_lags` / `plays` and the record's normalisation.
     - `burn_in`: samples at the start of the record not used as equations; default `max(n_u, n_y)`.
 
-    **Returns:** a `WaveletNARXResult(model, selection, centres, dilations, fit)`.
+    **Returns:** a `fj.Solution`: its `model` is the identified `WaveletNARX` (wavelets, then scaling functions,
+    each in the order selected); its `aux` a `WaveletNARXSelection` (selection, centres, dilations, fit).
 
     ```python
     >>> import numpy as np, fricjax as fj
@@ -216,13 +215,15 @@ def identify_wavelet_narx(
         regressors, center=center, Q=Q, L=coefficients[:m], a=coefficients[m : m + kw], b=b, c=c,
         s=coefficients[m + kw : -1], beta=beta, gamma=gamma, d=coefficients[-1],
     )  # fmt: skip
-    return WaveletNARXResult(
+    return Solution(
         model=model,
         message=f"{len(selected)} units chosen by orthogonal least squares; every linear coefficient by least squares",
-        selection=selection,
-        centres=centres,
-        dilations=dilations,
-        fit=solution,
+        aux=WaveletNARXSelection(
+            selection=selection,
+            centres=centres,
+            dilations=dilations,
+            fit=solution,
+        ),
     )
 
 

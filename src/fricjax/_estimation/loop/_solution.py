@@ -1,16 +1,19 @@
 """`Solution`: what every fit returns, and `RESULTS`, the one enumeration of why a fit stopped.
 
-In the optimistix style (`optx.Solution`, `optx.RESULTS`): one result type, one `eqx.Enumeration` whose entries carry
-the sentence that explains them, and `throw=True` on the driver to raise instead of returning a failure.
+In the optimistix style (`optx.Solution`, `optx.RESULTS`): one result type, an `eqx.Module`, for every estimation
+entry point (what only one family's fitter returns is its typed `aux`); one `eqx.Enumeration` that extends
+optimistix's own with the entries of fricjax's loop, whose items carry the sentence that explains them; and
+`throw=True` on the drivers to raise instead of returning a failure. A sweep returns one batched `Solution`.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import equinox as eqx
+import jax
 import numpy as np
+import optimistix as optx
 
 from ..._constraints import PARAMETER_UNITS as PARAMETER_UNITS
 from ..._constraints import parameter_arrays, parameter_line, parameter_units, unwrap
@@ -18,14 +21,11 @@ from ..._smoothing import exact
 from ._plausibility import implausible
 
 
-class RESULTS(eqx.Enumeration):
-    """Why a fit stopped. `successful`, `max_steps` and `early_stopped` return a usable model (`Solution.success`);
+class RESULTS(optx.RESULTS):  # type: ignore[misc]
+    """Why a fit stopped: optimistix's `RESULTS` (its `successful` and its solvers' failures) and the outcomes of
+    fricjax's loop. `successful`, `max_steps` and `early_stopped` return a usable model (`Solution.success`);
     `diverged` and `solver_failed` return the best model seen before the failure (never worse than the start)."""
 
-    successful = (
-        "a convergence test held (the solver's own, or the loss fell by less than `tolerance` over one "
-        "check), or the parameters are linear and were solved by least squares"
-    )
     max_steps = (
         "the step budget ran out before a convergence test held: the best model seen is returned, but it may not be "
         "converged (the message says whether the loss was still falling)"
@@ -36,8 +36,15 @@ class RESULTS(eqx.Enumeration):
 
 
 RESULT_NAMES = ("successful", "max_steps", "early_stopped", "diverged", "solver_failed")
-#: `{name: sentence}` of every result code (the command line's legend; `RESULTS` is the enumeration).
-RESULT_CODES = {name: RESULTS[getattr(RESULTS, name)] for name in RESULT_NAMES}  # type: ignore[misc]
+#: `{name: sentence}` of every result code of a fit (the command line's legend; `RESULTS` is the enumeration, whose
+#: `successful` is optimistix's, without a sentence).
+RESULT_CODES = {
+    "successful": (
+        "a convergence test held (the solver's own, or the loss fell by less than `tolerance` over one "
+        "check), or the parameters are linear and were solved by least squares"
+    ),
+    **{name: RESULTS[getattr(RESULTS, name)] for name in RESULT_NAMES[1:]},  # type: ignore[misc]
+}
 _USABLE = ("successful", "max_steps", "early_stopped")
 
 
@@ -50,9 +57,12 @@ def result_name(result: Any) -> str:
 
 
 def as_result(code: Any) -> Any:
-    """A `RESULTS` item from an item or its name (`"successful"`, or a legacy `"solver_failed:<detail>"`)."""
+    """A `RESULTS` item from an item (fricjax's, or optimistix's own: promoted) or its name (`"successful"`, or a
+    legacy `"solver_failed:<detail>"`)."""
     if isinstance(code, RESULTS):
         return code
+    if isinstance(code, optx.RESULTS):
+        return RESULTS.promote(code)
     if isinstance(code, str) and code.split(":")[0] in RESULT_NAMES:
         return getattr(RESULTS, code.split(":")[0])
     raise ValueError(f"result must be a fj.RESULTS item or one of {', '.join(RESULT_NAMES)}; got {code!r}.")
@@ -66,11 +76,9 @@ class FitFailed(RuntimeError):
         self.solution = solution
 
 
-@dataclasses.dataclass(frozen=True)
-class Solution:
-    """What a fit returns (`fj.fit`, `fj.least_squares`; `FitResult` is the same class under its former name), and
-    the base of what every identification of the estimation layer returns (`fj.identify_kernel_narx`, ...: their
-    results are `Solution`s with the family's own fields added).
+class Solution(eqx.Module):
+    """What every fit and identification returns (`fj.fit`, `fj.least_squares`, `fj.sweep`, `fj.identify_*`,
+    `fj.recursive_fit`; `FitResult` is the same class under its former name): one `eqx.Module`.
 
     - `model`: the fitted model (smoothing as at the end of the fit); `exact_model` is `fj.exact(model)`.
     - `result`: a `fj.RESULTS` item (`code` is its name: `successful`, `max_steps`, `early_stopped`, `diverged`,
@@ -89,12 +97,20 @@ class Solution:
       state and training NMSE); `None` otherwise.
     - `start_kept`: no step improved on the model the fit was given (by validation where there is validation
       data), so that model is returned unchanged (`message` says so).
+    - `aux`: what only the entry point that made it returns, typed (`fj.KernelNARXSearch`, `fj.LocalModelSearch`,
+      `fj.PolynomialNARXSelection`, `fj.WaveletNARXSelection`, `fj.RecursiveFitTrace`); `None` for a fit. Its fields
+      read through as the solution's own attributes (`solution.ridge` is `solution.aux.ridge`).
+
+    A sweep's `Solution` is batched along its configurations: `model` is the stacked batch, `result`, `train_loss`
+    and `val_loss` have shape `(B,)`, `history` arrays `(checks, B)`; `solution[i]` is configuration `i`'s own
+    (unbatched) `Solution`, `codes` names each one's result and `best_configuration` is the index with the lowest
+    validation loss (training loss without validation data).
     """
 
     model: Any
     result: Any = "successful"
     message: str = ""
-    history: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    history: dict[str, np.ndarray] = eqx.field(default_factory=dict)
     train_loss: float = float("nan")
     val_loss: float = float("nan")
     exact_val_loss: float = float("nan")
@@ -106,14 +122,76 @@ class Solution:
     extra: Any = None
     records: Any = None
     start_kept: bool = False
+    aux: Any = None
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "result", as_result(self.result))  # a name is accepted (thin compatibility)
+    def __check_init__(self) -> None:
+        if not isinstance(self.result, RESULTS):
+            object.__setattr__(self, "result", as_result(self.result))  # a name is accepted (thin compatibility)
+
+    def __getattr__(self, name: str) -> Any:
+        """The typed `aux`'s fields read through (`solution.candidates` is `solution.aux.candidates`)."""
+        aux = self.__dict__.get("aux")
+        if not name.startswith("_") and aux is not None and name in getattr(aux, "__dataclass_fields__", {}):
+            return getattr(aux, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    @property
+    def batched(self) -> bool:
+        """Whether this is a sweep's batch of solutions (one per configuration) rather than one fit's."""
+        return np.ndim(self.train_loss) > 0
 
     @property
     def code(self) -> str:
-        """The result code's name: `"successful"`, `"max_steps"`, `"early_stopped"`, `"diverged"`, ..."""
+        """The result code's name: `"successful"`, `"max_steps"`, `"early_stopped"`, `"diverged"`, ... (a batched
+        solution: `codes`)."""
+        if self.batched:
+            raise TypeError(
+                "a sweep's Solution holds one result per configuration: read `codes`, or `solution[i].code`"
+            )
         return result_name(self.result)
+
+    @property
+    def codes(self) -> tuple[str, ...]:
+        """Each configuration's result code (a single fit: its one code)."""
+        if not self.batched:
+            return (self.code,)
+        return tuple(self[i].code for i in range(np.size(self.train_loss)))
+
+    def __getitem__(self, i: int) -> Solution:
+        """Configuration `i` of a sweep's batched `Solution`, as one fit's `Solution` (its model unbatched)."""
+        if not self.batched:
+            raise TypeError("one fit's Solution has no configurations to index; a sweep's Solution has")
+        count = np.size(self.train_loss)
+        if not -count <= int(i) < count:
+            raise IndexError(f"configuration {i} of a sweep of {count}")
+
+        def pick(leaf: Any) -> Any:
+            return leaf[i] if eqx.is_array(leaf) else leaf
+
+        history = {
+            key: np.asarray(value)[:, i] if np.ndim(value) == 2 else value for key, value in self.history.items()
+        }
+        return Solution(
+            model=jax.tree_util.tree_map(pick, self.model),
+            result=jax.tree_util.tree_map(pick, self.result),
+            message=self.message,
+            history=history,
+            train_loss=float(np.asarray(self.train_loss)[i]),
+            val_loss=float(np.asarray(self.val_loss)[i]),
+            exact_val_loss=float(np.asarray(self.exact_val_loss).reshape(-1)[i])
+            if np.ndim(self.exact_val_loss)
+            else float("nan"),
+            evaluations=self.evaluations,
+            wall_time=self.wall_time,
+        )
+
+    @property
+    def best_configuration(self) -> int:
+        """A sweep's index with the lowest validation loss (training loss when no validation data was given)."""
+        if not self.batched:
+            raise TypeError("one fit's Solution has no configurations; `best_start` is the start it kept")
+        scores = self.val_loss if np.isfinite(self.val_loss).any() else self.train_loss
+        return int(np.nanargmin(np.where(np.isfinite(scores), scores, np.nan)))
 
     @property
     def success(self) -> bool:
@@ -159,8 +237,16 @@ class Solution:
         """A short human-readable report: result, losses, and at most `max_parameters` parameter lines (arrays of
         more than 8 entries are summarised by shape and range)."""
         effort = f" after {self.evaluations} steps in {self.wall_time:.2f} s" if self.evaluations else ""
+        if self.batched:
+            counts = {code: self.codes.count(code) for code in dict.fromkeys(self.codes)}
+            outcome = ", ".join(f"{number} {code}" for code, number in counts.items())
+            return (
+                f"Solution of a sweep of {np.size(self.train_loss)} configurations{effort}: {outcome}; the best is "
+                f"{self.best_configuration} (`solution[i]` is configuration i's)"
+            )
         losses = f"train loss {self.train_loss:.4g}, " + self._validation_text()
-        lines = [f"{type(self).__name__}: {self.code}{effort}: {self.message}", losses]
+        title = "Solution" if self.aux is None else f"Solution ({type(self.aux).__name__})"
+        lines = [f"{title}: {self.code}{effort}: {self.message}", losses]
         rows = self.parameter_table()
         # with per-record offsets the model's own `offset` fields were held at their start (fj.Nuisances): the
         # force on record i is the model's, its own offset included, plus record i's offset
