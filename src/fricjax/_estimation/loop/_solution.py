@@ -111,9 +111,9 @@ class Solution(eqx.Module):
     result: Any = "successful"
     message: str = ""
     history: dict[str, np.ndarray] = eqx.field(default_factory=dict)
-    train_loss: float = float("nan")
-    val_loss: float = float("nan")
-    exact_val_loss: float = float("nan")
+    train_loss: float | np.ndarray = float("nan")  # (B,) in a sweep's batched solution
+    val_loss: float | np.ndarray = float("nan")
+    exact_val_loss: float | np.ndarray = float("nan")
     evaluations: int = 0
     wall_time: float = 0.0
     num_starts: int = 1

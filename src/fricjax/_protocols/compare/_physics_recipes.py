@@ -309,5 +309,5 @@ def _significantly_better(smaller: FitResult, larger: FitResult, split: Split | 
         if not np.isfinite(t):
             return False, "the validation errors are not finite"
         return bool(t >= SIGNIFICANT_T and gain > 0), f"validation error {-100 * gain:+.1f} %, t = {t:.1f}"
-    gain = 1.0 - larger.val_loss / smaller.val_loss if smaller.val_loss > 0 else 0.0
+    gain = 1.0 - float(larger.val_loss) / float(smaller.val_loss) if smaller.val_loss > 0 else 0.0
     return bool(gain >= SIGNIFICANT_GAIN), f"validation loss {-100 * gain:+.1f} %"
