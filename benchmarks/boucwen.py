@@ -1,6 +1,6 @@
 """Bouc-Wen hysteretic benchmark (Noël & Schoukens 2016): fits on the training realisation, official test scores.
 
-Protocol (see `fj.score_boucwen`): fit on `load_boucwen().train` (5 periods x 8192 samples of a 5-150 Hz
+Protocol (see `fj.boucwen.score_boucwen`): fit on `load_boucwen().train` (5 periods x 8192 samples of a 5-150 Hz
 multisine, output noise 8e-6 m RMS); the first periods train, the last one validates (model selection and
 early stopping); the test records are used only for the final scores: free-run simulation RMSE [m] on the
 multisine test (3 periods from rest, the last scored) and on the sine sweep (from rest). One JSON line per
@@ -10,7 +10,7 @@ model with the machine and the versions:
 - `linear ARX`: y_k = sum a_i y_{k-i} + sum b_j u_{k-j}, least squares (`fj.lstsq`), orders chosen by the
   free-run RMSE on the validation period, simulated with `scipy.signal.lfilter`;
 - `grey-box Bouc-Wen (OE)`: `fj.BoucWen` with all parameters but `nu` free (m, c, k, alpha, beta, gamma, delta),
-  started from rough guesses (each off the published value by 20-50 %), fitted by `fj.fit` with `fj.BoucWenLoss`
+  started from rough guesses (each off the published value by 20-50 %), fitted by `fj.fit` with `fj.boucwen.BoucWenLoss`
   (free-run output error), Levenberg-Marquardt with `fj.ParameterScaling()`, RK4 with 4 steps per sample
   (the fitted model is scored with the same integrator). With nu = 1 only the products beta*gamma and
   beta*delta are identifiable, so beta, gamma, delta separately need not match the published values;
@@ -122,20 +122,20 @@ def scored_line(
     **extra: Any,
 ) -> dict:
     """The JSON line of a fitted model: the official test scores and the training free-run RMSE."""
-    scores = fj.score_boucwen(model, data.multisine, sweep)
+    scores = fj.boucwen.score_boucwen(model, data.multisine, sweep)
     return line(name, scores[:2], rmse(fj.simulate(model, fj.boucwen_inputs(train.u)), train.y), fit_s, **extra)
 
 
 def fit_output_error(
     start: Any, train: fj.BoucWenRecord, whole: fj.BoucWenRecord, valid_burn: int, steps: int, freeze: tuple
 ) -> tuple[Any, float, float]:
-    """Free-run output error (`fj.BoucWenLoss`), Levenberg-Marquardt with `ParameterScaling`, the 5th training
+    """Free-run output error (`fj.boucwen.BoucWenLoss`), Levenberg-Marquardt with `ParameterScaling`, the 5th training
     period validating: (fit result, fit seconds, validation RMSE [m])."""
     t0 = time.perf_counter()
     result = fj.fit(
         start,
         train,
-        loss=fj.BoucWenLoss(validation_burn_in=valid_burn),
+        loss=fj.boucwen.BoucWenLoss(validation_burn_in=valid_burn),
         validation=whole,
         solver=fj.levenberg_marquardt(),
         steps=steps,
@@ -275,13 +275,13 @@ def main() -> None:
     lines = []
 
     true = fj.BoucWen.benchmark()
-    scores = fj.score_boucwen(true, data.multisine, sweep)
+    scores = fj.boucwen.score_boucwen(true, data.multisine, sweep)
     train_true = rmse(fj.simulate(true, fj.boucwen_inputs(train.u)), train.y)
     lines.append(line("true model (published parameters, RK4 15 kHz)", scores[:2], train_true, 0.0))
 
     fit_arx = arx(train, data.train.u, data.train.y, valid_burn, orders)
     n, theta, scale = fit_arx["order"], fit_arx["theta"], fit_arx["scale"]
-    ms = arx_simulate(theta, n, n, np.tile(data.multisine.u, fj.BOUCWEN_STEADY_PERIODS))[-P:] / scale
+    ms = arx_simulate(theta, n, n, np.tile(data.multisine.u, fj.boucwen.BOUCWEN_STEADY_PERIODS))[-P:] / scale
     sw = arx_simulate(theta, n, n, sweep.u) / scale
     tr = arx_simulate(theta, n, n, train.u) / scale
     lines.append(

@@ -1,21 +1,21 @@
 """EMPS benchmark: IDM (IDIM-LS) and open-loop (simulation-error) fits of the eight static friction laws.
 
 For each law of the emps-ensemble paper (Coulomb + viscous, Threlfall, Tustin, Bo-Pavelescu; symmetric and
-asymmetric) one JSON line: the IDM parameters fitted on DATA_EMPS.mat (`fj.fit_emps_idm`) with their relative
-errors on the training and test files; the open-loop fit that starts from them (`fj.fit_emps_open_loop`,
+asymmetric) one JSON line: the IDM parameters fitted on DATA_EMPS.mat (`fj.emps.fit_emps_idm`) with their relative
+errors on the training and test files; the open-loop fit that starts from them (`fj.emps.fit_emps_open_loop`,
 Levenberg-Marquardt on the official simulation error) with its parameters; the official test score (free-run
 position RMSE in mm on DATA_EMPS_PULSES.mat, the first 20 samples only initialising the state) of the fitted
 plant, of its IDM start and of the published reference parameters run through the same simulator; and the
 fit wall times (compilation included). Every line carries the machine and the versions.
 
-`--hybrid` runs the grey + black-box part instead (`fj.fit_emps_hybrid`: each law's open-loop plant plus a
+`--hybrid` runs the grey + black-box part instead (`fj.emps.fit_emps_hybrid`: each law's open-loop plant plus a
 tanh-network residual on the force path, physics free or frozen, trained by simulation error on the first
 70 % of DATA_EMPS.mat, the model and the variant chosen by the free-run error on the last 30 %; then ensembles
 of the laws and hybrids combining their simulated positions, weights from the training file; then the
 closed-loop relative errors). One line per model: `{"kind": "hybrid" | "ensemble" | "member" | "closed_loop",
 "name", "test_rmse_mm", "train_rmse_mm", "fit_s", ...}`; `--smoke` is the CI size (< 90 s).
 
-`--bgbm` runs only the laws and their BGBM (`fj.fit_emps_bgbm`, emps-ensemble §3.2): the grey box's free run plus
+`--bgbm` runs only the laws and their BGBM (`fj.emps.fit_emps_bgbm`, emps-ensemble §3.2): the grey box's free run plus
 a linear output-error model of its position error driven by the force and / or the simulated velocity, fitted
 on the first 70 % of DATA_EMPS.mat, chosen on the last 30 %, refitted on the whole file (`{"kind": "bgbm" |
 "bgbm_choice", ...}`); `--hybrid` includes them.
@@ -105,7 +105,7 @@ def idm_parameters(idm: Any) -> dict[str, Any]:
 
 
 def run_laws(train: fj.EMPSRecord, test: fj.EMPSRecord, laws: list[str], steps: int) -> None:
-    score = fj.score_emps_open_loop
+    score = fj.emps.score_emps_open_loop
     reference_test = score(REFERENCE, test)
     reference_train = score(REFERENCE, train)
     rows = []
@@ -113,11 +113,11 @@ def run_laws(train: fj.EMPSRecord, test: fj.EMPSRecord, laws: list[str], steps: 
         for asymmetric in (False, True):
             law = LAWS[name]
             t0 = time.perf_counter()
-            idm = fj.fit_emps_idm(train, law, asymmetric=asymmetric)
+            idm = fj.emps.fit_emps_idm(train, law, asymmetric=asymmetric)
             idm_s = time.perf_counter() - t0
             start = idm.plant()
             t0 = time.perf_counter()
-            fitted = fj.fit_emps_open_loop(train, law, asymmetric=asymmetric, idm=idm, steps=steps)
+            fitted = fj.emps.fit_emps_open_loop(train, law, asymmetric=asymmetric, idm=idm, steps=steps)
             fit_s = time.perf_counter() - t0
             row = {
                 "kind": "law",
@@ -185,15 +185,15 @@ def windows_rmse(plant: fj.EMPSPlant, record: fj.EMPSRecord, horizon: int, strid
     """RMS of the official free-run error over many short windows (20 initialisation + `horizon` samples)."""
     errors = []
     for start in range(0, record.length - horizon - 20, stride):
-        part = fj.split_emps_record(record, start, start + horizon + 20)
-        errors.append(fj.score_emps_open_loop(plant, part, **options) ** 2)
+        part = fj.emps.split_emps_record(record, start, start + horizon + 20)
+        errors.append(fj.emps.score_emps_open_loop(plant, part, **options) ** 2)
     return float(np.sqrt(np.mean(errors)))
 
 
 def run_study(train: fj.EMPSRecord, test: fj.EMPSRecord) -> None:
-    score = fj.score_emps_open_loop
+    score = fj.emps.score_emps_open_loop
     n = train.length
-    halves = (fj.split_emps_record(train, 0, n // 2), fj.split_emps_record(train, n // 2))
+    halves = (fj.emps.split_emps_record(train, 0, n // 2), fj.emps.split_emps_record(train, n // 2))
 
     # 1. initial state, input timing and sub-steps, with the reference parameters
     for degree in (1, 2, 3, 5):
@@ -244,11 +244,11 @@ def run_study(train: fj.EMPSRecord, test: fj.EMPSRecord) -> None:
 
     # 2. the offset that balances the drift, per part of the records (reference M, Fc, Fv)
     period = 6210  # the reference trajectory repeats 4 times in 24 841 samples
-    parts = {f"train period {i + 1}": fj.split_emps_record(train, i * period, (i + 1) * period) for i in range(4)}
+    parts = {f"train period {i + 1}": fj.emps.split_emps_record(train, i * period, (i + 1) * period) for i in range(4)}
     cut = int(round(0.7 * n))
     parts |= {
-        "train first 70 %": fj.split_emps_record(train, 0, cut),
-        "train last 30 %": fj.split_emps_record(train, cut),
+        "train first 70 %": fj.emps.split_emps_record(train, 0, cut),
+        "train last 30 %": fj.emps.split_emps_record(train, cut),
         "train half 1": halves[0],
         "train half 2": halves[1],
         "train": train,
@@ -275,10 +275,10 @@ def run_study(train: fj.EMPSRecord, test: fj.EMPSRecord) -> None:
     # 3. fit settings, by two-fold cross-validation over the halves of the training file
     def cv(**options: Any) -> dict[str, Any]:
         t0 = time.perf_counter()
-        folds = [fj.fit_emps_open_loop(h, compute_std=False, **options) for h in halves]
+        folds = [fj.emps.fit_emps_open_loop(h, compute_std=False, **options) for h in halves]
         cv_scores = [score(folds[0].plant, halves[1]), score(folds[1].plant, halves[0])]
-        head = fj.fit_emps_open_loop(train, validation=0.3, compute_std=False, **options)
-        full = fj.fit_emps_open_loop(train, compute_std=False, **options)
+        head = fj.emps.fit_emps_open_loop(train, validation=0.3, compute_std=False, **options)
+        full = fj.emps.fit_emps_open_loop(train, compute_std=False, **options)
         return {
             "cv_rmse_mm": [round(s, 4) for s in cv_scores],
             "cv_mean_mm": round(float(np.mean(cv_scores)), 4),
@@ -293,7 +293,7 @@ def run_study(train: fj.EMPSRecord, test: fj.EMPSRecord) -> None:
             "wall_s": round(time.perf_counter() - t0, 1),
         }
 
-    idm_folds = [fj.fit_emps_idm(h, fj.CoulombViscous).plant() for h in halves]
+    idm_folds = [fj.emps.fit_emps_idm(h, fj.CoulombViscous).plant() for h in halves]
     emit(
         {
             "kind": "study",
@@ -311,9 +311,12 @@ def run_study(train: fj.EMPSRecord, test: fj.EMPSRecord) -> None:
         ("eps 3e-4", {"eps": 3e-4, "steps": 200}),
         ("eps 1e-4", {"eps": 1e-4, "steps": 200}),
         ("continuation 1e-2 -> 1e-5", {"eps": fj.Continuation(1e-2, 1e-5, 3)}),
-        ("segments 1 s, eps 1e-3", {"eps": 1e-3, "steps": 200, "loss": fj.EMPSOpenLoopLoss(segment_length=1000)}),
-        ("segments 2.5 s, eps 1e-3", {"eps": 1e-3, "steps": 200, "loss": fj.EMPSOpenLoopLoss(segment_length=2500)}),
-        ("segments 5 s, eps 1e-3", {"eps": 1e-3, "steps": 200, "loss": fj.EMPSOpenLoopLoss(segment_length=5000)}),
+        ("segments 1 s, eps 1e-3", {"eps": 1e-3, "steps": 200, "loss": fj.emps.EMPSOpenLoopLoss(segment_length=1000)}),
+        (
+            "segments 2.5 s, eps 1e-3",
+            {"eps": 1e-3, "steps": 200, "loss": fj.emps.EMPSOpenLoopLoss(segment_length=2500)},
+        ),
+        ("segments 5 s, eps 1e-3", {"eps": 1e-3, "steps": 200, "loss": fj.emps.EMPSOpenLoopLoss(segment_length=5000)}),
         ("freeze M", {"freeze": ("mass",)}),
         ("freeze M, Fv", {"freeze": ("mass", "friction.Fv")}),
     ]
@@ -321,10 +324,10 @@ def run_study(train: fj.EMPSRecord, test: fj.EMPSRecord) -> None:
         emit({"kind": "study", "group": "fit_settings", "setting": label, **cv(**options)})
 
     # 4. the profile of the training criterion along M (Fc, Fv, offset fitted for each M)
-    idm = fj.fit_emps_idm(train, fj.CoulombViscous)
+    idm = fj.emps.fit_emps_idm(train, fj.CoulombViscous)
     for mass in (82.0, 86.0, 90.0, 95.1089, 100.0):
         start = eqx.tree_at(lambda p: p.mass, idm.plant(), fj.Positive(mass))
-        fitted = fj.fit_emps_open_loop(train, start=start, freeze=("mass",), compute_std=False)
+        fitted = fj.emps.fit_emps_open_loop(train, start=start, freeze=("mass",), compute_std=False)
         emit(
             {
                 "kind": "study",
@@ -342,18 +345,18 @@ def run_study(train: fj.EMPSRecord, test: fj.EMPSRecord) -> None:
 
 
 def run_crossfile(train: fj.EMPSRecord, test: fj.EMPSRecord, laws: list[str], steps: int) -> None:
-    """The plateau forces of both records (`fj.emps_plateau_forces`: the mean drive force on each constant-velocity
+    """The plateau forces of both records (`fj.emps.emps_plateau_forces`: the mean drive force on each constant-velocity
     plateau, per quarter of the record), then each law fitted on each record and scored on both.
 
     The official protocol fits on `DATA_EMPS.mat` and scores on `DATA_EMPS_PULSES.mat`; fitting on the test file
     is not a model of this benchmark, only a measure of how far apart the two records are for a model class: a
     law fitted on one record scored on the other. Every line says `"used_for_choice": false`."""
-    plateaus = {record.name: fj.emps_plateau_forces(record) for record in (train, test)}
+    plateaus = {record.name: fj.emps.emps_plateau_forces(record) for record in (train, test)}
     # the test file's pulses (a 5 V square wave, ~1 s period) are in its drive force: the plateaus again from
     # the samples with the pulse off for at least 300 ms, to show the change is not the pulses'
     pulse = np.asarray(test.pulses) != 0
     recent = np.convolve(pulse.astype(float), np.ones(300))[: test.length] > 0
-    pulse_off = fj.emps_plateau_forces(test, where=~recent)
+    pulse_off = fj.emps.emps_plateau_forces(test, where=~recent)
     for on_train, on_test, off in zip(plateaus[train.name], plateaus[test.name], pulse_off, strict=True):
         emit(
             {
@@ -370,13 +373,13 @@ def run_crossfile(train: fj.EMPSRecord, test: fj.EMPSRecord, laws: list[str], st
                 "samples": [on_train.samples, on_test.samples],
             }
         )
-    score = fj.score_emps_open_loop
+    score = fj.emps.score_emps_open_loop
     fits: dict[tuple[str, bool, str], fj.EMPSPlant] = {}
     for name in laws:
         for asymmetric in (False, True):
             for fit_on in (train, test):
                 t0 = time.perf_counter()
-                fitted = fj.fit_emps_open_loop(
+                fitted = fj.emps.fit_emps_open_loop(
                     fit_on, LAWS[name], asymmetric=asymmetric, steps=steps, compute_std=False
                 )
                 fits[(name, asymmetric, fit_on.name)] = fitted.plant
@@ -401,7 +404,7 @@ def run_crossfile(train: fj.EMPSRecord, test: fj.EMPSRecord, laws: list[str], st
     magnitude, offset = float(np.mean(signs * changes)), float(np.mean(changes))
     key = ("CoulombViscous", False, train.name)
     if key not in fits:
-        fits[key] = fj.fit_emps_open_loop(train, fj.CoulombViscous, steps=steps, compute_std=False).plant
+        fits[key] = fj.emps.fit_emps_open_loop(train, fj.CoulombViscous, steps=steps, compute_std=False).plant
     base = fj.exact(fits[key])
     p = fj.unwrap(base)
     shifted_plant = fj.EMPSPlant(
@@ -452,7 +455,7 @@ def run_bgbm(
         best: tuple[float, tuple[str, ...], int] | None = None
         for inputs, order in configs:
             t0 = time.perf_counter()
-            fitted = fj.fit_emps_bgbm(train, plant, inputs=inputs, order=order, validation=0.3)
+            fitted = fj.emps.fit_emps_bgbm(train, plant, inputs=inputs, order=order, validation=0.3)
             fit_s = time.perf_counter() - t0
             emit(
                 {
@@ -474,7 +477,7 @@ def run_bgbm(
             continue
         _, inputs, order = best
         t0 = time.perf_counter()
-        final = fj.fit_emps_bgbm(train, plant, inputs=inputs, order=order, validation=None)
+        final = fj.emps.fit_emps_bgbm(train, plant, inputs=inputs, order=order, validation=None)
         emit(
             {
                 "kind": "bgbm_choice",
@@ -483,7 +486,7 @@ def run_bgbm(
                 "test_rmse_mm": round(final.model.score(test), 4),
                 "train_rmse_mm": round(final.train_rmse_mm, 4),
                 "fit_s": round(time.perf_counter() - t0, 2),
-                "physics_test_rmse_mm": round(fj.score_emps_open_loop(plant, test), 4),
+                "physics_test_rmse_mm": round(fj.emps.score_emps_open_loop(plant, test), 4),
                 "denominator": rounded(final.model.denominator, 6),
                 "result": final.result,
             }
@@ -497,15 +500,17 @@ def fit_members(train: fj.EMPSRecord, test: fj.EMPSRecord, laws: list[str], step
         for asymmetric in (False, True):
             label = law_name(name, asymmetric)
             t0 = time.perf_counter()
-            fitted = fj.fit_emps_open_loop(train, LAWS[name], asymmetric=asymmetric, steps=steps, compute_std=False)
+            fitted = fj.emps.fit_emps_open_loop(
+                train, LAWS[name], asymmetric=asymmetric, steps=steps, compute_std=False
+            )
             fit_s = time.perf_counter() - t0
             members[label] = fitted.plant
             emit(
                 {
                     "kind": "member",
                     "name": label,
-                    "test_rmse_mm": round(fj.score_emps_open_loop(fitted.plant, test), 4),
-                    "train_rmse_mm": round(fj.score_emps_open_loop(fitted.plant, train), 4),
+                    "test_rmse_mm": round(fj.emps.score_emps_open_loop(fitted.plant, test), 4),
+                    "train_rmse_mm": round(fj.emps.score_emps_open_loop(fitted.plant, train), 4),
                     "fit_s": round(fit_s, 2),
                 }
             )
@@ -526,7 +531,7 @@ def run_hybrid(
     width: int,
     bgbm_configs: list[tuple[tuple[str, ...], int]] = BGBM_CONFIGS,
 ) -> None:
-    score = fj.score_emps_open_loop
+    score = fj.emps.score_emps_open_loop
     members = fit_members(train, test, laws, steps)
     run_bgbm(train, test, members, bgbm_configs)
     hybrids: dict[str, fj.EMPSPlant] = {}
@@ -534,11 +539,11 @@ def run_hybrid(
         best: tuple[float, str] | None = None
         for variant in variants:
             t0 = time.perf_counter()
-            hybrid = fj.fit_emps_hybrid(train, plant, steps=hybrid_steps, width=width, **HYBRID_VARIANTS[variant])
+            hybrid = fj.emps.fit_emps_hybrid(train, plant, steps=hybrid_steps, width=width, **HYBRID_VARIANTS[variant])
             fit_s = time.perf_counter() - t0
             val = hybrid.val_rmse_mm
             cut = int(round(0.7 * train.length))
-            start_val = score(plant, fj.split_emps_record(train, cut))
+            start_val = score(plant, fj.emps.split_emps_record(train, cut))
             key = f"{label}+{variant}"
             hybrids[key] = hybrid.plant
             emit(
@@ -573,8 +578,8 @@ def run_hybrid(
 
     # ensembles of the simulated positions, weights fitted on the training file
     everything = {**members, **hybrids}
-    positions_train = {k: np.asarray(fj.predict_emps_open_loop(p, train).q) for k, p in everything.items()}
-    positions_test = {k: np.asarray(fj.predict_emps_open_loop(p, test).q) for k, p in everything.items()}
+    positions_train = {k: np.asarray(fj.emps.predict_emps_open_loop(p, train).q) for k, p in everything.items()}
+    positions_test = {k: np.asarray(fj.emps.predict_emps_open_loop(p, test).q) for k, p in everything.items()}
     pools = {"laws": list(members), "laws+hybrids": list(everything)}
     if hybrids:
         pools["hybrids"] = list(hybrids)
@@ -585,7 +590,7 @@ def run_hybrid(
         for method in ("average", "lstsq", "nonnegative", "press"):
             t0 = time.perf_counter()
             try:
-                ens = fj.fit_emps_ensemble(plants, train, method, positions=q_train)
+                ens = fj.emps.fit_emps_ensemble(plants, train, method, positions=q_train)
             except ValueError as error:
                 emit({"kind": "ensemble", "name": f"{pool}:{method}", "error": str(error)})
                 continue
@@ -607,8 +612,8 @@ def run_hybrid(
 
     # closed loop (PD controller), relative errors [%] as the published model is scored
     for label, plant in {"reference (Janot et al. 2019)": REFERENCE, **everything}.items():
-        on_train = fj.emps_closed_loop_errors(plant, train)
-        on_test = fj.emps_closed_loop_errors(plant, test)
+        on_train = fj.emps.emps_closed_loop_errors(plant, train)
+        on_test = fj.emps.emps_closed_loop_errors(plant, test)
         emit(
             {
                 "kind": "closed_loop",

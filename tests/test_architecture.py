@@ -6,6 +6,8 @@ import ast
 import pathlib
 import re
 
+import pytest
+
 import fricjax as fj
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -29,7 +31,7 @@ LAYERS = [
     {"_systems", "_data"},
     {"_estimation"},
     {"_protocols", "_plot"},
-    {"_cli", "compare", "_public", "__init__", "__main__"},
+    {"_cli", "compare", "emps", "boucwen", "_public", "__init__", "__main__"},
 ]
 
 
@@ -277,3 +279,15 @@ def test_no_code_outside_the_models_switches_on_a_model_class():
             if hit:
                 found.add((relative, where))
     assert not found, f"switches on model classes outside _models (make it a method of the class): {sorted(found)}"
+
+
+def test_protocol_names_live_in_their_namespaces():
+    """DESIGN.md v4: `fj.*` keeps models, data, simulate, fit and metrics; a benchmark's protocols are in its
+    namespace (`fj.emps`, `fj.boucwen`, as `fj.compare`). The former flat names still read, with a warning."""
+    for namespace in (fj.emps, fj.boucwen):
+        names = [name for name in dir(namespace) if not name.startswith("_")]
+        assert names and not set(names) & set(dir(fj)), namespace.__name__
+    with pytest.warns(DeprecationWarning, match=r"fj\.fit_emps_idm moved to fj\.emps\.fit_emps_idm"):
+        assert fj.fit_emps_idm is fj.emps.fit_emps_idm
+    with pytest.warns(DeprecationWarning, match=r"fj\.boucwen\.score_boucwen"):
+        assert fj.score_boucwen is fj.boucwen.score_boucwen

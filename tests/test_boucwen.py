@@ -20,17 +20,19 @@ from fricjax import (
     BOUCWEN_DT,
     BOUCWEN_PERIOD,
     BoucWen,
-    BoucWenLoss,
     BoucWenRecord,
     boucwen_inputs,
-    boucwen_rmse,
     fit,
     levenberg_marquardt,
     load_boucwen,
     load_model,
     save_model,
-    score_boucwen,
     simulate,
+)
+from fricjax.boucwen import (
+    BoucWenLoss,
+    boucwen_rmse,
+    score_boucwen,
 )
 
 PUBLISHED = {"m": 2.0, "c": 10.0, "k": 5e4, "alpha": 5e4, "beta": 1e3, "gamma": 0.8, "delta": -1.1, "nu": 1.0}

@@ -47,9 +47,10 @@ def _hook_module(name: str):
 
 def _public_identifiers() -> list[str]:
     api = _hook_module("api")
-    return [f"fricjax.{n}" for n in api.public_names(fj) if n != "compare"] + [
-        f"fricjax.compare.{n}" for n in api.public_names(fj.compare)
-    ]
+    names = [f"fricjax.{n}" for n in api.public_names(fj) if n not in api.NAMESPACES]
+    for namespace in api.NAMESPACES:
+        names += [f"fricjax.{namespace}.{n}" for n in api.public_names(getattr(fj, namespace))]
+    return names
 
 
 def _resolve(identifier: str):
@@ -80,8 +81,8 @@ def test_every_fj_name_the_sources_mention_exists():
     """A docstring naming `fj.NAME` that does not exist is a broken cross-reference on the site."""
     broken = set()
     for path in (ROOT / "src" / "fricjax").rglob("*.py"):
-        for match in re.finditer(r"\bfj\.(compare\.)?([A-Za-z_]\w*)", path.read_text()):
-            namespace = fj.compare if match.group(1) else fj
+        for match in re.finditer(r"\bfj\.((?:compare|emps|boucwen)\.)?([A-Za-z_]\w*)", path.read_text()):
+            namespace = getattr(fj, match.group(1)[:-1]) if match.group(1) else fj
             if not hasattr(namespace, match.group(2)):
                 broken.add(f"{match.group(0)} ({path.relative_to(ROOT)})")
     assert not broken, sorted(broken)

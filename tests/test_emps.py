@@ -16,8 +16,6 @@ import scipy.io
 from fricjax import (
     BoPavelescu,
     CoulombViscous,
-    EMPSIDMData,
-    EMPSIDMResult,
     EMPSPlant,
     EMPSRecord,
     EMPSSimulation,
@@ -25,13 +23,17 @@ from fricjax import (
     Threlfall,
     Tustin,
     butter_filtfilt,
-    emps_idm_data,
     emps_open_loop_rmse_mm,
-    emps_plateau_forces,
-    fit_emps_idm,
     load_emps,
     simulate_closed_loop,
     simulate_open_loop,
+)
+from fricjax.emps import (
+    EMPSIDMData,
+    EMPSIDMResult,
+    emps_idm_data,
+    emps_plateau_forces,
+    fit_emps_idm,
 )
 
 # The IDIM-LS model published with the benchmark (description §3.4) and its asymmetric variant (§4.2).

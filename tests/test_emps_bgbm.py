@@ -10,7 +10,13 @@ import pytest
 import scipy.signal
 
 import fricjax as fj
-from fricjax import EMPSRecord, fit_emps_bgbm, predict_emps_open_loop
+from fricjax import (
+    EMPSRecord,
+)
+from fricjax.emps import (
+    fit_emps_bgbm,
+    predict_emps_open_loop,
+)
 
 GTAU, DT = 35.1507, 1e-3
 TRUTH = fj.EMPSPlant(95.0, fj.CoulombViscous(Fc=20.0, Fv=200.0, offset=-3.0, smoothing=fj.Smooth(1e-3)))
@@ -38,19 +44,19 @@ def test_any_reflection_coefficients_give_a_stable_monic_denominator():
     rng = np.random.default_rng(0)
     for order in (1, 2, 5):
         raw = rng.normal(scale=2.0, size=order)
-        model = fj.EMPSErrorModel(TRUTH, raw, np.zeros((1, order + 1)), np.ones(1), ("force",))
+        model = fj.emps.EMPSErrorModel(TRUTH, raw, np.zeros((1, order + 1)), np.ones(1), ("force",))
         a = np.asarray(model.denominator)
         assert a[0] == 1.0 and a.shape == (order + 1,)
         assert np.max(np.abs(np.roots(a))) < 1.0
     # first order: A = 1 + tanh(r) q^-1
-    one = fj.EMPSErrorModel(TRUTH, np.array([0.3]), np.zeros((1, 2)), np.ones(1), ("force",))
+    one = fj.emps.EMPSErrorModel(TRUTH, np.array([0.3]), np.zeros((1, 2)), np.ones(1), ("force",))
     np.testing.assert_allclose(np.asarray(one.denominator), [1.0, np.tanh(0.3)])
 
 
 @pytest.mark.slow  # a few seconds (a subprocess or a fit): the fast tier stays under 5 minutes
 def test_recovers_a_known_error_filter_of_the_force(records):
     base, record = records
-    start_mm = fj.score_emps_open_loop(TRUTH, record)
+    start_mm = fj.emps.score_emps_open_loop(TRUTH, record)
     fitted = fit_emps_bgbm(record, TRUTH, inputs=("force",), order=2, validation=None, steps=100)
     model = fitted.model
     assert start_mm > 0.5  # the error the grey box cannot explain, in mm
@@ -70,9 +76,9 @@ def test_recovers_a_known_error_filter_of_the_force(records):
 def test_validation_tail_is_scored_from_its_own_window(records):
     _, record = records
     fitted = fit_emps_bgbm(record, TRUTH, inputs=("force",), order=2, validation=0.3, steps=100)
-    tail = fj.split_emps_record(record, int(round(0.7 * record.length)))
+    tail = fj.emps.split_emps_record(record, int(round(0.7 * record.length)))
     assert fitted.val_rmse_mm == pytest.approx(fitted.model.score(tail))
-    assert fitted.val_physics_mm == pytest.approx(fj.score_emps_open_loop(TRUTH, tail))
+    assert fitted.val_physics_mm == pytest.approx(fj.emps.score_emps_open_loop(TRUTH, tail))
     assert fitted.result in ("successful", "max_steps")
 
 

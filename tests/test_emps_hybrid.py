@@ -19,17 +19,19 @@ import pytest
 import fricjax as fj
 from fricjax import (
     CoulombViscous,
-    EMPSEnsemble,
     EMPSPlant,
     EMPSRecord,
     HybridFriction,
     Smooth,
     Tustin,
+    simulate_closed_loop,
+    simulate_open_loop,
+)
+from fricjax.emps import (
+    EMPSEnsemble,
     emps_hybrid_start,
     fit_emps_ensemble,
     fit_emps_hybrid,
-    simulate_closed_loop,
-    simulate_open_loop,
 )
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -80,7 +82,9 @@ def test_zero_residual_is_the_physics_plant_in_closed_loop_and_score(record):
     d = simulate_closed_loop(plant, record.qg, GTAU, 160.18, 243.45, DT, q0=0.01)
     # equal to round-off, as in open loop (two programs fused differently); the loop keeps the differences bounded
     np.testing.assert_allclose(np.asarray(c.q), np.asarray(d.q), rtol=1e-13, atol=0)
-    assert fj.score_emps_open_loop(plant, record) == pytest.approx(fj.score_emps_open_loop(TRUTH, record), rel=1e-12)
+    assert fj.emps.score_emps_open_loop(plant, record) == pytest.approx(
+        fj.emps.score_emps_open_loop(TRUTH, record), rel=1e-12
+    )
 
 
 @pytest.mark.slow  # fast tier trimmed (2026-11-27): the hybrid law is checked fast
@@ -160,7 +164,7 @@ WRONG = EMPSPlant(97.0, CoulombViscous(Fc=21.0, Fv=190.0, offset=-2.5, smoothing
 
 @pytest.mark.slow  # a few seconds (a subprocess or a fit): the fast tier stays under 5 minutes
 def test_frozen_physics_stays_frozen(record):
-    short = fj.split_emps_record(record, 0, 150)
+    short = fj.emps.split_emps_record(record, 0, 150)
     fitted = fit_emps_hybrid(short, WRONG, inputs=("v",), width=4, freeze_physics=True, steps=4, validation=None)
     p, s = fj.unwrap(fitted.plant), fj.unwrap(WRONG)
     assert float(p.mass) == float(s.mass) and float(p.offset) == float(s.offset)
@@ -174,8 +178,8 @@ def test_frozen_physics_stays_frozen(record):
 def test_free_physics_trains_and_the_tail_is_scored(record):
     free = fit_emps_hybrid(record, WRONG, inputs=("v",), width=4, steps=6, validation=0.3, lm_steps=2)
     assert float(fj.unwrap(free.plant).mass) != float(fj.unwrap(WRONG).mass) and np.isfinite(free.val_rmse_mm)
-    head = fj.split_emps_record(record, 0, 420)
-    assert float(np.sqrt(free.result.train_loss)) < fj.score_emps_open_loop(WRONG, head)
+    head = fj.emps.split_emps_record(record, 0, 420)
+    assert float(np.sqrt(free.result.train_loss)) < fj.emps.score_emps_open_loop(WRONG, head)
     assert free.refined is not None
 
 
@@ -200,7 +204,7 @@ def test_ensembles_of_positions_fit_on_training_data_only(record):
         EMPSPlant(95.0, CoulombViscous(Fc=19.0, Fv=205.0, offset=-3.0)),
         EMPSPlant(96.0, CoulombViscous(Fc=20.0, Fv=195.0, offset=-3.2)),
     ]
-    train, other = fj.split_emps_record(record, 0, 400), fj.split_emps_record(record, 400)
+    train, other = fj.emps.split_emps_record(record, 0, 400), fj.emps.split_emps_record(record, 400)
     positions = EMPSEnsemble(plants).member_positions(train)
     average = fit_emps_ensemble(plants, train, "average").ensemble
     np.testing.assert_allclose(average.weights, [1 / 3] * 3)
@@ -212,11 +216,11 @@ def test_ensembles_of_positions_fit_on_training_data_only(record):
     np.testing.assert_allclose(weighted.ensemble.weights, coef[1:], rtol=1e-6)
     assert float(weighted.ensemble.intercept) == pytest.approx(coef[0], abs=1e-9)
     # never worse than any member on the training record; the held-out part is only scored
-    assert weighted.ensemble.score(train) <= min(fj.score_emps_open_loop(p, train) for p in plants) + 1e-9
+    assert weighted.ensemble.score(train) <= min(fj.emps.score_emps_open_loop(p, train) for p in plants) + 1e-9
     assert np.isfinite(weighted.ensemble.score(other))
     nonnegative = fit_emps_ensemble(plants, train, "nonnegative", positions=positions).ensemble
     assert np.all(np.asarray(nonnegative.weights) >= 0)
-    assert nonnegative.score(train) <= min(fj.score_emps_open_loop(p, train) for p in plants) + 1e-9
+    assert nonnegative.score(train) <= min(fj.emps.score_emps_open_loop(p, train) for p in plants) + 1e-9
     selected = fit_emps_ensemble(plants, train, "press", positions=positions)
     assert set(selected.indices) <= {0, 1, 2} and len(selected.press) == len(selected.indices) + 1
     with pytest.raises(ValueError, match="method"):

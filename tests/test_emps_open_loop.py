@@ -14,18 +14,20 @@ import pytest
 import fricjax as fj
 from fricjax import (
     CoulombViscous,
-    EMPSOpenLoopFit,
-    EMPSOpenLoopLoss,
     EMPSPlant,
     EMPSRecord,
     FrictionData,
     Smooth,
     emps_open_loop_rmse_mm,
     exact,
+    simulate_open_loop,
+)
+from fricjax.emps import (
+    EMPSOpenLoopFit,
+    EMPSOpenLoopLoss,
     fit_emps_open_loop,
     predict_emps_open_loop,
     score_emps_open_loop,
-    simulate_open_loop,
     split_emps_record,
 )
 

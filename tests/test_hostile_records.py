@@ -232,8 +232,8 @@ def test_boucwen_loss_and_rmse_of_huge_and_tiny_records(scale):
         changed = {"k": 0.8 * parameters["k"], "beta": parameters["beta"] / factor}  # a start off the true system
         system = fj.BoucWen(**{**parameters, **changed}, substeps=2)
         record = fj.BoucWenRecord(factor * u, factor * y, fj.BOUCWEN_DT, "test", "synthetic")
-        loss = float(fj.BoucWenLoss(burn_in=10)(system, None, record))
-        values.append((loss, fj.boucwen_rmse(system, record)[0] / factor))
+        loss = float(fj.boucwen.BoucWenLoss(burn_in=10)(system, None, record))
+        values.append((loss, fj.boucwen.boucwen_rmse(system, record)[0] / factor))
     assert values[0][0] > 1e-4 and values[1] == pytest.approx(values[0], rel=1e-6), values
 
 

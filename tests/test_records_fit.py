@@ -246,7 +246,7 @@ def test_records_that_cannot_go_together_get_one_line_errors():
     with pytest.raises(ValueError, match="needs the normal load"):
         fj.fit(loaded, records, steps=1)
     with pytest.raises(TypeError, match="BoucWenLoss scores one record only"):
-        fj.RecordsLoss(fj.BoucWenLoss())
+        fj.RecordsLoss(fj.boucwen.BoucWenLoss())
     constant = fj.FrictionData(records[0].motion, np.ones(records[0].length))
     with pytest.raises(ValueError, match="record 1 in `data` is constant"):
         fj.fit(_start(), [records[1], constant], steps=1)

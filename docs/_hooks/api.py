@@ -1,4 +1,5 @@
-"""The API reference, generated at build time from the public namespace (`dir(fricjax)`, `dir(fricjax.compare)`).
+"""The API reference, generated at build time from the public namespaces (`dir(fricjax)` and its sub-namespaces
+`fricjax.compare`, `fricjax.emps`, `fricjax.boucwen`).
 
 Every public name is placed on the page of the private module it is defined in (found by griffe, which resolves
 `from ._models.physics._lugre import LuGre as LuGre` to its target), in the order of `SECTIONS`; a name from a
@@ -23,6 +24,9 @@ class Section:
     prefixes: tuple[str, ...]  # private modules (dotted, without "fricjax.") whose names go on this page
     intro: str
 
+
+# the public sub-namespaces (modules of `fricjax`): their names are listed one by one as `fricjax.NAMESPACE.NAME`
+NAMESPACES = ("compare", "emps", "boucwen")
 
 SECTIONS = (
     Section(
@@ -97,7 +101,7 @@ SECTIONS = (
             "_protocols._emps_bgbm",
         ),
         "The EMPS axis as a model under `fj.simulate` (open and closed loop), its identification protocols and its "
-        "grey + black-box models (hybrids, BGBM, ensembles).",
+        "grey + black-box models (hybrids, BGBM, ensembles): the protocols in the namespace `fj.emps`.",
     ),
     Section(
         "metrics.md",
@@ -123,12 +127,12 @@ class Entry:
 
 
 def public_names(namespace: types.ModuleType) -> list[str]:
-    """The public names of a namespace: not underscored, and not a module (except the `compare` namespace)."""
+    """The public names of a namespace: not underscored, and not a module (except the sub-namespaces)."""
     return [
         name
         for name in dir(namespace)
         if not name.startswith("_")
-        and (not isinstance(getattr(namespace, name), types.ModuleType) or name == "compare")
+        and (not isinstance(getattr(namespace, name), types.ModuleType) or name in NAMESPACES)
     ]
 
 
@@ -140,17 +144,16 @@ def _griffe_package(search_path: str):
 
 
 def entries(search_path: str) -> list[Entry]:
-    """Every public name of `fricjax` and of `fricjax.compare`, with where its definition lives."""
+    """Every public name of `fricjax` and of its sub-namespaces, with where its definition lives."""
     fricjax = importlib.import_module("fricjax")
     package = _griffe_package(search_path)
     found = []
-    for prefix, namespace, griffe_namespace in (
-        ("fricjax", fricjax, package),
-        ("fricjax.compare", fricjax.compare, package["compare"]),
-    ):
+    namespaces = [("fricjax", fricjax, package)]
+    namespaces += [(f"fricjax.{name}", getattr(fricjax, name), package[name]) for name in NAMESPACES]
+    for prefix, namespace, griffe_namespace in namespaces:
         for name in public_names(namespace):
-            if prefix == "fricjax" and name == "compare":
-                continue  # the namespace has its own page: its names are listed one by one
+            if prefix == "fricjax" and name in NAMESPACES:
+                continue  # a sub-namespace: its names are listed one by one
             try:
                 member = griffe_namespace[name]
                 target = member.target_path if member.is_alias else member.path

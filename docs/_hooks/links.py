@@ -17,7 +17,7 @@ PAPER_KEYS = ("worden2007", "parlitz2004", "emps-ensemble", "kernel-method", "am
 _FENCE = re.compile(r"^( {0,8})(```|~~~)")
 _CODE_SPAN = re.compile(r"(`+)(.+?)\1", re.S)
 _KEY = re.compile(r"(?<![\w\-\[/#.])(" + "|".join(re.escape(k) for k in PAPER_KEYS) + r")(?![\w\-\]])")
-_API = re.compile(r"fj\.(compare\.)?([A-Za-z_][A-Za-z0-9_]*)((?:\.[A-Za-z_][A-Za-z0-9_]*)*)(\(\))?")
+_API = re.compile(r"fj\.((?:compare|emps|boucwen)\.)?([A-Za-z_][A-Za-z0-9_]*)((?:\.[A-Za-z_][A-Za-z0-9_]*)*)(\(\))?")
 
 
 def _link_text(text: str, public: frozenset[str]) -> str:
@@ -66,11 +66,12 @@ def link_markdown(markdown: str, public: frozenset[str]) -> str:
 
 
 def public_identifiers() -> frozenset[str]:
-    """Every public identifier the API reference renders: "fricjax.NAME" and "fricjax.compare.NAME"."""
-    from api import public_names
+    """Every public identifier the API reference renders: "fricjax.NAME" and "fricjax.NAMESPACE.NAME"."""
+    from api import NAMESPACES, public_names
 
     import fricjax
 
     names = {f"fricjax.{n}" for n in public_names(fricjax)}
-    names |= {f"fricjax.compare.{n}" for n in public_names(fricjax.compare)}
+    for namespace in NAMESPACES:
+        names |= {f"fricjax.{namespace}.{n}" for n in public_names(getattr(fricjax, namespace))}
     return frozenset(names)

@@ -18,6 +18,39 @@ if TYPE_CHECKING:  # type checkers and IDEs see every public name; at run time t
 del TYPE_CHECKING
 
 
+# protocol names that moved to their namespaces (DESIGN.md v4): the flat name still reads them, with a warning
+_MOVED = {
+    "EMPSBGBMFit": "emps",
+    "EMPSErrorModel": "emps",
+    "fit_emps_bgbm": "emps",
+    "EMPSEnsemble": "emps",
+    "EMPSEnsembleFit": "emps",
+    "EMPSHybridFit": "emps",
+    "emps_closed_loop_errors": "emps",
+    "emps_hybrid_start": "emps",
+    "fit_emps_ensemble": "emps",
+    "fit_emps_hybrid": "emps",
+    "EMPSIDMResult": "emps",
+    "fit_emps_idm": "emps",
+    "EMPSIDMData": "emps",
+    "emps_idm_data": "emps",
+    "EMPSOpenLoopFit": "emps",
+    "EMPSOpenLoopLoss": "emps",
+    "fit_emps_open_loop": "emps",
+    "predict_emps_open_loop": "emps",
+    "score_emps_open_loop": "emps",
+    "split_emps_record": "emps",
+    "EMPS_PLATEAU_VELOCITIES": "emps",
+    "EMPSPlateau": "emps",
+    "emps_plateau_forces": "emps",
+    "BOUCWEN_STEADY_PERIODS": "boucwen",
+    "BoucWenLoss": "boucwen",
+    "BoucWenScores": "boucwen",
+    "boucwen_rmse": "boucwen",
+    "score_boucwen": "boucwen",
+}
+
+
 def __getattr__(name: str) -> "_Any":  # quoted: no `from __future__ import annotations` (a public name here)
     """The public names load on first use, all at once (PEP 562): `import fricjax` itself imports no JAX (and
     `__version__` reads the installed metadata on first use: 30 ms that `fricjax`'s start-up does not wait for)."""
@@ -25,6 +58,17 @@ def __getattr__(name: str) -> "_Any":  # quoted: no `from __future__ import anno
         return _fricjax_version()
     if name.startswith("__"):
         raise AttributeError(name)
+    if name in _MOVED:
+        import warnings
+
+        namespace = _importlib.import_module(f".{_MOVED[name]}", __name__)
+        warnings.warn(
+            f"fj.{name} moved to fj.{_MOVED[name]}.{name} (the protocols' names live in their namespaces); "
+            "the old name goes in a later release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(namespace, name)
     public = _importlib.import_module("._public", __name__)
     names = {key: value for key, value in vars(public).items() if not key.startswith("_")}
     globals().update(names)

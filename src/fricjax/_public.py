@@ -3,7 +3,9 @@ one of them, so that `import fricjax` (and `fricjax --help`) return before JAX i
 
 # the OpenBLAS behind JAX's CPU LAPACK calls on one thread (XLA's pool provides the parallelism)
 from . import _lapack_threads as _lapack_threads  # isort: skip
+from . import boucwen as boucwen  # the public `fj.boucwen` namespace: the Bouc-Wen benchmark's protocol
 from . import compare as compare  # the public `fj.compare` namespace
+from . import emps as emps  # the public `fj.emps` namespace: the EMPS benchmark's protocols
 from ._cli import main as main  # the command line: fj.main(["compare", ...])
 from ._compilation_cache import enable_compilation_cache as enable_compilation_cache
 from ._constraints import AbstractUnwrappable as AbstractUnwrappable
@@ -162,34 +164,6 @@ from ._models.physics._static import Tustin as Tustin
 from ._models.physics._stribeck import AbstractStribeck as AbstractStribeck
 from ._models.physics._stribeck import ExponentialStribeck as ExponentialStribeck
 from ._models.physics._stribeck import RationalStribeck as RationalStribeck
-from ._protocols._boucwen import BOUCWEN_STEADY_PERIODS as BOUCWEN_STEADY_PERIODS
-from ._protocols._boucwen import BoucWenLoss as BoucWenLoss
-from ._protocols._boucwen import BoucWenScores as BoucWenScores
-from ._protocols._boucwen import boucwen_rmse as boucwen_rmse
-from ._protocols._boucwen import score_boucwen as score_boucwen
-from ._protocols._emps_bgbm import EMPSBGBMFit as EMPSBGBMFit
-from ._protocols._emps_bgbm import EMPSErrorModel as EMPSErrorModel
-from ._protocols._emps_bgbm import fit_emps_bgbm as fit_emps_bgbm
-from ._protocols._emps_hybrid import EMPSEnsemble as EMPSEnsemble
-from ._protocols._emps_hybrid import EMPSEnsembleFit as EMPSEnsembleFit
-from ._protocols._emps_hybrid import EMPSHybridFit as EMPSHybridFit
-from ._protocols._emps_hybrid import emps_closed_loop_errors as emps_closed_loop_errors
-from ._protocols._emps_hybrid import emps_hybrid_start as emps_hybrid_start
-from ._protocols._emps_hybrid import fit_emps_ensemble as fit_emps_ensemble
-from ._protocols._emps_hybrid import fit_emps_hybrid as fit_emps_hybrid
-from ._protocols._emps_idm import EMPSIDMResult as EMPSIDMResult
-from ._protocols._emps_idm import fit_emps_idm as fit_emps_idm
-from ._protocols._emps_idm_data import EMPSIDMData as EMPSIDMData
-from ._protocols._emps_idm_data import emps_idm_data as emps_idm_data
-from ._protocols._emps_open_loop import EMPSOpenLoopFit as EMPSOpenLoopFit
-from ._protocols._emps_open_loop import EMPSOpenLoopLoss as EMPSOpenLoopLoss
-from ._protocols._emps_open_loop import fit_emps_open_loop as fit_emps_open_loop
-from ._protocols._emps_open_loop import predict_emps_open_loop as predict_emps_open_loop
-from ._protocols._emps_open_loop import score_emps_open_loop as score_emps_open_loop
-from ._protocols._emps_open_loop import split_emps_record as split_emps_record
-from ._protocols._emps_plateaus import EMPS_PLATEAU_VELOCITIES as EMPS_PLATEAU_VELOCITIES
-from ._protocols._emps_plateaus import EMPSPlateau as EMPSPlateau
-from ._protocols._emps_plateaus import emps_plateau_forces as emps_plateau_forces
 from ._simulate import simulate as simulate
 from ._smoothing import AbstractSmoothing as AbstractSmoothing
 from ._smoothing import Exact as Exact

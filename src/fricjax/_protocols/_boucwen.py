@@ -94,7 +94,7 @@ def score_boucwen(model: Any, multisine: BoucWenRecord, sinesweep: BoucWenRecord
     ```python
     >>> import fricjax as fj
     >>> data = fj.load_boucwen()  # doctest: +SKIP
-    >>> scores = fj.score_boucwen(fj.BoucWen.benchmark(), data.multisine, data.sinesweep)  # doctest: +SKIP
+    >>> scores = fj.boucwen.score_boucwen(fj.BoucWen.benchmark(), data.multisine, data.sinesweep)  # doctest: +SKIP
     >>> scores.multisine < 1e-5, scores.sinesweep < 1e-5  # doctest: +SKIP
     (True, True)
     ```

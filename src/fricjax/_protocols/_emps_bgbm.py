@@ -191,8 +191,8 @@ def fit_emps_bgbm(
     ```python
     >>> import fricjax as fj
     >>> train = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS.mat")  # doctest: +SKIP
-    >>> grey = fj.fit_emps_open_loop(train, fj.Tustin, asymmetric=True).plant  # doctest: +SKIP
-    >>> bgbm = fj.fit_emps_bgbm(train, grey, inputs=("force",), order=2)  # doctest: +SKIP
+    >>> grey = fj.emps.fit_emps_open_loop(train, fj.Tustin, asymmetric=True).plant  # doctest: +SKIP
+    >>> bgbm = fj.emps.fit_emps_bgbm(train, grey, inputs=("force",), order=2)  # doctest: +SKIP
     >>> bgbm.model.score(fj.load_emps(fj.data_folder("emps") / "DATA_EMPS_PULSES.mat"))  # doctest: +SKIP
     ```
     """

@@ -166,10 +166,10 @@ def fit_emps_hybrid(
     ```python
     >>> import fricjax as fj
     >>> train = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS.mat")  # doctest: +SKIP
-    >>> physics = fj.fit_emps_open_loop(train, fj.CoulombViscous).plant  # doctest: +SKIP
-    >>> hybrid = fj.fit_emps_hybrid(train, physics, inputs=("v", "q"))  # doctest: +SKIP
+    >>> physics = fj.emps.fit_emps_open_loop(train, fj.CoulombViscous).plant  # doctest: +SKIP
+    >>> hybrid = fj.emps.fit_emps_hybrid(train, physics, inputs=("v", "q"))  # doctest: +SKIP
     >>> test = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS_PULSES.mat")  # doctest: +SKIP
-    >>> fj.score_emps_open_loop(hybrid.plant, test)  # doctest: +SKIP
+    >>> fj.emps.score_emps_open_loop(hybrid.plant, test)  # doctest: +SKIP
     ```
     """
     loss = EMPSOpenLoopLoss() if loss is None else loss

@@ -273,12 +273,12 @@ def fit_emps_idm(
     ```python
     >>> import fricjax as fj
     >>> train = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS.mat")  # doctest: +SKIP
-    >>> fit = fj.fit_emps_idm(train, fj.CoulombViscous)  # doctest: +SKIP
+    >>> fit = fj.emps.fit_emps_idm(train, fj.CoulombViscous)  # doctest: +SKIP
     >>> round(fit.M, 4), round(fit.params["Fv"], 4), round(fit.params["Fc"], 4), round(fit.offset, 4)  # doctest: +SKIP
     (95.1089, 203.5034, 20.3935, -3.1648)
     >>> round(fit.relative_error_on(fj.load_emps(fj.data_folder("emps") / "DATA_EMPS_PULSES.mat")), 4)  # doctest: +SKIP
     5.9824
-    >>> fj.fit_emps_idm(train, fj.Tustin, asymmetric=True).friction()  # doctest: +SKIP
+    >>> fj.emps.fit_emps_idm(train, fj.Tustin, asymmetric=True).friction()  # doctest: +SKIP
     ```
     """
     form = getattr(law, "regression_form", None) if isinstance(law, type) else None

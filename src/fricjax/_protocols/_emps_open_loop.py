@@ -113,9 +113,9 @@ class EMPSOpenLoopLoss(AbstractLoss):
     ```python
     >>> import fricjax as fj
     >>> train = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS.mat")  # doctest: +SKIP
-    >>> idm = fj.fit_emps_idm(train, fj.CoulombViscous)  # doctest: +SKIP
+    >>> idm = fj.emps.fit_emps_idm(train, fj.CoulombViscous)  # doctest: +SKIP
     >>> start = fj.with_smoothing(idm.plant(), fj.Smooth(1e-3))  # doctest: +SKIP
-    >>> loss, solver = fj.EMPSOpenLoopLoss(), fj.levenberg_marquardt()  # doctest: +SKIP
+    >>> loss, solver = fj.emps.EMPSOpenLoopLoss(), fj.levenberg_marquardt()  # doctest: +SKIP
     >>> result = fj.fit(start, train, loss=loss, solver=solver, steps=100, freeze=("offset",))  # doctest: +SKIP
     >>> round(float(result.train_loss) ** 0.5, 2)  # doctest: +SKIP
     2.96
@@ -237,7 +237,7 @@ def score_emps_open_loop(
     >>> import fricjax as fj
     >>> test = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS_PULSES.mat")  # doctest: +SKIP
     >>> plant = fj.EMPSPlant(95.1089, fj.CoulombViscous(Fc=20.3935, Fv=203.5034, offset=-3.1648))  # doctest: +SKIP
-    >>> round(fj.score_emps_open_loop(plant, test), 2)  # doctest: +SKIP
+    >>> round(fj.emps.score_emps_open_loop(plant, test), 2)  # doctest: +SKIP
     8.49
     ```
     """
@@ -369,10 +369,10 @@ def fit_emps_open_loop(
     >>> import fricjax as fj
     >>> train = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS.mat")  # doctest: +SKIP
     >>> test = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS_PULSES.mat")  # doctest: +SKIP
-    >>> fitted = fj.fit_emps_open_loop(train, fj.CoulombViscous)  # doctest: +SKIP
-    >>> round(fj.score_emps_open_loop(fitted.plant, test), 2)  # doctest: +SKIP
+    >>> fitted = fj.emps.fit_emps_open_loop(train, fj.CoulombViscous)  # doctest: +SKIP
+    >>> round(fj.emps.score_emps_open_loop(fitted.plant, test), 2)  # doctest: +SKIP
     6.12
-    >>> round(fj.score_emps_open_loop(fitted.idm.plant(), test), 2)  # the IDM start  # doctest: +SKIP
+    >>> round(fj.emps.score_emps_open_loop(fitted.idm.plant(), test), 2)  # the IDM start  # doctest: +SKIP
     8.49
     ```
     """

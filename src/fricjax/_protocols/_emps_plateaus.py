@@ -69,7 +69,7 @@ def emps_plateau_forces(
     ```python
     >>> import fricjax as fj
     >>> train = fj.load_emps(fj.data_folder("emps") / "DATA_EMPS.mat")  # doctest: +SKIP
-    >>> [round(p.force, 2) for p in fj.emps_plateau_forces(train)]  # doctest: +SKIP
+    >>> [round(p.force, 2) for p in fj.emps.emps_plateau_forces(train)]  # doctest: +SKIP
     [34.31, 40.7, -40.26, -50.57]
     ```
     """

@@ -7,7 +7,7 @@ and its history to an output. The same maps identify other input-output systems:
 displacement: its `x` is the signal, `dx`, `v` and `a` its increments and finite-difference derivatives (as
 `fj.Motion(x=signal, dt=record.dt)` gives them), and its output is the system's output. The model is trained
 on an `fj.FrictionData` whose motion is the input signal and whose "force" is the output
-(`input_output_data`), and evaluated here on `fj.InputRecord`s, e.g. by `fj.score_boucwen`.
+(`input_output_data`), and evaluated here on `fj.InputRecord`s, e.g. by `fj.boucwen.score_boucwen`.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ input force u [N], output displacement y [m]; `F` [N] is the output of a frictio
 LuGre, Dahl, a recurrent network, ...) driven by the displacement history y. The Bouc-Wen oscillator of the
 Noël & Schoukens (2016) benchmark is the case where `F` is the Bouc-Wen variable z; this system fits the
 benchmark with the rate-independent hysteresis models of the friction literature instead (the "Maxwell-slip,
-GMS-type elements on displacement" of the Bouc-Wen protocol, `fj.score_boucwen`).
+GMS-type elements on displacement" of the Bouc-Wen protocol, `fj.boucwen.score_boucwen`).
 
 **Discretisation.** The force `u` is linear between samples (`fj.boucwen_inputs`). Each sample is divided into
 `substeps` steps of `h = dt / substeps`, each a velocity-Verlet step: a half kick with the forces at the start,

@@ -77,7 +77,7 @@ class FitFailed(RuntimeError):
 
 
 class Solution(eqx.Module):
-    """What every fit and identification returns (`fj.fit`, `fj.least_squares`, `fj.sweep`, `fj.identify_*`,
+    """What every fit and identification returns (`fj.fit`, `fj.least_squares`, `fj.sweep`, the `identify_*` functions,
     `fj.recursive_fit`; `FitResult` is the same class under its former name): one `eqx.Module`.
 
     - `model`: the fitted model (smoothing as at the end of the fit); `exact_model` is `fj.exact(model)`.

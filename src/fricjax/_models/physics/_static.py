@@ -57,7 +57,7 @@ def _coefficient(value: ParamLike, name: str, *, is_positive: bool, dtype: Any =
 @dataclasses.dataclass(frozen=True)
 class LawRegression:
     """How a static law enters a linear regression of the force (the EMPS inverse-dynamics identification,
-    `fj.fit_emps_idm`): its columns, split into those fixed and those depending on the nonlinear parameters.
+    `fj.emps.fit_emps_idm`): its columns, split into those fixed and those depending on the nonlinear parameters.
     Coefficient names: `Fc`, `Fv`, and `dS = Fs - Fc` (the Stribeck amplitude, where `amplitude`)."""
 
     viscous: bool  # a `v` column with coefficient Fv
@@ -83,7 +83,8 @@ class AbstractStaticFriction(AbstractFrictionModel):
 
     @classmethod
     def regression_form(cls) -> LawRegression | None:
-        """How the law enters a linear regression of the force (`fj.fit_emps_idm`); None where it has no such form."""
+        """How the law enters a linear regression of the force (`fj.emps.fit_emps_idm`); None where it has no such
+        form."""
         return None
 
     reads_plant: ClassVar[bool] = False  # the law reads the plant's position and drive force too (a hybrid residual)
