@@ -277,3 +277,33 @@ def test_initialise_recovers_the_offset_and_state_a_record_starts_in():
     presliding = fj.FrictionData(small, np.asarray(fj.simulate(truth, small)) + 0.4)
     with pytest.warns(UserWarning, match=r"\(LuGre, a window of 100 samples\).*poorly determined"):
         fj.initialise(truth, presliding.slice(0, 100))
+
+
+class _Known(fj.AbstractInitialiser):
+    """A user's initialiser (room for a state estimator): a state known from elsewhere, no offset."""
+
+    state: fj.DahlState
+
+    def __call__(self, model, window):
+        return fj.Initialisation(0.0, self.state, float("nan"), 0)
+
+
+def test_initialisers_are_objects_a_user_can_add_to():
+    """`fj.initialise` takes an `fj.AbstractInitialiser`: `fj.WindowLeastSquares` (its default: the same numbers as
+    its keyword arguments), `fj.AtRest` (rest, the window's mean error as the offset: exact for a record that starts
+    at rest) or a user's own subclass."""
+    model = fj.Dahl(sigma0=2e4, Fc=1.0, alpha=1.0)
+    motion = fj.Motion.from_position(1e-3 * np.sin(np.linspace(0, 6, 600)), dt=1e-3)
+    from_rest = fj.FrictionData(motion, np.asarray(fj.simulate(model, motion)) + 0.25)
+    window = from_rest.slice(0, 60)
+    default = fj.initialise(model, window, drift=True, max_steps=20)
+    explicit = fj.initialise(model, window, initialiser=fj.WindowLeastSquares(drift=True, max_steps=20))
+    assert (default.offset, default.drift, default.steps) == (explicit.offset, explicit.drift, explicit.steps)
+    at_rest = fj.initialise(model, window, initialiser=fj.AtRest())
+    np.testing.assert_allclose(at_rest.offset, 0.25, rtol=1e-12)
+    assert float(at_rest.state0.F) == 0.0 and at_rest.window_nmse < 1e-20 and at_rest.steps == 0
+    np.testing.assert_allclose(at_rest.predict(model, motion), np.asarray(from_rest.force), atol=1e-12)
+    known = fj.initialise(model, window, initialiser=_Known(fj.DahlState(F=np.asarray(0.6))))
+    assert float(known.state0.F) == 0.6 and known.offset == 0.0
+    with pytest.raises(TypeError, match=r"fj.AbstractInitialiser \(fj.WindowLeastSquares\(\), fj.AtRest\(\)\)"):
+        fj.initialise(model, window, initialiser="rest")

@@ -110,6 +110,13 @@ SECTIONS = (
         "Error measures as the papers report them.",
     ),
     Section(
+        "boucwen.md",
+        "Bouc-Wen: the benchmark's protocol",
+        ("_protocols._boucwen",),
+        "The scoring and the loss of the Bouc-Wen hysteresis benchmark, in the namespace `fj.boucwen`; the system "
+        "(`fj.BoucWen`) and its records (`fj.load_boucwen`) are with the systems and the data.",
+    ),
+    Section(
         "compare.md",
         "fj.compare and the command line",
         ("_protocols", "_plot", "_cli", "compare"),
@@ -210,11 +217,21 @@ def _module_summary(search_path: str, module: str) -> str:
     return inspect.cleandoc(docstring.value).split("\n\n")[0].replace("\n", " ")
 
 
+def _namespace_page(namespace: str) -> str:
+    """The page that renders a sub-namespace's docstring (and so its anchor, `fricjax.NAMESPACE`)."""
+    return {"compare": "compare.md", "emps": "systems.md", "boucwen": "boucwen.md"}[namespace]
+
+
 def page_markdown(search_path: str, section: Section, items: list[Entry]) -> str:
     lines = [f"# {section.title}", "", section.intro, ""]
-    if section is SECTIONS[-1]:
-        lines += ["The public namespace `fj.compare` (`import fricjax as fj`):", "", "::: fricjax.compare", ""]
-        lines += ["    options:", "      members: false", "      show_root_heading: false", ""]
+    for namespace in NAMESPACES:
+        if _namespace_page(namespace) == section.page:
+            lines += [
+                f"The public namespace `fj.{namespace}` (`import fricjax as fj`):",
+                "",
+                f"::: fricjax.{namespace}",
+            ]
+            lines += ["", "    options:", "      members: false", "      show_root_heading: false", ""]
     lines += ["Names on this page: " + ", ".join(f"[`{_short(e)}`][{e.identifier}]" for e in items) + ".", ""]
     module = None
     for entry in items:
@@ -236,7 +253,8 @@ def index_markdown(search_path: str, grouped: dict[Section, list[Entry]]) -> str
     lines = [
         "# API reference",
         "",
-        "Generated at build time from the public namespace, `dir(fricjax)` and `dir(fricjax.compare)`: every "
+        "Generated at build time from the public namespaces, `dir(fricjax)` and `dir(fricjax.compare)`, "
+        "`dir(fricjax.emps)`, `dir(fricjax.boucwen)`: every "
         "public name, with its signature and docstring, on the page of the module it is defined in. Import as "
         "`import fricjax as fj`.",
         "",

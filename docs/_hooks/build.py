@@ -1,6 +1,6 @@
 """mkdocs hooks of the documentation site (mkdocs.yml `hooks:`): generated pages, notebooks, links, equations.
 
-- The API reference pages are generated from `dir(fricjax)` and `dir(fricjax.compare)` (api.py) and put in the
+- The API reference pages are generated from `dir(fricjax)` and its sub-namespaces (api.py) and put in the
   navigation under "API reference".
 - The notebooks are executed (notebooks.py: smoke size, cached by their inputs; a cell that raises fails the
   build) and converted to Markdown pages with their figures as PNG files, under "Notebooks"; the original `.ipynb`

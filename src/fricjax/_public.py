@@ -59,7 +59,10 @@ from ._estimation.families._wavelet_narx import WaveletNARXSelection as WaveletN
 from ._estimation.families._wavelet_narx import identify_wavelet_narx as identify_wavelet_narx
 from ._estimation.initial._elements import element_count as element_count
 from ._estimation.initial._initial_guess import initial_guess as initial_guess
+from ._estimation.initial._initialise import AbstractInitialiser as AbstractInitialiser
+from ._estimation.initial._initialise import AtRest as AtRest
 from ._estimation.initial._initialise import Initialisation as Initialisation
+from ._estimation.initial._initialise import WindowLeastSquares as WindowLeastSquares
 from ._estimation.initial._initialise import initialise as initialise
 from ._estimation.initial._record_scales import RecordScales as RecordScales
 from ._estimation.linear._covariance import covariance as covariance

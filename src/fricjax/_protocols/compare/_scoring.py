@@ -69,8 +69,8 @@ def predict_test_record(
     motions enter, never the test record's measured force. Its time course goes over as it is: records of equal
     length are assumed (the tribometer's drift reaches its level at each record's end). With `init="state"` and a
     window, the record's offset and the model's initial state are fitted on the window (`fj.initialise`); otherwise
-    the model runs from rest (and `score_prediction` takes the window's mean error as the offset)."""
-    from ..._estimation.initial._initialise import initialise
+    the model runs from rest (and `score_prediction` takes the window's mean error as the offset: `fj.AtRest`'s)."""
+    from ..._estimation.initial._initialise import WindowLeastSquares, initialise
 
     drifting = getattr(model, "drifts", False)
     friction = model.without_drift() if drifting else model
@@ -88,7 +88,7 @@ def predict_test_record(
     window = test.record.slice(test.start, test.scored_start)
     with warnings.catch_warnings(record=True) as caught:  # said again with the record's name
         warnings.simplefilter("always")
-        found = initialise(exact(friction), window, drift=test_drift == "window")
+        found = initialise(exact(friction), window, initialiser=WindowLeastSquares(drift=test_drift == "window"))
     for warning in caught:
         warnings.warn(f"{test.name}: {warning.message}", warning.category, stacklevel=2)
     # without the offset: `score_prediction` takes the window's mean error, which is the offset fitted with the state
