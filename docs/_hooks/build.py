@@ -83,6 +83,14 @@ def on_files(files: Files, config) -> Files:
     executed = notebooks.execute_all(log=log.info)
     for name, path in executed.items():
         stem = pathlib.Path(name).stem
+        if isinstance(path, str):  # it could not run here (no data folder): its page says why, its source is offered
+            title = _notebook_title(notebooks.NOTEBOOKS / name)
+            note = (
+                f'# {title}\n\n!!! note "Not executed in this build"\n    {path}.\n\n[Download the notebook]({name})\n'
+            )
+            files.append(File.generated(config, f"notebooks/{stem}.md", content=note))
+            files.append(File.generated(config, f"notebooks/{name}", abs_src_path=str(notebooks.NOTEBOOKS / name)))
+            continue
         markdown, images = notebook_markdown(path, stem)
         files.append(File.generated(config, f"notebooks/{stem}.md", content=markdown))
         for image_name, data in images.items():

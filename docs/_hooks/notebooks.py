@@ -41,8 +41,30 @@ def _key(path: pathlib.Path, env: dict[str, str]) -> str:
     return digest.hexdigest()[:16]
 
 
-def execute(path: pathlib.Path, log=print) -> pathlib.Path:
-    """The executed copy of the notebook at `path` (executed now, or reused from the cache)."""
+# what a notebook that reads the data folder calls (its page is a note when the folder is absent)
+_READS_DATA = ("data_folder(", "load_emps", "load_boucwen", "load_damper", "FRICJAX_DATA")
+
+
+def needs_data(path: pathlib.Path) -> bool:
+    """Whether the notebook reads fricjax's data folder (the real records: EMPS, Bouc-Wen, the damper)."""
+    text = path.read_text()
+    return any(call in text for call in _READS_DATA)
+
+
+def missing_data(path: pathlib.Path) -> str | None:
+    """Why the notebook at `path` cannot run here (it reads the data folder and there is none), or None."""
+    data = pathlib.Path(kernel_environment()["FRICJAX_DATA"])
+    if needs_data(path) and not data.is_dir():
+        return (
+            f"this notebook reads the real records of fricjax's data folder, and the site was built without it "
+            f"(FRICJAX_DATA={data} is no folder): set FRICJAX_DATA to the `shared/data` folder and build again"
+        )
+    return None
+
+
+def execute(path: pathlib.Path, log=print) -> pathlib.Path | str:
+    """The executed copy of the notebook at `path` (executed now, or reused from the cache), or the reason it cannot
+    run here (a notebook that reads the data folder, on a machine without it: its page says so)."""
     import nbclient
     import nbformat
 
@@ -51,9 +73,10 @@ def execute(path: pathlib.Path, log=print) -> pathlib.Path:
     if target.exists():
         log(f"notebook {path.name}: executed copy reused ({target.relative_to(ROOT)})")
         return target
-    data = pathlib.Path(env["FRICJAX_DATA"])
-    if not data.is_dir():
-        raise RuntimeError(f"notebook {path.name}: FRICJAX_DATA={data} is no folder; set it to the shared/data folder")
+    reason = missing_data(path)
+    if reason is not None:
+        log(f"notebook {path.name}: not executed: {reason}")
+        return reason
     notebook = nbformat.read(path, as_version=4)
     client = nbclient.NotebookClient(
         notebook,
@@ -73,8 +96,8 @@ def execute(path: pathlib.Path, log=print) -> pathlib.Path:
     return target
 
 
-def execute_all(log=print) -> dict[str, pathlib.Path]:
-    """Every notebook's executed copy, by file name."""
+def execute_all(log=print) -> dict[str, pathlib.Path | str]:
+    """Every notebook's executed copy (or the reason it could not run here), by file name."""
     return {path.name: execute(path, log) for path in sorted(NOTEBOOKS.glob("*.ipynb"))}
 
 
