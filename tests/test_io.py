@@ -161,3 +161,27 @@ def test_compare_data_card_lists_columns_ignored_and_units(tmp_path):
     assert card["columns"] == {"t": "time", "x": "x [um]", "force": "F [kN]"}
     assert card["ignored"] == ["temperature"]
     assert card["units"] == {"x": "um", "force": "kN"}
+
+
+def test_a_time_column_in_milliseconds_is_warned_about_and_t_unit_reads_it(tmp_path):
+    """Issue 55: a record at 1 kHz whose `t` is in ms (no unit written) became dt = 1 s, and every rate parameter
+    1000x wrong, without a word. A time column without a unit that gives a sample time above 50 ms (below 20 Hz)
+    is warned about, naming `t_unit` / `--t-unit`; `t_unit` reads it (and wins over the file's unit)."""
+    path = _csv(tmp_path / "ms.csv", "t,x,F", T * 1e3, X, F)
+    with pytest.warns(UserWarning, match=r"'t' has no unit and gives a sample time of 1 s \(1 Hz\).*--t-unit ms"):
+        assert float(fj.load_record(path).motion.dt) == 1.0
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert float(fj.load_record(path, t_unit="ms").motion.dt) == pytest.approx(DT)
+        # a unit in the name, or a fast record, is not warned about
+        fj.load_record(_csv(tmp_path / "s.csv", "t [s],x,F", T * 1e3, X, F))
+        fj.load_record(_csv(tmp_path / "fast.csv", "t,x,F", T, X, F))
+    with pytest.warns(UserWarning, match=r"t_unit='us' .*overrides the time unit 'ms'"):
+        named = fj.load_record(_csv(tmp_path / "named.csv", "t [ms],x,F", T * 1e6, X, F), t_unit="us")
+    assert float(named.motion.dt) == pytest.approx(DT)
+    with pytest.raises(ValueError, match="time unit"):
+        fj.load_record(path, t_unit="min")
+    code = fj.main(["compare", "--t-unit", "ms", "--out", str(tmp_path / "out")])  # built-in records: no file
+    assert code == 2

@@ -215,6 +215,7 @@ def _parser() -> argparse.ArgumentParser:
     compare.add_argument("--dt", type=float, default=None, help="sample time [s] of the file records (overrides t)")
     compare.add_argument("--x-unit", default=None, help="displacement unit of the file records (m, mm, um, nm, in)")
     compare.add_argument("--force-unit", default=None, help="force unit of the file records (N, kN, mN, lbf, kip)")
+    compare.add_argument("--t-unit", default=None, help="time unit of the file records' t / dt columns (s, ms, us)")
     compare.add_argument("--out", default="fricjax-compare", help="output folder (default: %(default)s)")
     compare.add_argument("--seed", type=int, default=0, help="seed for the synthetic data and multi-starts")
     compare.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -297,6 +298,7 @@ def _run(args: argparse.Namespace) -> int:
             dt=args.dt,
             x_unit=args.x_unit,
             force_unit=args.force_unit,
+            t_unit=args.t_unit,
             velocity=args.velocity,
             normal_force_column=args.normal_force_column,
             init=args.init,

@@ -102,10 +102,15 @@ class Units:
 
 
 def sample_time_of(
-    path: pathlib.Path, data: dict[str, np.ndarray], columns: dict[str, str], declared: dict[str, list]
+    path: pathlib.Path,
+    data: dict[str, np.ndarray],
+    columns: dict[str, str],
+    declared: dict[str, list],
+    t_unit: str | None = None,
 ) -> float:
-    """The sample time [s] from the columns 'dt' and / or 't' (which must agree when both are given)."""
-    seconds = {role: _TIME_UNITS[resolve_unit(path, "t", declared[role], None)] for role in ("t", "dt")}
+    """The sample time [s] from the columns 'dt' and / or 't' (which must agree when both are given), in the unit
+    `t_unit` if given (it wins over the file's), else the one the file declares, else seconds."""
+    seconds = {role: _TIME_UNITS[resolve_unit(path, "t", declared[role], t_unit)] for role in ("t", "dt")}
     fix = "pass the sample time in seconds (dt= in load_record, --dt on the command line)"
     dt = None
     if "dt" in data:
@@ -180,12 +185,17 @@ def _float32_stamps(t: np.ndarray) -> bool:
 
 
 def warn_if_time_disagrees(
-    path: pathlib.Path, dt: float, data: dict[str, np.ndarray], columns: dict[str, str], declared: Any
+    path: pathlib.Path,
+    dt: float,
+    data: dict[str, np.ndarray],
+    columns: dict[str, str],
+    declared: Any,
+    t_unit: str | None = None,
 ) -> None:
     """The `dt` argument wins over the file's time columns; a warning where they disagree by more than 0.1 %
     (a sample time in the wrong unit makes every rate parameter wrong)."""
     try:
-        found = sample_time_of(path, data, columns, declared)
+        found = sample_time_of(path, data, columns, declared, t_unit)
     except RecordError:  # the columns cannot give one: the argument is the sample time
         return
     if abs(found - dt) > 1e-3 * dt:
@@ -195,6 +205,28 @@ def warn_if_time_disagrees(
             f"{dt / found:.3g}x); check the sample time's unit",
             stacklevel=4,
         )
+
+
+# a sample time above this [s] (below 20 Hz) is slow for a friction record: a time column in milliseconds read as
+# seconds gives 1 kHz records a sample time of 1 s
+SLOW_SAMPLE_TIME = 0.05
+
+
+def warn_if_time_unit_doubtful(
+    path: pathlib.Path, dt: float, columns: dict[str, str], declared: Any, t_unit: str | None
+) -> None:
+    """A warning where the file's time column has no unit (none in its name, no units entry, no `t_unit`) and gives
+    a sample time slower than friction records are sampled (`SLOW_SAMPLE_TIME`): a time in milliseconds read as
+    seconds makes every rate parameter 1000x wrong, and the fit still "succeeds"."""
+    if t_unit is not None or declared["t"] or declared["dt"] or dt <= SLOW_SAMPLE_TIME:
+        return
+    named = " / ".join(repr(columns[role]) for role in ("t", "dt") if role in columns)
+    warnings.warn(
+        f"{path}: the time column {named} has no unit and gives a sample time of {dt:.4g} s ({1 / dt:.3g} Hz), slow "
+        "for a friction record: if it is in milliseconds, pass t_unit='ms' (--t-unit ms); a time in seconds can "
+        "say so in its name ('t [s]', 'time_s')",
+        stacklevel=4,
+    )
 
 
 def scaled_values(values: np.ndarray, factor: float) -> np.ndarray:
@@ -313,7 +345,7 @@ def declare_unit(declared: dict[str, list[tuple[str, str]]], role: str, unit: st
 
 
 _DEFAULTS = {"x": "m", "force": "N", "t": "s", "normal_force": "N"}
-_OPTIONS = {"x": "x_unit= (--x-unit)", "force": "force_unit= (--force-unit)"}
+_OPTIONS = {"x": "x_unit= (--x-unit)", "force": "force_unit= (--force-unit)", "t": "t_unit= (--t-unit)"}
 
 
 def resolve_unit(

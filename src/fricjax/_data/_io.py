@@ -28,6 +28,7 @@ from ._columns import (
     sample_time_of,
     scaled_values,
     warn_if_time_disagrees,
+    warn_if_time_unit_doubtful,
 )
 from ._csv import CSVError, read_csv
 from ._record import FrictionData
@@ -64,6 +65,7 @@ def load_record(
     force_unit: str | None = None,
     velocity: str = "auto",
     normal_force_column: str | Sequence[str] | None = None,
+    t_unit: str | None = None,
 ) -> FrictionData:
     """Read a friction record from a `.csv` (header row) or `.npz` file, in SI units.
 
@@ -112,7 +114,9 @@ def load_record(
     Errors are one line naming the file and the fix, and the first offending line by its number (`RecordError`,
     a ValueError).
 
-    **Arguments:** `path` the file; `dt` the sample time [s]; `x_unit`, `force_unit` the file's units;
+    **Arguments:** `path` the file; `dt` the sample time [s]; `x_unit`, `force_unit`, `t_unit` the file's units (a
+    time column without a unit that gives a sample time above 50 ms, below 20 Hz, is warned about: milliseconds
+    read as seconds);
     `velocity` `"auto"`, `"file"` or `"derive"` (above); `normal_force_column` a column name, or several whose
     sum is the normal load (matched case-insensitively, units in brackets or suffixes as above); a name the
     file lacks is an error listing the columns found.
@@ -143,6 +147,7 @@ def load_record(
         force_unit=force_unit,
         velocity=velocity,
         normal_force_column=normal_force_column,
+        t_unit=t_unit,
     )[0]
 
 
@@ -154,6 +159,7 @@ def read_record(
     force_unit: str | None = None,
     velocity: str = "auto",
     normal_force_column: str | Sequence[str] | None = None,
+    t_unit: str | None = None,
 ) -> tuple[FrictionData, RecordInfo]:
     """`load_record`, also returning a `RecordInfo` (columns used and ignored, units, samples, dt)."""
     path = pathlib.Path(path)
@@ -223,9 +229,10 @@ def read_record(
         force=resolve_unit(path, "force", declared["force"], force_unit),
     )
     if dt is None:
-        dt = sample_time_of(path, data, columns, declared)
+        dt = sample_time_of(path, data, columns, declared, t_unit)
+        warn_if_time_unit_doubtful(path, dt, columns, declared, t_unit)
     elif "t" in data or "dt" in data:
-        warn_if_time_disagrees(path, dt, data, columns, declared)
+        warn_if_time_disagrees(path, dt, data, columns, declared, t_unit)
     force = scaled_values(data["force"], units.force_factor)
     if force.size < 100:
         raise RecordError(f"{path}: only {force.size} samples; need at least 100")

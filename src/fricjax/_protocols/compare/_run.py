@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..._data._model_files import save_model
+from ..._data._record import FrictionData
 from ..._estimation.loop._interrupts import abandonable, check_interrupt
 from ..._estimation.loop._placement import check_device, choose_device, forced_device, resolve_device
 from ..._estimation.loop._plausibility import half_excursion, implausible
@@ -172,7 +173,8 @@ def _fit_and_score_one(
 # laws); each is the command line's `--NAME` with dashes, `split_at` its `--split`
 _NOT_FOR_EMPS = (
     "test", "validation", "split_at", "init_window", "models", "steps", "gms_elements", "maxwell_elements", "starts",
-    "drift", "neural_steps", "dt", "x_unit", "force_unit", "velocity", "normal_force_column", "init", "test_drift",
+    "drift", "neural_steps", "dt", "x_unit", "force_unit", "t_unit", "velocity", "normal_force_column", "init",
+    "test_drift",
     "seed",
 )  # fmt: skip
 
@@ -195,6 +197,12 @@ def _check_emps_options(arguments: dict[str, Any]) -> None:
             f"--data emps runs the EMPS table (the benchmark's own records, split and friction laws) and takes none "
             f"of {', '.join(given)}: drop them, or run compare on a record file (--data FILE)"
         )
+
+
+def _timing(record: FrictionData) -> str:
+    """A record's sample rate and duration, as the run's header says them: `1024 Hz, 40 s`."""
+    dt = float(np.asarray(record.motion.dt).reshape(-1)[0])
+    return f"{1 / dt:.4g} Hz, {record.length * dt:.4g} s"
 
 
 def _largest_excursion(split: Split | TrainingRecords) -> float | None:
@@ -221,6 +229,7 @@ def run_compare(
     dt: float | None = None,
     x_unit: str | None = None,
     force_unit: str | None = None,
+    t_unit: str | None = None,
     velocity: str = "auto",
     normal_force_column: Sequence[str] | None = None,
     init: str = "state",
@@ -277,7 +286,7 @@ def run_compare(
     if data_specs == ["emps"]:
         _check_emps_options(arguments)
     elif all(is_built_in(spec) for spec in [*data_specs, *validation_specs, *list(test or [])]):
-        file_options: dict[str, Any] = {"--dt": dt, "--x-unit": x_unit, "--force-unit": force_unit}
+        file_options: dict[str, Any] = {"--dt": dt, "--x-unit": x_unit, "--force-unit": force_unit, "--t-unit": t_unit}
         file_options["--velocity"] = None if velocity == "auto" else velocity
         file_options["--normal-force-column"] = normal_force_column or None
         named = [name for name, value in file_options.items() if value is not None]
@@ -317,6 +326,7 @@ def run_compare(
         "dt": dt,
         "x_unit": x_unit,
         "force_unit": force_unit,
+        "t_unit": t_unit,
         "velocity": velocity,
         "normal_force_column": normal_force_column,
     }
@@ -366,7 +376,7 @@ def run_compare(
     units = training.units
     if isinstance(split, TrainingRecords):
         parts = [
-            f"{name} ({end} train, {record.length - end} validation)"
+            f"{name} ({_timing(record)}: {end} train, {record.length - end} validation)"
             for name, end, record in zip(split.names, split.train_ends, split.records, strict=True)
         ]
         if split.validation:
@@ -375,7 +385,7 @@ def run_compare(
         described = f"{count} training record{'s' if count != 1 else ''}: " + "; ".join(parts)
     else:
         described = (
-            f"{data}, {split.full.length} samples (train {split.train_end}, "
+            f"{data}, {split.full.length} samples at {_timing(split.full)} (train {split.train_end}, "
             f"validation {split.validation_end - split.train_end})"
         )
     print(
