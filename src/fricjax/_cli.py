@@ -202,8 +202,15 @@ def _parser() -> argparse.ArgumentParser:
         "--normal-force-column",
         nargs="+",
         metavar="COLUMN",
-        help="the column(s) of the file records that give the normal load (several are summed, e.g. "
-        "actuator_force1_lb actuator_force2_lb); default: a column normal_force / N if present",
+        help="the column(s) of the file records that give the normal load (several are summed); default: a column "
+        "normal_force / N if present. A load that follows the friction force itself (|correlation| >= 0.95 with the "
+        "force or its magnitude: a drive force) is refused",
+    )
+    compare.add_argument(
+        "--accept-correlated-load",
+        action="store_true",
+        help="take a normal load that follows the friction force (refused otherwise: as an input it hands the "
+        "models the force they should predict)",
     )
     compare.add_argument(
         "--velocity",
@@ -301,6 +308,7 @@ def _run(args: argparse.Namespace) -> int:
             t_unit=args.t_unit,
             velocity=args.velocity,
             normal_force_column=args.normal_force_column,
+            accept_correlated_load=args.accept_correlated_load,
             init=args.init,
             test_drift=args.test_drift,
             out=args.out,

@@ -7,6 +7,7 @@ import dataclasses
 import math
 import pathlib
 import sys
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -31,7 +32,7 @@ from ._columns import (
     warn_if_time_unit_doubtful,
 )
 from ._csv import CSVError, read_csv
-from ._record import FrictionData
+from ._record import LOAD_FOLLOWS_FORCE, FrictionData, load_force_correlation
 
 _VELOCITY_POLICIES = ("auto", "file", "derive")
 
@@ -251,6 +252,16 @@ def read_record(
                 )
             normal_force += values * FORCE_UNITS[unit]
         columns["normal_force"] = " + ".join(raw for raw, _, _ in normal.values())
+    if normal_force is not None:
+        follows = load_force_correlation(force, normal_force)
+        if follows >= LOAD_FOLLOWS_FORCE:
+            warnings.warn(
+                f"{path}: the normal load {columns.get('normal_force', 'normal_force')!r} follows the friction force "
+                f"itself (|correlation| {follows:.3f} with the force or its magnitude): a drive or reaction force, "
+                "not the load pressing the surfaces? As a model's input it hands the model the force it should "
+                "predict; name the column that holds the normal load",
+                stacklevel=3,
+            )
     if velocity == "file" and "v" not in data:
         raise RecordError(
             f"{path}: velocity='file' (--velocity file) keeps the file's velocity, but it has no velocity column "

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from ..._data._record import LOAD_FOLLOWS_FORCE, load_force_correlation
 from ..._metrics import numpy_std
 from ..._validation import same_sample_time
 from ._records import TestRecord, is_built_in
@@ -20,16 +21,76 @@ from ._settings import CompareError
 
 def unused_load_columns(split: Any, cards: Sequence[dict[str, Any]]) -> list[str]:
     """A line where the training records hold no normal load but their files have unused columns whose names
-    suggest one (a force or a load: the damper's `actuator_force1_lb`), which change the fits a lot when named."""
+    suggest one (a force or a load: the damper's `actuator_force1_lb`), which change the fits a lot when named; a
+    column is suggested only when checked: read from every training file, it does not follow the friction force
+    (`load_force_correlation`; the damper's actuator forces do: they are named as not suggested)."""
     if split.train.motion.normal_force is not None:
         return []
     names = dict.fromkeys(
         name for card in cards for name in card.get("ignored", ()) if re.search(r"force|load|normal", name, re.I)
     )
-    if not names:
-        return []
-    listed = ", ".join(repr(n) for n in names)
-    return [f"columns {listed} are not used; if they hold the normal load, name them with --normal-force-column"]
+    suggested: list[tuple[str, float]] = []
+    follows: list[tuple[str, float]] = []
+    for name in names:
+        correlation = _column_follows_force(name, cards)
+        if correlation is None:
+            continue  # not readable as a load from every training file: not suggested
+        (follows if correlation >= LOAD_FOLLOWS_FORCE else suggested).append((name, correlation))
+    lines = []
+    if suggested:
+        listed = ", ".join(repr(n) for n, _ in suggested)
+        lines.append(
+            f"columns {listed} are not used; if they hold the normal load, name them with " + "--normal-force-column"
+        )
+    if follows:
+        listed = ", ".join(f"{n!r} ({c:.3f})" for n, c in follows)
+        lines.append(
+            f"columns {listed} are not used and follow the friction force (|correlation| with the force or its "
+            "magnitude): not a normal load to name (a model fed them is fed its own output)"
+        )
+    return lines
+
+
+def _column_follows_force(name: str, cards: Sequence[dict[str, Any]]) -> float | None:
+    """The largest `load_force_correlation` of column `name` read as a normal load from each training file (None:
+    a file that cannot give it, or a constant column everywhere)."""
+    import warnings
+
+    from ..._data._io import read_record
+
+    found = []
+    for card in cards:
+        if name not in card.get("ignored", ()):
+            continue
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                record, _ = read_record(card["source"], dt=card.get("dt_s"), normal_force_column=name)
+        except (ValueError, OSError, KeyError):
+            return None
+        if record.motion.normal_force is None:
+            return None
+        correlation = load_force_correlation(record.force, record.motion.normal_force)
+        if np.isfinite(correlation):
+            found.append(correlation)
+    return max(found) if found else None
+
+
+def check_load_leaks(records: Sequence[tuple[str, Any]]) -> None:
+    """A record whose normal load follows its friction force (`load_force_correlation` at or above
+    `LOAD_FOLLOWS_FORCE`): one line naming it, before any fit. Fed to a load-scaled model, such a column hands it
+    the force it should predict (the damper's actuator forces named as the load made every model 7x better)."""
+    for label, data in records:
+        if data.motion.normal_force is None:
+            continue
+        correlation = load_force_correlation(data.force, data.motion.normal_force)
+        if correlation >= LOAD_FOLLOWS_FORCE:
+            raise CompareError(
+                f"{label}: its normal load follows the friction force itself (|correlation| {correlation:.3f} with "
+                "the force or its magnitude): a drive or reaction force, not the load pressing the surfaces, and "
+                "as an input it hands the models the force they should predict; name the column that holds the "
+                "normal load with --normal-force-column, or pass --accept-correlated-load if it truly is the load"
+            )
 
 
 def trained_on(training: Sequence[str], tests: Sequence[str], validation: Sequence[str] = ()) -> list[str]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import pathlib
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -379,15 +380,17 @@ def load_record_spec(
     if not is_file:
         raise CompareError(f"{spec}: no such file (use tribometer:presliding|mixed|sliding, emps, or a .csv / .npz)")
     try:
-        full, info = read_record(
-            path,
-            dt=dt,
-            x_unit=x_unit,
-            force_unit=force_unit,
-            velocity=velocity,
-            normal_force_column=None if not normal_force_column else tuple(normal_force_column),
-            t_unit=t_unit,
-        )
+        with warnings.catch_warnings():  # compare refuses such a load itself, saying how to go on (check_load_leaks)
+            warnings.filterwarnings("ignore", message=".*follows the friction force itself")
+            full, info = read_record(
+                path,
+                dt=dt,
+                x_unit=x_unit,
+                force_unit=force_unit,
+                velocity=velocity,
+                normal_force_column=None if not normal_force_column else tuple(normal_force_column),
+                t_unit=t_unit,
+            )
     except ValueError as err:
         raise CompareError(str(err)) from err
     if not np.ptp(np.asarray(full.force)) > 0:

@@ -23,7 +23,7 @@ from ..._estimation.loop._placement import check_device, choose_device, forced_d
 from ..._estimation.loop._plausibility import half_excursion, implausible
 from ..._validation import nonnegative_int
 from ..._version import fricjax_version
-from ._checks import check_records_together, check_test_record, trained_on, unused_load_columns
+from ._checks import check_load_leaks, check_records_together, check_test_record, trained_on, unused_load_columns
 from ._emps_table import emps_table
 from ._ensembles import add_ensembles
 from ._figures import plot_prediction_errors, plot_test_loops, plot_test_records
@@ -173,7 +173,8 @@ def _fit_and_score_one(
 # laws); each is the command line's `--NAME` with dashes, `split_at` its `--split`
 _NOT_FOR_EMPS = (
     "test", "validation", "split_at", "init_window", "models", "steps", "gms_elements", "maxwell_elements", "starts",
-    "drift", "neural_steps", "dt", "x_unit", "force_unit", "t_unit", "velocity", "normal_force_column", "init",
+    "drift", "neural_steps", "dt", "x_unit", "force_unit", "t_unit", "velocity", "normal_force_column",
+    "accept_correlated_load", "init",
     "test_drift",
     "seed",
 )  # fmt: skip
@@ -232,6 +233,7 @@ def run_compare(
     t_unit: str | None = None,
     velocity: str = "auto",
     normal_force_column: Sequence[str] | None = None,
+    accept_correlated_load: bool = False,
     init: str = "state",
     test_drift: str = "auto",
     out: str | os.PathLike[str] = "fricjax-compare",
@@ -366,6 +368,8 @@ def run_compare(
                 f"{label}: its normal load is 0 N in every row, so a load-scaled model predicts no force; check "
                 "the load column and its unit, or name another with --normal-force-column"
             )
+    if not accept_correlated_load:
+        check_load_leaks([(r.name, r.data) for r in fitted_on] + [(t.name, t.record) for t in tests])
     if split.train.motion.normal_force is not None:
         for t in tests:
             if t.record.motion.normal_force is None:
