@@ -1,6 +1,6 @@
-"""Command line: `fricjax demo` and `fricjax compare` (also `python -m fricjax ...`): parse the arguments, run
-the command (`fricjax._protocols._demo`, `fricjax._protocols.compare`), turn its input errors into one line on stderr
-and an exit status."""
+"""Command line: `fricjax demo`, `fricjax compare` and `fricjax predict` (also `python -m fricjax ...`): parse the
+arguments, run the command (`fricjax._protocols._demo`, `fricjax._protocols.compare`), turn its input errors into one
+line on stderr and an exit status."""
 
 from __future__ import annotations
 
@@ -236,7 +236,44 @@ def _parser() -> argparse.ArgumentParser:
         "the host CPU when it has no time-parallel form or its record is short, as fj.fit(device='auto') chooses; "
         "stated in the log) (default: %(default)s)",
     )
-    parser.commands = {"demo": demo, "compare": compare}  # type: ignore[attr-defined]
+    predict = sub.add_parser(
+        "predict", help="run saved models on records they were not fitted on, score them as compare does, report"
+    )
+    predict.add_argument(
+        "--model", nargs="+", required=True, metavar="FILE", help="model files (compare writes them to OUT/models)"
+    )
+    predict.add_argument(
+        "--data", nargs="+", required=True, metavar="RECORD", help="records to predict (files, quoted globs)"
+    )
+    predict.add_argument(
+        "--init-window",
+        type=int,
+        default=None,
+        help="samples at the start of each record that estimate its force offset and the model's state and are not "
+        "scored (default: 10 %% of the record)",
+    )
+    predict.add_argument("--init", choices=("state", "offset"), default="state", help="as compare's --init")
+    predict.add_argument(
+        "--test-drift",
+        choices=("none", "window"),
+        default="none",
+        help="a fitted sensor drift stays with its training record (none) or is estimated on the window",
+    )
+    for option, text in (
+        ("--dt", "sample time [s]"),
+        ("--x-unit", "displacement unit"),
+        ("--force-unit", "force unit"),
+    ):
+        predict.add_argument(
+            option, type=float if option == "--dt" else str, default=None, help=f"as compare's: {text}"
+        )
+    predict.add_argument("--t-unit", default=None, help="time unit of the t / dt columns (s, ms, us)")
+    predict.add_argument("--velocity", choices=("auto", "file", "derive"), default="auto", help="as compare's")
+    predict.add_argument("--normal-force-column", nargs="+", metavar="COLUMN", help="as compare's")
+    predict.add_argument("--accept-correlated-load", action="store_true", help="as compare's")
+    predict.add_argument("--out", default="fricjax-predict", help="output folder (default: %(default)s)")
+    predict.add_argument("--no-cache", action="store_true", help=_NO_CACHE_HELP)
+    parser.commands = {"demo": demo, "compare": compare, "predict": predict}  # type: ignore[attr-defined]
     return parser
 
 
@@ -280,6 +317,29 @@ def _run(args: argparse.Namespace) -> int:
             print(f"fricjax demo: {err}", file=sys.stderr)
             return 2
         run_demo(out, figure=not args.no_figure)
+        return 0
+    if args.command == "predict":
+        from ._protocols.compare._predict import run_predict
+
+        try:
+            run_predict(
+                models=args.model,
+                data=args.data,
+                init_window=args.init_window,
+                init=args.init,
+                test_drift=args.test_drift,
+                dt=args.dt,
+                x_unit=args.x_unit,
+                force_unit=args.force_unit,
+                t_unit=args.t_unit,
+                velocity=args.velocity,
+                normal_force_column=args.normal_force_column,
+                accept_correlated_load=args.accept_correlated_load,
+                out=args.out,
+            )
+        except CompareError as err:
+            print("fricjax predict: " + " ".join(str(err).split()), file=sys.stderr)
+            return 2
         return 0
     if args.device == "gpu" and not [d for d in jax.devices() if d.platform != "cpu"]:
         print(

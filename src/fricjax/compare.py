@@ -27,6 +27,8 @@ from ._protocols.compare._figures import distinct_models as distinct_models
 from ._protocols.compare._figures import plot_prediction_errors as plot_prediction_errors
 from ._protocols.compare._figures import plot_test_loops as plot_test_loops
 from ._protocols.compare._figures import plot_test_records as plot_test_records
+from ._protocols.compare._predict import Prediction as Prediction
+from ._protocols.compare._predict import run_predict as run_predict
 from ._protocols.compare._recipes import ModelSpec as ModelSpec
 from ._protocols.compare._records import LoadedRecord as LoadedRecord
 from ._protocols.compare._records import Split as Split

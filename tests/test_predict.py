@@ -1,0 +1,82 @@
+"""`fricjax predict` (issue 55, item 1): saved models run on records they were not fitted on, scored exactly as
+`fricjax compare` scores its test records (MATLAB's `compare(data, model)`): the initialisation window estimates the
+record's offset and the model's initial state, the rest runs free; predictions (CSV), figures and a report."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import fricjax as fj
+
+DT = 5e-4
+
+
+def _record(path, seed: int, offset: float = 0.0):
+    data = fj.make_tribometer("mixed", seed=seed, duration=1.0).full
+    t = np.arange(data.length) * DT
+    x = np.asarray(data.motion.samples().x)
+    np.savetxt(path, np.c_[t, x, np.asarray(data.force) + offset], delimiter=",", header="t,x,force", comments="")
+    return path
+
+
+def test_predict_scores_a_saved_model_as_compare_scores_a_test_record(tmp_path, capsys):
+    record = _record(tmp_path / "new.csv", seed=3, offset=0.2)
+    model = fj.LuGre(fj.ExponentialStribeck(Fc=1.0, Fs=1.3, vs=1e-3), sigma0=1e5, sigma1=300.0, sigma2=0.5)
+    fj.save_model(tmp_path / "lugre.eqx", model)
+    out = tmp_path / "out"
+    code = fj.main(["predict", "--model", str(tmp_path / "lugre.eqx"), "--data", str(record), "--out", str(out)])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    report = json.loads((out / "report.json").read_text())
+    (score,) = report["scores"]
+    test = fj.compare.TestRecord.whole(fj.compare.load_record_spec(str(record)))
+    expected, _ = fj.compare.score_prediction(fj.compare.predict_test_record(model, test), test)
+    assert score["nmse"] == pytest.approx(expected.nmse, rel=1e-12) and score["model"] == "lugre"
+    assert f"{expected.nmse:.4f}" in printed.out
+    table = np.genfromtxt(out / "predictions.csv", delimiter=",", names=True)
+    assert table.dtype.names[:4] == ("t_s", "x_m", "force_N", "scored") and "lugre_N" in table.dtype.names
+    assert int(table["scored"].sum()) == test.record.length - test.scored_start
+    assert {p.name for p in out.iterdir()} >= {
+        "report.json",
+        "predictions.csv",
+        "test_errors.png",
+        "hysteresis_loops.png",
+    }
+
+
+def test_predict_refuses_bad_input_in_one_line(tmp_path, capsys):
+    record = _record(tmp_path / "new.csv", seed=3)
+    (tmp_path / "not_a_model.eqx").write_text("hello")
+    cases = [
+        (["--model", str(tmp_path / "missing.eqx"), "--data", str(record)], "no such file"),
+        (["--model", str(tmp_path / "not_a_model.eqx"), "--data", str(record)], "not_a_model.eqx"),
+    ]
+    fj.save_model(tmp_path / "load.eqx", fj.NormalLoad(fj.Coulomb(Fc=1.0), reference=10.0))
+    cases.append((["--model", str(tmp_path / "load.eqx"), "--data", str(record)], "load.eqx".removesuffix(".eqx")))
+    for arguments, expected in cases:
+        code = fj.main(["predict", *arguments, "--out", str(tmp_path / "out")])
+        err = capsys.readouterr().err
+        assert code == 2 and expected in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow  # a compare run and a predict run (~90 s)
+def test_predict_on_compares_models_gives_compares_test_scores(tmp_path, capsys):
+    """The acceptance of issue 55 on records we hold (the damper's is checked on its records): `fricjax predict` on
+    the models `fricjax compare` saved and its test record gives compare's NMSE, ensembles included."""
+    train, test = _record(tmp_path / "a.csv", seed=0), _record(tmp_path / "b.csv", seed=1, offset=-0.3)
+    out = tmp_path / "cmp"
+    options = ["--models", "stribeck", "lugre", "--steps", "8", "--no-progress", "--out", str(out)]
+    assert fj.main(["compare", "--data", str(train), "--test", str(test), *options]) == 0
+    compared = {
+        m["name"]: m["test_scores"][str(test)]["nmse"] for m in json.loads((out / "report.json").read_text())["models"]
+    }
+    models = sorted(str(p) for p in (out / "models").glob("*.eqx"))
+    assert fj.main(["predict", "--model", *models, "--data", str(test), "--out", str(tmp_path / "pred")]) == 0
+    predicted = {s["model"]: s["nmse"] for s in json.loads((tmp_path / "pred" / "report.json").read_text())["scores"]}
+    assert set(predicted) == set(compared) and len(predicted) >= 4, (predicted, compared)
+    for name, value in compared.items():
+        assert predicted[name] == pytest.approx(value, rel=1e-9), (name, predicted, compared)
