@@ -24,6 +24,7 @@ LAYERS = [
         "_constraints",
         "_inputs",
         "_metrics",
+        "_residuals",
         "_validation",
     },
     {"_models"},

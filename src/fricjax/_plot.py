@@ -51,3 +51,37 @@ def plot_loops(
     if title:
         fig.suptitle(title)
     return fig
+
+
+def plot_residual_analysis(analyses: Mapping[str, Any], *, title: str = "") -> Any:
+    """Residual analysis figure (MATLAB's `resid` layout): for each `fj.ResidualAnalysis` in `analyses` {label:
+    analysis}, the residual's autocorrelation (left) and its cross-correlation with the input (right), with the
+    confidence band shaded. **Returns:** the matplotlib `Figure`."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    rows = max(len(analyses), 1)
+    fig, axes = plt.subplots(rows, 2, figsize=(10, 1.9 * rows + 0.6), squeeze=False)
+    for (label, analysis), (auto_ax, cross_ax) in zip(analyses.items(), axes, strict=False):
+        for ax, lags, values, name in (
+            (auto_ax, analysis.lags[1:], analysis.autocorrelation[1:], "autocorrelation of e"),
+            (
+                cross_ax,
+                analysis.cross_lags,
+                analysis.cross_correlation,
+                f"cross-correlation of {analysis.input_name}, e",
+            ),
+        ):
+            ax.axhspan(-analysis.band, analysis.band, color="0.85", lw=0)
+            outside = np.abs(values) > analysis.band
+            ax.vlines(lags, 0, values, colors=np.where(outside, "C3", "C0"), lw=1.5)
+            ax.axhline(0, color="k", lw=0.5)
+            ax.set_title(f"{label}: {name}", fontsize=8, loc="left")
+        cross_ax.set_xlabel("lag [samples]") if label == list(analyses)[-1] else None
+        auto_ax.set_xlabel("lag [samples]") if label == list(analyses)[-1] else None
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig

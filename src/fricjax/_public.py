@@ -167,6 +167,9 @@ from ._models.physics._static import Tustin as Tustin
 from ._models.physics._stribeck import AbstractStribeck as AbstractStribeck
 from ._models.physics._stribeck import ExponentialStribeck as ExponentialStribeck
 from ._models.physics._stribeck import RationalStribeck as RationalStribeck
+from ._plot import plot_residual_analysis as plot_residual_analysis
+from ._residuals import ResidualAnalysis as ResidualAnalysis
+from ._residuals import residual_analysis as residual_analysis
 from ._simulate import simulate as simulate
 from ._smoothing import AbstractSmoothing as AbstractSmoothing
 from ._smoothing import Exact as Exact

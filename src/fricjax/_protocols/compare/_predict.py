@@ -18,6 +18,8 @@ import numpy as np
 from ..._data._model_files import load_model
 from ..._estimation.loop._interrupts import abandonable, check_interrupt
 from ..._models.combine._ensemble import AbstractEnsemble
+from ..._plot import plot_residual_analysis
+from ..._residuals import ResidualAnalysis, residual_analysis
 from ..._version import fricjax_version
 from ._checks import check_load_leaks, check_test_record
 from ._figures import plot_prediction_errors, plot_test_loops
@@ -42,7 +44,8 @@ __all__ = ["Prediction", "run_predict"]
 class Prediction:
     """One model on one record: `nmse` [%] and `max_error` (MAX / std) on the scored part, the `offset` [N] of the
     initialisation window, and `prediction`, the offset-corrected force [N] on the scored part (as compare's
-    figures take it); `name` and `label` the model's (its file's stem)."""
+    figures take it); `residuals` the `fj.ResidualAnalysis` of the scored part against the velocity (or why there is
+    none: a prediction that is not finite); `name` and `label` the model's (its file's stem)."""
 
     name: str
     label: str
@@ -51,6 +54,7 @@ class Prediction:
     max_error: float
     offset: float
     prediction: np.ndarray
+    residuals: ResidualAnalysis | str
 
 
 @releasing_output_locks
@@ -137,10 +141,16 @@ def run_predict(
                 except (ValueError, TypeError) as err:  # a model that needs a signal the record lacks, say
                     raise CompareError(f"{name} on {test.name}: {' '.join(str(err).split())}") from None
                 score, scored = score_prediction(full, test)
-                results.append(Prediction(name, name, test.name, score.nmse, score.max_error, score.offset, scored))
+                residuals = _residuals(test, scored)
+                results.append(
+                    Prediction(name, name, test.name, score.nmse, score.max_error, score.offset, scored, residuals)
+                )
                 whole[test.name, name] = np.asarray(full, dtype=float) + score.offset
     print()
     print(format_predictions(results))
+    print()
+    for r in results:
+        print(f"{r.name} on {pathlib.PurePath(r.record).name}: {_verdict(r.residuals)}")
     labels = short_labels([t.name for t in tests])
     figures, tables = [], []
     try:
@@ -155,6 +165,9 @@ def run_predict(
                 name = f"{stem}{suffix}.png"
                 staging.write(name, functools.partial(plot, rows, test, units=unit, label=label))
                 figures.append(name)
+            name = f"residuals{suffix}.png"
+            staging.write(name, functools.partial(_save_residuals, rows=rows, label=label))
+            figures.append(name)
             table = f"predictions{suffix}.csv"
             staging.write(
                 table, functools.partial(_write_predictions, test=test, whole=whole, models=list(loaded_models))
@@ -170,7 +183,20 @@ def run_predict(
                 for t, label in zip(tests, labels, strict=True)
             ],
             "scores": [
-                {"model": r.name, "record": r.record, "nmse": r.nmse, "max_error": r.max_error, "offset_N": r.offset}
+                {
+                    "model": r.name,
+                    "record": r.record,
+                    "nmse": r.nmse,
+                    "max_error": r.max_error,
+                    "offset_N": r.offset,
+                    "residuals": {"verdict": _verdict(r.residuals)}
+                    if isinstance(r.residuals, str)
+                    else {
+                        "white": r.residuals.white,
+                        "independent_of_velocity": r.residuals.independent,
+                        "verdict": r.residuals.verdict(),
+                    },
+                }
                 for r in results
             ],
             "figures": figures,
@@ -190,6 +216,30 @@ def _predict(model: Any, test: TestRecord, init: str, test_drift: str) -> np.nda
         members = np.stack([predict_test_record(member, test, init, test_drift) for member in model.members])
         return np.asarray(model.combine(jnp.asarray(members.T)))
     return predict_test_record(model, test, init, test_drift)
+
+
+def _residuals(test: TestRecord, scored: np.ndarray) -> ResidualAnalysis | str:
+    """The residual analysis of a prediction on the scored part of `test`, against the velocity (the input), or why
+    there is none."""
+    measured = np.asarray(test.record.force, dtype=float)[test.scored_start :]
+    velocity = np.asarray(test.record.motion.samples().v, dtype=float)[test.scored_start :]
+    try:
+        return residual_analysis(measured, scored, velocity, max_lag=min(25, measured.size // 2 - 1), input_name="v")
+    except ValueError as err:
+        return "no residual analysis: " + str(err).removeprefix("residual_analysis: ")
+
+
+def _verdict(analysis: ResidualAnalysis | str) -> str:
+    return analysis if isinstance(analysis, str) else analysis.verdict()
+
+
+def _save_residuals(path: pathlib.Path, *, rows: Sequence[Prediction], label: str) -> None:
+    import matplotlib.pyplot as plt
+
+    analyses = {r.name: r.residuals for r in rows if not isinstance(r.residuals, str)}
+    figure = plot_residual_analysis(analyses, title=f"{label}: residual analysis")
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
 
 
 def format_predictions(results: Sequence[Prediction]) -> str:
