@@ -185,3 +185,24 @@ def test_a_time_column_in_milliseconds_is_warned_about_and_t_unit_reads_it(tmp_p
         fj.load_record(path, t_unit="min")
     code = fj.main(["compare", "--t-unit", "ms", "--out", str(tmp_path / "out")])  # built-in records: no file
     assert code == 2
+
+
+def test_columns_named_by_the_caller_take_their_roles_with_their_units(tmp_path):
+    """Issue 55, item 5: a file whose columns are named by the rig (`clock`, `lvdt_mm`, `F_meas [kN]`) is read
+    without editing it: `columns={role: name}` (`--t-column`, `--x-column`, `--v-column`, `--force-column`); a unit
+    in brackets or as the name's suffix counts, and a column an alias would give the same role is not used."""
+    path = _csv(tmp_path / "rig.csv", "clock,lvdt_mm,F_meas [kN],force", T, X, F, 5 + F)
+    data = fj.load_record(path, columns={"t": "clock", "x": "lvdt_mm", "force": "F_meas"})
+    assert float(data.motion.dt) == pytest.approx(DT)
+    np.testing.assert_allclose(data.motion.x, 1e-3 * X)
+    np.testing.assert_allclose(data.force, 1e3 * F)  # F_meas, not the column called force
+    loaded = fj.compare.load_record_spec(str(path), columns={"t": "clock", "x": "lvdt_mm", "force": "F_meas"})
+    assert loaded.card["columns"]["force"] == "F_meas [kN]" and "force" in loaded.card["ignored"]
+    with pytest.raises(ValueError, match=r"no column 'nothere' for 'x' \(columns=, --x-column\); found: 'clock'"):
+        fj.load_record(path, columns={"t": "clock", "x": "nothere"})
+    with pytest.raises(ValueError, match="unknown role 'time'; the roles are t, dt, x, v, force"):
+        fj.load_record(path, columns={"time": "clock"})
+    with pytest.raises(ValueError, match="both 'x' and 'v'"):
+        fj.load_record(path, columns={"x": "lvdt_mm", "v": "LVDT_mm"})
+    code = fj.main(["compare", "--force-column", "F_meas", "--out", str(tmp_path / "out")])  # built-in: no file
+    assert code == 2

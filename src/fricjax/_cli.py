@@ -223,6 +223,7 @@ def _parser() -> argparse.ArgumentParser:
     compare.add_argument("--x-unit", default=None, help="displacement unit of the file records (m, mm, um, nm, in)")
     compare.add_argument("--force-unit", default=None, help="force unit of the file records (N, kN, mN, lbf, kip)")
     compare.add_argument("--t-unit", default=None, help="time unit of the file records' t / dt columns (s, ms, us)")
+    _add_column_options(compare)
     compare.add_argument("--out", default="fricjax-compare", help="output folder (default: %(default)s)")
     compare.add_argument("--seed", type=int, default=0, help="seed for the synthetic data and multi-starts")
     compare.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -268,6 +269,7 @@ def _parser() -> argparse.ArgumentParser:
             option, type=float if option == "--dt" else str, default=None, help=f"as compare's: {text}"
         )
     predict.add_argument("--t-unit", default=None, help="time unit of the t / dt columns (s, ms, us)")
+    _add_column_options(predict)
     predict.add_argument("--velocity", choices=("auto", "file", "derive"), default="auto", help="as compare's")
     predict.add_argument("--normal-force-column", nargs="+", metavar="COLUMN", help="as compare's")
     predict.add_argument("--accept-correlated-load", action="store_true", help="as compare's")
@@ -275,6 +277,24 @@ def _parser() -> argparse.ArgumentParser:
     predict.add_argument("--no-cache", action="store_true", help=_NO_CACHE_HELP)
     parser.commands = {"demo": demo, "compare": compare, "predict": predict}  # type: ignore[attr-defined]
     return parser
+
+
+def _add_column_options(command: argparse.ArgumentParser) -> None:
+    """--t-column, --x-column, --v-column, --force-column: a file's columns whose names are no alias of their role."""
+    for role, what in (("t", "time"), ("x", "displacement"), ("v", "velocity"), ("force", "friction force")):
+        command.add_argument(
+            f"--{role}-column",
+            default=None,
+            metavar="COLUMN",
+            help=f"the column of the file records that holds the {what} (when its name is none of the aliases; a "
+            "unit in brackets or as a suffix counts)",
+        )
+
+
+def _columns(args: argparse.Namespace) -> dict[str, str] | None:
+    """The column options as `load_record`'s `columns` ({role: name}), or None."""
+    given = {role: getattr(args, f"{role}_column") for role in ("t", "x", "v", "force")}
+    return {role: name for role, name in given.items() if name is not None} or None
 
 
 def _count_or_auto(text: str) -> int | str:
@@ -332,6 +352,7 @@ def _run(args: argparse.Namespace) -> int:
                 x_unit=args.x_unit,
                 force_unit=args.force_unit,
                 t_unit=args.t_unit,
+                columns=_columns(args),
                 velocity=args.velocity,
                 normal_force_column=args.normal_force_column,
                 accept_correlated_load=args.accept_correlated_load,
@@ -366,6 +387,7 @@ def _run(args: argparse.Namespace) -> int:
             x_unit=args.x_unit,
             force_unit=args.force_unit,
             t_unit=args.t_unit,
+            columns=_columns(args),
             velocity=args.velocity,
             normal_force_column=args.normal_force_column,
             accept_correlated_load=args.accept_correlated_load,

@@ -266,6 +266,23 @@ def column_role(raw: str) -> tuple[str | None, str | None]:
     return None, None
 
 
+def mapped_unit(raw: str, role: str) -> str | None:
+    """The unit a column named for `role` by the caller declares: in brackets (`"F_meas [kN]"`), or as the suffix its
+    name would carry in that role (`"load_cell_kN"` as the force: `"kN"`), else None."""
+    name, unit = _split_unit(raw)
+    if unit is not None:
+        return unit
+    quantity = "force" if role == "normal_force" else "t" if role == "dt" else role
+    head, sep, suffix = name.rpartition("_")
+    if role == "v":
+        base, per_sep, per = name.rpartition("_per_")
+        if per_sep and per == "s":
+            unit = base.rpartition("_")[2]
+            return f"{unit}/s" if _is_unit("x", unit) else None
+        return None
+    return suffix if sep and head and _is_unit(quantity, suffix) else None
+
+
 def _is_unit(quantity: str, name: str) -> bool:
     try:
         Units.check(quantity, name)

@@ -8,7 +8,7 @@ import math
 import pathlib
 import sys
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -23,6 +23,7 @@ from ._columns import (
     column_role,
     declare_unit,
     force_unit_of,
+    mapped_unit,
     parse_units_entry,
     refuse_other_quantity,
     resolve_unit,
@@ -67,6 +68,7 @@ def load_record(
     velocity: str = "auto",
     normal_force_column: str | Sequence[str] | None = None,
     t_unit: str | None = None,
+    columns: Mapping[str, str] | None = None,
 ) -> FrictionData:
     """Read a friction record from a `.csv` (header row) or `.npz` file, in SI units.
 
@@ -115,7 +117,10 @@ def load_record(
     Errors are one line naming the file and the fix, and the first offending line by its number (`RecordError`,
     a ValueError).
 
-    **Arguments:** `path` the file; `dt` the sample time [s]; `x_unit`, `force_unit`, `t_unit` the file's units (a
+    **Arguments:** `path` the file; `columns` {role: column name} for columns whose names are no alias of their
+    role (roles `t`, `dt`, `x`, `v`, `force`; e.g. `{"force": "F_meas [kN]", "x": "lvdt_mm"}`: a unit in brackets
+    or as the name's suffix counts; a column that an alias gives the same role is then not used); `dt` the sample
+    time [s]; `x_unit`, `force_unit`, `t_unit` the file's units (a
     time column without a unit that gives a sample time above 50 ms, below 20 Hz, is warned about: milliseconds
     read as seconds);
     `velocity` `"auto"`, `"file"` or `"derive"` (above); `normal_force_column` a column name, or several whose
@@ -149,6 +154,7 @@ def load_record(
         velocity=velocity,
         normal_force_column=normal_force_column,
         t_unit=t_unit,
+        columns=columns,
     )[0]
 
 
@@ -161,6 +167,7 @@ def read_record(
     velocity: str = "auto",
     normal_force_column: str | Sequence[str] | None = None,
     t_unit: str | None = None,
+    columns: Mapping[str, str] | None = None,
 ) -> tuple[FrictionData, RecordInfo]:
     """`load_record`, also returning a `RecordInfo` (columns used and ignored, units, samples, dt)."""
     path = pathlib.Path(path)
@@ -176,14 +183,21 @@ def read_record(
     if velocity not in _VELOCITY_POLICIES:
         raise RecordError(f"{path}: velocity must be 'auto', 'file' or 'derive', got {velocity!r}")
     named = _normal_force_names(path, normal_force_column)
-    entries, units_entry = _read_table(path, named)
-    columns: dict[str, str] = {}  # role -> the name as written in the file
+    mapped = _mapped_columns(path, columns)
+    entries, units_entry = _read_table(path, {**named, **{key: key for key in mapped}})
+    columns = {}  # role -> the name as written in the file
     data: dict[str, np.ndarray] = {}  # role -> the values as written
     declared: dict[str, list[tuple[str, str]]] = {role: [] for role in ("x", "force", "t", "dt", "normal_force")}
     normal: dict[str, tuple[str, np.ndarray, str | None]] = {}  # lower-case name -> (name, values, own unit)
     ignored = []
     for raw, values in entries:
         role, unit = column_role(raw)
+        if column_named(raw, mapped):  # a column the caller named for a role: that role, whatever its name says
+            role = mapped[column_named(raw, mapped)]
+            unit = mapped_unit(raw, role)
+        elif role in mapped.values():  # the role is another column's, by the caller's word: this one is not used
+            ignored.append(raw)
+            continue
         key = column_named(raw, named)
         if key:
             if role not in (None, "normal_force"):
@@ -207,6 +221,14 @@ def read_record(
         data[role] = _one_signal(path, raw, values)
         if unit is not None:
             declare_unit(declared, role, unit, repr(raw), path)
+    found_mapped = {column_named(raw, mapped) for raw, _ in entries}
+    absent = [name for name in mapped if name not in found_mapped]
+    if absent:
+        found = ", ".join(repr(raw) for raw, _ in entries) or "nothing"
+        raise RecordError(
+            f"{path}: no column {absent[0]!r} for {mapped[absent[0]]!r} (columns=, --{mapped[absent[0]]}-column); "
+            f"found: {found}"
+        )
     if units_entry is not None:
         for role, unit in parse_units_entry(units_entry, path):
             declare_unit(declared, role, unit, f"the units entry {role}={unit}", path)
@@ -300,6 +322,30 @@ def read_record(
     given = {"x": x_unit, "force": force_unit}
     assumed = tuple(q for q in ("x", "force") if given[q] is None and not declared[q])
     return record, RecordInfo(str(path), columns, tuple(ignored), units, int(force.size), float(dt), assumed)
+
+
+_MAPPABLE = ("t", "dt", "x", "v", "force")
+
+
+def _mapped_columns(path: pathlib.Path, columns: Any) -> dict[str, str]:
+    """The `columns` argument ({role: column name}) as {lower-case trimmed name: role}."""
+    if columns is None:
+        return {}
+    if not isinstance(columns, Mapping):
+        raise RecordError(
+            f"{path}: columns must map roles to column names, e.g. {{'force': 'F_meas'}}; got {columns!r}"
+        )
+    out: dict[str, str] = {}
+    for role, name in columns.items():
+        if role not in _MAPPABLE:
+            raise RecordError(f"{path}: columns: unknown role {role!r}; the roles are {', '.join(_MAPPABLE)}")
+        if not isinstance(name, str) or not name.strip():
+            raise RecordError(f"{path}: columns[{role!r}] must be a column name, got {name!r}")
+        key = name.strip().lower()
+        if key in out:
+            raise RecordError(f"{path}: columns names {name!r} for both {out[key]!r} and {role!r}; one column a role")
+        out[key] = role
+    return out
 
 
 def _normal_force_names(path: pathlib.Path, names: str | Sequence[str] | None) -> dict[str, str]:

@@ -69,6 +69,7 @@ def run_predict(
     x_unit: str | None = None,
     force_unit: str | None = None,
     t_unit: str | None = None,
+    columns: dict[str, str] | None = None,
     velocity: str = "auto",
     normal_force_column: Sequence[str] | None = None,
     accept_correlated_load: bool = False,
@@ -107,6 +108,7 @@ def run_predict(
         "x_unit": x_unit,
         "force_unit": force_unit,
         "t_unit": t_unit,
+        "columns": columns,
         "velocity": velocity,
         "normal_force_column": normal_force_column,
     }

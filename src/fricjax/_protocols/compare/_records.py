@@ -332,6 +332,7 @@ def load_record_spec(
     velocity: str = "auto",
     normal_force_column: Sequence[str] | None = None,
     t_unit: str | None = None,
+    columns: dict[str, str] | None = None,
 ) -> LoadedRecord:
     """Resolve a record named on the command line: `tribometer:REGIME[:key=value,...]` (keys `seed`, `offset`
     [N] force-cell offset, `drift` [N], `duration` [s]; e.g. `tribometer:mixed:seed=1,offset=0.3`), or a `.npz`
@@ -390,6 +391,7 @@ def load_record_spec(
                 velocity=velocity,
                 normal_force_column=None if not normal_force_column else tuple(normal_force_column),
                 t_unit=t_unit,
+                columns=columns or None,
             )
     except ValueError as err:
         raise CompareError(str(err)) from err

@@ -174,7 +174,7 @@ def _fit_and_score_one(
 # laws); each is the command line's `--NAME` with dashes, `split_at` its `--split`
 _NOT_FOR_EMPS = (
     "test", "validation", "split_at", "init_window", "models", "steps", "gms_elements", "maxwell_elements", "starts",
-    "drift", "neural_steps", "dt", "x_unit", "force_unit", "t_unit", "velocity", "normal_force_column",
+    "drift", "neural_steps", "dt", "x_unit", "force_unit", "t_unit", "columns", "velocity", "normal_force_column",
     "accept_correlated_load", "init",
     "test_drift",
     "seed",
@@ -248,6 +248,7 @@ def run_compare(
     x_unit: str | None = None,
     force_unit: str | None = None,
     t_unit: str | None = None,
+    columns: dict[str, str] | None = None,
     velocity: str = "auto",
     normal_force_column: Sequence[str] | None = None,
     accept_correlated_load: bool = False,
@@ -307,6 +308,7 @@ def run_compare(
     elif all(is_built_in(spec) for spec in [*data_specs, *validation_specs, *list(test or [])]):
         file_options: dict[str, Any] = {"--dt": dt, "--x-unit": x_unit, "--force-unit": force_unit, "--t-unit": t_unit}
         file_options["--velocity"] = None if velocity == "auto" else velocity
+        file_options["--t-column / --x-column / --v-column / --force-column"] = columns or None
         file_options["--normal-force-column"] = normal_force_column or None
         named = [name for name, value in file_options.items() if value is not None]
         if named:
@@ -346,6 +348,7 @@ def run_compare(
         "x_unit": x_unit,
         "force_unit": force_unit,
         "t_unit": t_unit,
+        "columns": columns,
         "velocity": velocity,
         "normal_force_column": normal_force_column,
     }
