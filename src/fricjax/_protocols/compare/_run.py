@@ -399,12 +399,13 @@ def run_compare(
                 )
     units = training.units
     if isinstance(split, TrainingRecords):
+        names = short_labels([*split.names, *split.validation_names, *(t.name for t in tests)])
         parts = [
             f"{name} ({_timing(record)}: {end} train, {record.length - end} validation)"
-            for name, end, record in zip(split.names, split.train_ends, split.records, strict=True)
+            for name, end, record in zip(names[: len(split.names)], split.train_ends, split.records, strict=True)
         ]
         if split.validation:
-            parts.append("validation: " + ", ".join(split.validation_names))
+            parts.append("validation: " + ", ".join(names[len(split.names) : len(split.names) + len(split.validation)]))
         count = len(split.records)
         described = f"{count} training record{'s' if count != 1 else ''}: " + "; ".join(parts)
     else:
@@ -412,11 +413,15 @@ def run_compare(
             f"{data}, {split.full.length} samples at {_timing(split.full)} (train {split.train_end}, "
             f"validation {split.validation_end - split.train_end})"
         )
+    if isinstance(split, TrainingRecords):  # each record by the shortest name that keeps them apart, not its full path
+        labels = short_labels([*split.names, *split.validation_names, *(t.name for t in tests)])[-len(tests) :]
+    else:
+        labels = short_labels([t.name for t in tests])
     print(
         f"fricjax {fricjax_version()} compare: {described}; test: "
         + "; ".join(
-            f"{t.name} ({t.record.length - t.scored_start} scored after a {t.init_window}-sample initialisation window)"
-            for t in tests
+            f"{label} ({t.record.length - t.scored_start} scored after a {t.init_window}-sample initialisation window)"
+            for label, t in zip(labels, tests, strict=True)
         )
         + f"; models: {', '.join(models)}"
     )
