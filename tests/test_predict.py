@@ -63,20 +63,5 @@ def test_predict_refuses_bad_input_in_one_line(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
-@pytest.mark.slow  # a compare run and a predict run (~90 s)
-def test_predict_on_compares_models_gives_compares_test_scores(tmp_path, capsys):
-    """The acceptance of issue 55 on records we hold (the damper's is checked on its records): `fricjax predict` on
-    the models `fricjax compare` saved and its test record gives compare's NMSE, ensembles included."""
-    train, test = _record(tmp_path / "a.csv", seed=0), _record(tmp_path / "b.csv", seed=1, offset=-0.3)
-    out = tmp_path / "cmp"
-    options = ["--models", "stribeck", "lugre", "--steps", "8", "--no-progress", "--out", str(out)]
-    assert fj.main(["compare", "--data", str(train), "--test", str(test), *options]) == 0
-    compared = {
-        m["name"]: m["test_scores"][str(test)]["nmse"] for m in json.loads((out / "report.json").read_text())["models"]
-    }
-    models = sorted(str(p) for p in (out / "models").glob("*.eqx"))
-    assert fj.main(["predict", "--model", *models, "--data", str(test), "--out", str(tmp_path / "pred")]) == 0
-    predicted = {s["model"]: s["nmse"] for s in json.loads((tmp_path / "pred" / "report.json").read_text())["scores"]}
-    assert set(predicted) == set(compared) and len(predicted) >= 4, (predicted, compared)
-    for name, value in compared.items():
-        assert predicted[name] == pytest.approx(value, rel=1e-9), (name, predicted, compared)
+# compare's saved models run by `fricjax predict` reproduce compare's test scores (ensembles included): notebook 08's
+# final cell checks it (to 1e-9) in the slow tier, where it runs anyway; on the damper it held to the printed digit.
