@@ -12,6 +12,7 @@ whether more GMS elements predict the validation part better), ensembles of
 the fitted models (`add_ensembles`) and the comparison table (`format_table`). Figures:
 `plot_prediction_errors`, `plot_test_loops` (the best distinct models: `distinct_models`) on one test record (another
 than the first: `rows_on_test`), `plot_test_records` (each model's NMSE on each; `short_labels`: the records' names).
+`fricjax predict` in Python: `run_predict` (saved models on new records, scored as the test records; `Prediction`).
 
 ```python
 >>> import fricjax as fj
