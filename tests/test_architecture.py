@@ -292,3 +292,5 @@ def test_protocol_names_live_in_their_namespaces():
         assert fj.fit_emps_idm is fj.emps.fit_emps_idm
     with pytest.warns(DeprecationWarning, match=r"fj\.boucwen\.score_boucwen"):
         assert fj.score_boucwen is fj.boucwen.score_boucwen
+    with pytest.warns(DeprecationWarning, match=r"fj\.SweepResult is gone: the fit returns a batched fj\.Solution"):
+        assert fj.SweepResult is fj.Solution

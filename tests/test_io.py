@@ -204,5 +204,9 @@ def test_columns_named_by_the_caller_take_their_roles_with_their_units(tmp_path)
         fj.load_record(path, columns={"time": "clock"})
     with pytest.raises(ValueError, match="both 'x' and 'v'"):
         fj.load_record(path, columns={"x": "lvdt_mm", "v": "LVDT_mm"})
+    speed = fj.load_record(
+        _csv(tmp_path / "v.csv", "clock,speed_mm/s,F", T, X, F), columns={"t": "clock", "v": "speed_mm/s"}
+    )
+    np.testing.assert_allclose(speed.motion.v, 1e-3 * X)  # the mapped column's unit, mm/s
     code = fj.main(["compare", "--force-column", "F_meas", "--out", str(tmp_path / "out")])  # built-in: no file
     assert code == 2

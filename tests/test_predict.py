@@ -50,8 +50,10 @@ def test_predict_scores_a_saved_model_as_compare_scores_a_test_record(tmp_path, 
 def test_predict_refuses_bad_input_in_one_line(tmp_path, capsys):
     record = _record(tmp_path / "new.csv", seed=3)
     (tmp_path / "not_a_model.eqx").write_text("hello")
+    fj.save_model(tmp_path / "coulomb.eqx", fj.Coulomb(Fc=1.0))
     cases = [
         (["--model", str(tmp_path / "missing.eqx"), "--data", str(record)], "no such file"),
+        (["--model", str(tmp_path / "coulomb.eqx"), "--data", str(record), "--init-window", "-5"], "--init-window"),
         (["--model", str(tmp_path / "not_a_model.eqx"), "--data", str(record)], "not_a_model.eqx"),
     ]
     fj.save_model(tmp_path / "load.eqx", fj.NormalLoad(fj.Coulomb(Fc=1.0), reference=10.0))

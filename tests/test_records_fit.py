@@ -307,3 +307,5 @@ def test_initialisers_are_objects_a_user_can_add_to():
     assert float(known.state0.F) == 0.6 and known.offset == 0.0
     with pytest.raises(TypeError, match=r"fj.AbstractInitialiser \(fj.WindowLeastSquares\(\), fj.AtRest\(\)\)"):
         fj.initialise(model, window, initialiser="rest")
+    with pytest.raises(TypeError, match="set them on it"):  # not silently dropped
+        fj.initialise(model, window, drift=True, initialiser=fj.AtRest())

@@ -51,6 +51,18 @@ _MOVED = {
 }
 
 
+# result types that one `fj.Solution` replaced (DESIGN.md v4): the old name reads `Solution`, with a warning naming
+# the family's typed `aux`
+_REPLACED = {
+    "SweepResult": "a batched fj.Solution (solution[i], codes, best_configuration)",
+    "KernelNARXResult": "fj.Solution with aux fj.KernelNARXSearch",
+    "LocalModelResult": "fj.Solution with aux fj.LocalModelSearch",
+    "PolynomialNARXResult": "fj.Solution with aux fj.PolynomialNARXSelection",
+    "WaveletNARXResult": "fj.Solution with aux fj.WaveletNARXSelection",
+    "RecursiveFitResult": "fj.Solution with aux fj.RecursiveFitTrace",
+}
+
+
 def __getattr__(name: str) -> "_Any":  # quoted: no `from __future__ import annotations` (a public name here)
     """The public names load on first use, all at once (PEP 562): `import fricjax` itself imports no JAX (and
     `__version__` reads the installed metadata on first use: 30 ms that `fricjax`'s start-up does not wait for)."""
@@ -58,6 +70,16 @@ def __getattr__(name: str) -> "_Any":  # quoted: no `from __future__ import anno
         return _fricjax_version()
     if name.startswith("__"):
         raise AttributeError(name)
+    if name in _REPLACED:
+        import warnings
+
+        warnings.warn(
+            f"fj.{name} is gone: the fit returns {_REPLACED[name]}; fj.{name} reads fj.Solution and goes in a later "
+            "release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return __getattr__("Solution")
     if name in _MOVED:
         import warnings
 

@@ -203,7 +203,7 @@ def _parser() -> argparse.ArgumentParser:
         nargs="+",
         metavar="COLUMN",
         help="the column(s) of the file records that give the normal load (several are summed); default: a column "
-        "normal_force / N if present. A load that follows the friction force itself (|correlation| >= 0.95 with the "
+        "normal_force / N if present. A load that follows the friction force itself (|correlation| >= 0.97 with the "
         "force or its magnitude: a drive force) is refused",
     )
     compare.add_argument(
@@ -258,7 +258,8 @@ def _parser() -> argparse.ArgumentParser:
         "--test-drift",
         choices=("none", "window"),
         default="none",
-        help="a fitted sensor drift stays with its training record (none) or is estimated on the window",
+        help="none: the models as fitted, a training record's sensor drift left behind; window: a linear drift fitted "
+        "on the initialisation window with the offset and the state (--init state), and extrapolated",
     )
     for option, text in (
         ("--dt", "sample time [s]"),

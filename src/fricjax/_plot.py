@@ -65,17 +65,18 @@ def plot_residual_analysis(analyses: Mapping[str, Any], *, title: str = "") -> A
     rows = max(len(analyses), 1)
     fig, axes = plt.subplots(rows, 2, figsize=(10, 1.9 * rows + 0.6), squeeze=False)
     for (label, analysis), (auto_ax, cross_ax) in zip(analyses.items(), axes, strict=False):
-        for ax, lags, values, name in (
-            (auto_ax, analysis.lags[1:], analysis.autocorrelation[1:], "autocorrelation of e"),
+        for ax, lags, values, name, band in (
+            (auto_ax, analysis.lags[1:], analysis.autocorrelation[1:], "autocorrelation of e", analysis.band),
             (
                 cross_ax,
                 analysis.cross_lags,
                 analysis.cross_correlation,
                 f"cross-correlation of {analysis.input_name}, e",
+                analysis.cross_band,
             ),
         ):
-            ax.axhspan(-analysis.band, analysis.band, color="0.85", lw=0)
-            outside = np.abs(values) > analysis.band
+            ax.axhspan(-band, band, color="0.85", lw=0)
+            outside = np.abs(values) > band
             ax.vlines(lags, 0, values, colors=np.where(outside, "C3", "C0"), lw=1.5)
             ax.axhline(0, color="k", lw=0.5)
             ax.set_title(f"{label}: {name}", fontsize=8, loc="left")

@@ -25,13 +25,17 @@ _Z = {0.9: 1.6449, 0.95: 1.9600, 0.99: 2.5758, 0.999: 3.2905}  # two-sided norma
 class ResidualAnalysis:
     """The residual's autocorrelation `autocorrelation[k]` at lags `k = 0..max_lag` (1 at lag 0) and its
     cross-correlation with the input, `cross_correlation[j]` = corr(u(t), e(t + tau)) at `cross_lags[j] = tau` from
-    `-max_lag` to `max_lag`; `band` the half-width of the confidence band (`z / sqrt(samples)`); `confidence`;
-    `samples` the residual's length; `input_name` the input's name; `rms` the residual's RMS [N]."""
+    `-max_lag` to `max_lag`; `band` the half-width of the autocorrelation's confidence band (`z / sqrt(samples)`, that
+    of a white residual); `cross_band` the cross-correlation's, `z sqrt(P / samples)` with `P = sum_k r_e(k) r_u(k)`
+    over `|k| <= max_lag` (Ljung 1999, eq. 16.60: a residual that is not white but independent of the input stays
+    inside it; 1 when either is white); `confidence`; `samples` the residual's length; `input_name` the input's name;
+    `rms` the residual's RMS [N]."""
 
     autocorrelation: np.ndarray
     cross_lags: np.ndarray
     cross_correlation: np.ndarray
     band: float
+    cross_band: float
     confidence: float
     samples: int
     input_name: str
@@ -42,14 +46,14 @@ class ResidualAnalysis:
         """The autocorrelation's lags, `0..max_lag` (samples)."""
         return np.arange(self.autocorrelation.size)
 
-    def _passes(self, correlations: np.ndarray) -> bool:
+    def _passes(self, correlations: np.ndarray, band: float) -> bool:
         """Whether `correlations` leave the band no more than chance lets a white, independent residual: at most the
         expected count of lags plus two standard deviations of it, and none by more than half the band again (a
         lag at 1.5 times the band, 3.9 sigma for 99 %, is no chance excursion)."""
         expected = (1.0 - self.confidence) * correlations.size
         allowed = int(math.ceil(expected + 2.0 * math.sqrt(max(expected, 1e-12))))
         magnitude = np.abs(correlations)
-        return int(np.sum(magnitude > self.band)) <= allowed and float(magnitude.max(initial=0.0)) <= 1.5 * self.band
+        return int(np.sum(magnitude > band)) <= allowed and float(magnitude.max(initial=0.0)) <= 1.5 * band
 
     @property
     def outside_autocorrelation(self) -> int:
@@ -59,17 +63,17 @@ class ResidualAnalysis:
     @property
     def outside_cross_correlation(self) -> int:
         """Lags at which the cross-correlation with the input leaves the band."""
-        return int(np.sum(np.abs(self.cross_correlation) > self.band))
+        return int(np.sum(np.abs(self.cross_correlation) > self.cross_band))
 
     @property
     def white(self) -> bool:
         """Whether the residual passes as white: no more lags outside the band than chance allows."""
-        return self._passes(self.autocorrelation[1:])
+        return self._passes(self.autocorrelation[1:], self.band)
 
     @property
     def independent(self) -> bool:
         """Whether the residual passes as uncorrelated with the input (all lags, negative ones included)."""
-        return self._passes(self.cross_correlation)
+        return self._passes(self.cross_correlation, self.cross_band)
 
     def verdict(self) -> str:
         """One line: whiteness and independence from the input, with the largest correlations."""
@@ -98,8 +102,9 @@ def residual_analysis(
 ) -> ResidualAnalysis:
     """Correlation analysis of the residual `e = measured - predicted` [N]: its autocorrelation at lags `0..max_lag`
     and its cross-correlation with `input` (the velocity or displacement the model was driven by, one value per
-    sample) at lags `-max_lag..max_lag`, with the `confidence` band (0.9, 0.95, 0.99 or 0.999) of a white residual
-    independent of the input, `z / sqrt(N)` (Ljung 1999, §16.6; MATLAB's `resid`).
+    sample) at lags `-max_lag..max_lag`, with the `confidence` bands (0.9, 0.95, 0.99 or 0.999) of a white residual,
+    `z / sqrt(N)`, and of a residual independent of the input, widened by the two signals' own correlations
+    (`ResidualAnalysis.cross_band`; Ljung 1999, §16.6; MATLAB's `resid`).
 
     ```python
     >>> import numpy as np, fricjax as fj
@@ -138,6 +143,8 @@ def residual_analysis(
         raise ValueError("residual_analysis: the residual and the input must vary (a constant has no correlation).")
     e_n, u_n = e_c / e_scale, u_c / u_scale
     auto = np.array([np.dot(e_n[: n - k], e_n[k:]) / n for k in range(max_lag + 1)])
+    input_auto = np.array([np.dot(u_n[: n - k], u_n[k:]) / n for k in range(max_lag + 1)])
+    spread = max(float(auto[0] * input_auto[0] + 2.0 * np.dot(auto[1:], input_auto[1:])), 1.0)
     lags = np.arange(-max_lag, max_lag + 1)
     cross = np.array(
         [np.dot(u_n[: n - t], e_n[t:]) / n if t >= 0 else np.dot(u_n[-t:], e_n[: n + t]) / n for t in lags]
@@ -147,6 +154,7 @@ def residual_analysis(
         cross_lags=lags,
         cross_correlation=cross,
         band=_Z[confidence] / math.sqrt(n),
+        cross_band=_Z[confidence] * math.sqrt(spread / n),
         confidence=confidence,
         samples=n,
         input_name=input_name,

@@ -274,8 +274,10 @@ def mapped_unit(raw: str, role: str) -> str | None:
         return unit
     quantity = "force" if role == "normal_force" else "t" if role == "dt" else role
     head, sep, suffix = name.rpartition("_")
-    if role == "v":
+    if role == "v":  # `speed_mm_per_s` or `speed_mm/s`
         base, per_sep, per = name.rpartition("_per_")
+        if not per_sep:
+            base, per_sep, per = name.rpartition("/")
         if per_sep and per == "s":
             unit = base.rpartition("_")[2]
             return f"{unit}/s" if _is_unit("x", unit) else None

@@ -226,7 +226,9 @@ def read_record(
     if absent:
         found = ", ".join(repr(raw) for raw, _ in entries) or "nothing"
         raise RecordError(
-            f"{path}: no column {absent[0]!r} for {mapped[absent[0]]!r} (columns=, --{mapped[absent[0]]}-column); "
+            f"{path}: no column {absent[0]!r} for {mapped[absent[0]]!r} (columns="
+            + ("" if mapped[absent[0]] == "dt" else f", --{mapped[absent[0]]}-column")
+            + "); "
             f"found: {found}"
         )
     if units_entry is not None:

@@ -160,6 +160,11 @@ def initialise(
         raise ValueError("initialise: the window needs at least 2 samples; pass more of the record.")
     if initialiser is None:
         initialiser = WindowLeastSquares(offset, initial_state, drift, max_steps)
+    elif (offset, initial_state, drift, max_steps) != (True, True, False, 50):
+        raise TypeError(
+            "initialise: offset, initial_state, drift and max_steps configure the default initialiser; with "
+            "`initialiser` given, set them on it (fj.WindowLeastSquares(drift=True, ...))."
+        )
     elif not isinstance(initialiser, AbstractInitialiser):
         raise TypeError(
             f"initialise: `initialiser` must be an fj.AbstractInitialiser (fj.WindowLeastSquares(), fj.AtRest()), got "

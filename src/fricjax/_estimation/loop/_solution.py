@@ -191,6 +191,8 @@ class Solution(eqx.Module):
         if not self.batched:
             raise TypeError("one fit's Solution has no configurations; `best_start` is the start it kept")
         scores = self.val_loss if np.isfinite(self.val_loss).any() else self.train_loss
+        if not np.isfinite(scores).any():
+            raise ValueError("no configuration of this sweep has a finite loss: every one diverged")
         return int(np.nanargmin(np.where(np.isfinite(scores), scores, np.nan)))
 
     @property
@@ -240,9 +242,11 @@ class Solution(eqx.Module):
         if self.batched:
             counts = {code: self.codes.count(code) for code in dict.fromkeys(self.codes)}
             outcome = ", ".join(f"{number} {code}" for code, number in counts.items())
+            finite = np.isfinite(self.val_loss).any() or np.isfinite(self.train_loss).any()
+            best = f"the best is {self.best_configuration}" if finite else "no finite loss"
             return (
-                f"Solution of a sweep of {np.size(self.train_loss)} configurations{effort}: {outcome}; the best is "
-                f"{self.best_configuration} (`solution[i]` is configuration i's)"
+                f"Solution of a sweep of {np.size(self.train_loss)} configurations{effort}: {outcome}; {best} "
+                "(`solution[i]` is configuration i's)"
             )
         losses = f"train loss {self.train_loss:.4g}, " + self._validation_text()
         title = "Solution" if self.aux is None else f"Solution ({type(self.aux).__name__})"

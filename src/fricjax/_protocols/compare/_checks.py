@@ -52,8 +52,9 @@ def unused_load_columns(split: Any, cards: Sequence[dict[str, Any]]) -> list[str
 
 
 def _column_follows_force(name: str, cards: Sequence[dict[str, Any]]) -> float | None:
-    """The largest `load_force_correlation` of column `name` read as a normal load from each training file (None:
-    a file that cannot give it, or a constant column everywhere)."""
+    """The largest `load_force_correlation` of column `name` read as a normal load from each training file that has
+    it, read as the run read it (its column names, velocity and time unit; None: a file that cannot give it, or a
+    constant column everywhere)."""
     import warnings
 
     from ..._data._io import read_record
@@ -65,7 +66,8 @@ def _column_follows_force(name: str, cards: Sequence[dict[str, Any]]) -> float |
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                record, _ = read_record(card["source"], dt=card.get("dt_s"), normal_force_column=name)
+                options = card.get("read_with", {})
+                record, _ = read_record(card["source"], dt=card.get("dt_s"), normal_force_column=name, **options)
         except (ValueError, OSError, KeyError):
             return None
         if record.motion.normal_force is None:

@@ -15,11 +15,13 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from ..._constraints import unwrap
 from ..._data._model_files import load_model
 from ..._estimation.loop._interrupts import abandonable, check_interrupt
 from ..._models.combine._ensemble import AbstractEnsemble
 from ..._plot import plot_residual_analysis
 from ..._residuals import ResidualAnalysis, residual_analysis
+from ..._validation import nonnegative_int
 from ..._version import fricjax_version
 from ._checks import check_load_leaks, check_test_record
 from ._figures import plot_prediction_errors, plot_test_loops
@@ -79,11 +81,16 @@ def run_predict(
     compare scores a test record: the first `init_window` samples (default 10 %) estimate the record's force offset
     and, with `init="state"`, the model's initial state; the rest is scored by NMSE and MAX / std. A model fitted
     with a sensor drift leaves it behind (`test_drift="none"`) or estimates a new one on the window (`"window"`).
-    Prints a table, and writes `predictions_K.csv` per record (time, measured force, each model's prediction over
+    Prints a table, and writes `predictions[_K].csv` per record (time, measured force, each model's prediction over
     the whole record), `test_errors[_K].png`, `hysteresis_loops[_K].png` and `report.json` to `out` (staged and
     published together). **Raises:** `CompareError` (one line) for bad input.
     """
     out = output_folder(out)
+    if init_window is not None:
+        try:
+            init_window = nonnegative_int(init_window, "--init-window", "", hint="(samples)")
+        except ValueError as error:
+            raise CompareError(str(error)) from None
     if init not in ("state", "offset"):
         raise CompareError(f"--init must be state or offset, got {init!r}")
     if test_drift not in ("none", "window"):
@@ -91,13 +98,15 @@ def run_predict(
     files = expand_record_specs(list(models), "--model")
     if not files:
         raise CompareError("--model: name at least one model file (compare writes them to OUT/models/*.eqx)")
+    stems = [pathlib.Path(file).stem for file in files]
+    names = stems if len(set(stems)) == len(stems) else short_labels([str(pathlib.Path(f)) for f in files])
     loaded_models = {}
-    for file in files:
+    for file, name in zip(files, names, strict=True):
         path = pathlib.Path(file)
         if not path.is_file():
             raise CompareError(f"--model {file}: no such file (compare writes its models to OUT/models/NAME.eqx)")
         try:
-            loaded_models[path.stem if path.stem not in loaded_models else str(path)] = load_model(path)
+            loaded_models[name] = load_model(path)
         except (ValueError, OSError) as err:
             raise CompareError(f"--model {file}: {' '.join(str(err).split())}") from None
     specs = expand_record_specs(list(data), "--data")
@@ -119,7 +128,8 @@ def run_predict(
         units.append(loaded.units)
     for test in tests:
         check_test_record(test, init)
-    if not accept_correlated_load:
+    takes_load = any("normal_force" in getattr(unwrap(m), "requires", ()) for m in loaded_models.values())
+    if takes_load and not accept_correlated_load:  # a load that no model takes cannot leak into a prediction
         check_load_leaks([(t.name, t.record) for t in tests])
     check_writable(out)
     lock_output(out)
@@ -151,8 +161,9 @@ def run_predict(
     print()
     print(format_predictions(results))
     print()
+    short = dict(zip([t.name for t in tests], short_labels([t.name for t in tests]), strict=True))
     for r in results:
-        print(f"{r.name} on {pathlib.PurePath(r.record).name}: {_verdict(r.residuals)}")
+        print(f"{r.name} on {short[r.record]}: {_verdict(r.residuals)}")
     labels = short_labels([t.name for t in tests])
     figures, tables = [], []
     try:

@@ -408,6 +408,7 @@ def load_record_spec(
         "units": {"x": info.units.x, "force": info.units.force},
         "units_assumed_si": list(info.assumed_si),
         "dt_s": float(np.asarray(full.motion.dt)),
+        "read_with": {"columns": dict(columns) if columns else None, "velocity": velocity, "t_unit": t_unit},
     }
     return LoadedRecord(spec, full, card, info.units)
 

@@ -190,10 +190,11 @@ def _check_emps_options(arguments: dict[str, Any]) -> None:
         value, default = arguments[name], defaults[name].default
         if name == "models":
             value, default = [m.lower() for m in value], list(default)
-        elif isinstance(value, (list, tuple)) and not value:
+        elif isinstance(value, (list, tuple, dict)) and not value:
             value = None
         if value != default:
-            given.append("--split" if name == "split_at" else "--" + name.replace("_", "-"))
+            flag = {"split_at": "--split", "columns": "--t-column / --x-column / --v-column / --force-column"}.get(name)
+            given.append(flag or "--" + name.replace("_", "-"))
     if given:
         raise CompareError(
             f"--data emps runs the EMPS table (the benchmark's own records, split and friction laws) and takes none "
