@@ -33,10 +33,10 @@ def main(out: str) -> None:
     masks = ([1, 0], [1, 1], [1, 1], [0, 1])
     models = [fj.MLPNARX.init(regressors(m), 4, key=jax.random.PRNGKey(i)) for i, m in enumerate(masks)]
     sweep = fj.sweep(models, data, loss=fj.OneStepLoss(), learning_rate=[1e-2, 1e-2, 3e-3, 1e-2], steps=25)
-    sharded = jax.tree_util.tree_leaves(eqx.filter(sweep.models, eqx.is_inexact_array))[0]
+    sharded = jax.tree_util.tree_leaves(eqx.filter(sweep.model, eqx.is_inexact_array))[0]
     results["sweep_devices"] = np.asarray(len(sharded.sharding.device_set))
     results["sweep_train_loss"] = sweep.train_loss
-    for i, leaf in enumerate(leaves(sweep.models)):
+    for i, leaf in enumerate(leaves(sweep.model)):
         results[f"sweep_leaf_{i}"] = leaf
     # 6 configurations: spread over the 2 devices that divide the batch
     six = fj.sweep(models + models[:2], data, loss=fj.OneStepLoss(), steps=10)

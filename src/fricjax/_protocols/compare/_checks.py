@@ -53,8 +53,8 @@ def unused_load_columns(split: Any, cards: Sequence[dict[str, Any]]) -> list[str
 
 def _column_follows_force(name: str, cards: Sequence[dict[str, Any]]) -> float | None:
     """The largest `load_force_correlation` of column `name` read as a normal load from each training file that has
-    it, read as the run read it (its column names, velocity and time unit; None: a file that cannot give it, or a
-    constant column everywhere)."""
+    it, read as the run read it (its column names, velocity and time unit; a constant column counts 0; None: a file
+    that cannot give it)."""
     import warnings
 
     from ..._data._io import read_record
@@ -73,8 +73,7 @@ def _column_follows_force(name: str, cards: Sequence[dict[str, Any]]) -> float |
         if record.motion.normal_force is None:
             return None
         correlation = load_force_correlation(record.force, record.motion.normal_force)
-        if np.isfinite(correlation):
-            found.append(correlation)
+        found.append(correlation if np.isfinite(correlation) else 0.0)  # a constant column follows nothing
     return max(found) if found else None
 
 
