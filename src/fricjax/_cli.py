@@ -292,10 +292,20 @@ def _add_column_options(command: argparse.ArgumentParser) -> None:
         )
 
 
-def _columns(args: argparse.Namespace) -> dict[str, str] | None:
-    """The column options as `load_record`'s `columns` ({role: name}), or None."""
+def _record_options(args: argparse.Namespace) -> dict:  # type: ignore[type-arg]
+    """How compare and predict read the record files: units, column names (`load_record`'s `columns`), velocity,
+    the normal load and whether a load that follows the force is taken."""
     given = {role: getattr(args, f"{role}_column") for role in ("t", "x", "v", "force")}
-    return {role: name for role, name in given.items() if name is not None} or None
+    return {
+        "dt": args.dt,
+        "x_unit": args.x_unit,
+        "force_unit": args.force_unit,
+        "t_unit": args.t_unit,
+        "columns": {role: name for role, name in given.items() if name is not None} or None,
+        "velocity": args.velocity,
+        "normal_force_column": args.normal_force_column,
+        "accept_correlated_load": args.accept_correlated_load,
+    }
 
 
 def _count_or_auto(text: str) -> int | str:
@@ -349,14 +359,7 @@ def _run(args: argparse.Namespace) -> int:
                 init_window=args.init_window,
                 init=args.init,
                 test_drift=args.test_drift,
-                dt=args.dt,
-                x_unit=args.x_unit,
-                force_unit=args.force_unit,
-                t_unit=args.t_unit,
-                columns=_columns(args),
-                velocity=args.velocity,
-                normal_force_column=args.normal_force_column,
-                accept_correlated_load=args.accept_correlated_load,
+                **_record_options(args),
                 out=args.out,
             )
         except CompareError as err:
@@ -384,14 +387,7 @@ def _run(args: argparse.Namespace) -> int:
             starts=args.starts,
             drift=args.drift,
             neural_steps=args.neural_steps,
-            dt=args.dt,
-            x_unit=args.x_unit,
-            force_unit=args.force_unit,
-            t_unit=args.t_unit,
-            columns=_columns(args),
-            velocity=args.velocity,
-            normal_force_column=args.normal_force_column,
-            accept_correlated_load=args.accept_correlated_load,
+            **_record_options(args),
             init=args.init,
             test_drift=args.test_drift,
             out=args.out,

@@ -20,7 +20,7 @@ from ..._data._model_files import load_model
 from ..._estimation.loop._interrupts import abandonable, check_interrupt
 from ..._models.combine._ensemble import AbstractEnsemble
 from ..._plot import plot_residual_analysis
-from ..._residuals import ResidualAnalysis, residual_analysis
+from ..._residuals import ResidualAnalysis
 from ..._validation import nonnegative_int
 from ..._version import fricjax_version
 from ._checks import check_load_leaks, check_test_record
@@ -36,7 +36,7 @@ from ._output import (
     versions,
 )
 from ._records import TestRecord, expand_record_specs, load_record_spec, short_labels
-from ._scoring import predict_test_record, score_prediction
+from ._scoring import predict_test_record, residual_summary, residuals_on, score_prediction
 from ._settings import CompareError
 
 __all__ = ["Prediction", "run_predict"]
@@ -153,7 +153,7 @@ def run_predict(
                 except (ValueError, TypeError) as err:  # a model that needs a signal the record lacks, say
                     raise CompareError(f"{name} on {test.name}: {' '.join(str(err).split())}") from None
                 score, scored = score_prediction(full, test)
-                residuals = _residuals(test, scored)
+                residuals = residuals_on(test, scored)
                 results.append(
                     Prediction(name, name, test.name, score.nmse, score.max_error, score.offset, scored, residuals)
                 )
@@ -163,7 +163,7 @@ def run_predict(
     print()
     short = dict(zip([t.name for t in tests], short_labels([t.name for t in tests]), strict=True))
     for r in results:
-        print(f"{r.name} on {short[r.record]}: {_verdict(r.residuals)}")
+        print(f"{r.name} on {short[r.record]}: {residual_summary(r.residuals)['verdict']}")
     labels = short_labels([t.name for t in tests])
     figures, tables = [], []
     try:
@@ -202,13 +202,7 @@ def run_predict(
                     "nmse": r.nmse,
                     "max_error": r.max_error,
                     "offset_N": r.offset,
-                    "residuals": {"verdict": _verdict(r.residuals)}
-                    if isinstance(r.residuals, str)
-                    else {
-                        "white": r.residuals.white,
-                        "independent_of_velocity": r.residuals.independent,
-                        "verdict": r.residuals.verdict(),
-                    },
+                    "residuals": residual_summary(r.residuals),
                 }
                 for r in results
             ],
@@ -229,21 +223,6 @@ def _predict(model: Any, test: TestRecord, init: str, test_drift: str) -> np.nda
         members = np.stack([predict_test_record(member, test, init, test_drift) for member in model.members])
         return np.asarray(model.combine(jnp.asarray(members.T)))
     return predict_test_record(model, test, init, test_drift)
-
-
-def _residuals(test: TestRecord, scored: np.ndarray) -> ResidualAnalysis | str:
-    """The residual analysis of a prediction on the scored part of `test`, against the velocity (the input), or why
-    there is none."""
-    measured = np.asarray(test.record.force, dtype=float)[test.scored_start :]
-    velocity = np.asarray(test.record.motion.samples().v, dtype=float)[test.scored_start :]
-    try:
-        return residual_analysis(measured, scored, velocity, max_lag=min(25, measured.size // 2 - 1), input_name="v")
-    except ValueError as err:
-        return "no residual analysis: " + str(err).removeprefix("residual_analysis: ")
-
-
-def _verdict(analysis: ResidualAnalysis | str) -> str:
-    return analysis if isinstance(analysis, str) else analysis.verdict()
 
 
 def _save_residuals(path: pathlib.Path, *, rows: Sequence[Prediction], label: str) -> None:

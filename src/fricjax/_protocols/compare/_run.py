@@ -21,7 +21,6 @@ from ..._data._record import FrictionData
 from ..._estimation.loop._interrupts import abandonable, check_interrupt
 from ..._estimation.loop._placement import check_device, choose_device, forced_device, resolve_device
 from ..._estimation.loop._plausibility import half_excursion, implausible
-from ..._residuals import ResidualAnalysis, residual_analysis
 from ..._validation import nonnegative_int
 from ..._version import fricjax_version
 from ._checks import check_load_leaks, check_records_together, check_test_record, trained_on, unused_load_columns
@@ -58,6 +57,8 @@ from ._scoring import (
     free_run,
     predict_test_record,
     reference_scores,
+    residual_summary,
+    residuals_on,
     rows_on_test,
     score_row,
 )
@@ -200,22 +201,6 @@ def _check_emps_options(arguments: dict[str, Any]) -> None:
             f"--data emps runs the EMPS table (the benchmark's own records, split and friction laws) and takes none "
             f"of {', '.join(given)}: drop them, or run compare on a record file (--data FILE)"
         )
-
-
-def residual_verdicts(rows: Sequence[Any], test: TestRecord) -> dict[str, str | ResidualAnalysis]:
-    """Each row's `fj.ResidualAnalysis` on the scored part of `test` (its first test record: the rows' `prediction`),
-    against the velocity; where there is none (a prediction that is not finite), the reason."""
-    measured = np.asarray(test.record.force, dtype=float)[test.scored_start :]
-    velocity = np.asarray(test.record.motion.samples().v, dtype=float)[test.scored_start :]
-    lags = min(25, measured.size // 2 - 1)
-    out: dict[str, str | ResidualAnalysis] = {}
-    for row in rows:
-        try:
-            prediction = np.asarray(row.prediction, float)
-            out[row.name] = residual_analysis(measured, prediction, velocity, max_lag=lags, input_name="v")
-        except ValueError as err:
-            out[row.name] = "no residual analysis: " + str(err).removeprefix("residual_analysis: ")
-    return out
 
 
 def _timing(record: FrictionData) -> str:
@@ -456,11 +441,10 @@ def run_compare(
     print(format_table(rows, floor))
     if isinstance(split, TrainingRecords):
         print(format_record_nuisances(rows, units))
-    residuals = residual_verdicts(rows, tests[0])
+    residuals = {row.name: residuals_on(tests[0], row.prediction) for row in rows}
     print(f"\nresiduals on {short_labels([t.name for t in tests])[0]} (its scored part; the 99 % band; v the input):")
     for row in rows:
-        analysis = residuals[row.name]
-        print(f"  {row.label}: {analysis if isinstance(analysis, str) else analysis.verdict()}")
+        print(f"  {row.label}: {residual_summary(residuals[row.name])['verdict']}")
     try:
         staging = Staging(out)  # the files are written there, then moved into `out` together (or not at all)
     except OSError as err:
@@ -493,12 +477,7 @@ def run_compare(
             training_cards=training_cards,
         )
         report["figures"] = figures
-        report["residuals"] = {
-            name: {"verdict": r}
-            if isinstance(r, str)
-            else {"white": r.white, "independent_of_velocity": r.independent, "verdict": r.verdict()}
-            for name, r in residuals.items()
-        }
+        report["residuals"] = {name: residual_summary(r) for name, r in residuals.items()}
         staging.write("report.json", lambda path: path.write_text(strict_json(report)))  # the report last
         earlier = _earlier_figures(out)
         staging.publish()

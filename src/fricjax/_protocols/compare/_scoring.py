@@ -13,6 +13,7 @@ import numpy as np
 
 from ..._data._record import FrictionData
 from ..._metrics import max_error, nmse
+from ..._residuals import ResidualAnalysis, residual_analysis
 from ..._simulate import simulate
 from ..._smoothing import exact
 from ._records import Split, TestRecord
@@ -247,3 +248,22 @@ def rows_on_test(rows: list[ModelScore], test: TestRecord) -> list[ModelScore]:
         )
         for r in rows
     ]
+
+
+def residuals_on(test: TestRecord, prediction: Any) -> ResidualAnalysis | str:
+    """The `fj.ResidualAnalysis` of an offset-corrected prediction on the scored part of `test`, against the velocity
+    (the input), or why there is none (a prediction that is not finite): compare's and predict's verdicts."""
+    measured = np.asarray(test.record.force, dtype=float)[test.scored_start :]
+    velocity = np.asarray(test.record.motion.samples().v, dtype=float)[test.scored_start :]
+    try:
+        lags = min(25, measured.size // 2 - 1)
+        return residual_analysis(measured, np.asarray(prediction, float), velocity, max_lag=lags, input_name="v")
+    except ValueError as err:
+        return "no residual analysis: " + str(err).removeprefix("residual_analysis: ")
+
+
+def residual_summary(analysis: ResidualAnalysis | str) -> dict[str, Any]:
+    """`residuals_on`'s answer for a report: whiteness, independence of v and the verdict line."""
+    if isinstance(analysis, str):
+        return {"verdict": analysis}
+    return {"white": analysis.white, "independent_of_velocity": analysis.independent, "verdict": analysis.verdict()}
