@@ -23,6 +23,20 @@ def _record(path, seed: int, offset: float = 0.0):
 
 
 def test_predict_scores_a_saved_model_as_compare_scores_a_test_record(tmp_path, capsys):
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    backend = matplotlib.get_backend()
+    matplotlib.use("svg")  # a backend other than Agg, as a notebook's inline one: writing figures must leave it be
+    try:
+        _predict_and_check(tmp_path, capsys)
+        # the figures were files, not pyplot's: a notebook that ran the command still shows its own figures
+        assert matplotlib.get_backend() == "svg" and not plt.get_fignums()
+    finally:
+        matplotlib.use(backend)
+
+
+def _predict_and_check(tmp_path, capsys):
     record = _record(tmp_path / "new.csv", seed=3, offset=0.2)
     model = fj.LuGre(fj.ExponentialStribeck(Fc=1.0, Fs=1.3, vs=1e-3), sigma0=1e5, sigma1=300.0, sigma2=0.5)
     fj.save_model(tmp_path / "lugre.eqx", model)
@@ -45,6 +59,7 @@ def test_predict_scores_a_saved_model_as_compare_scores_a_test_record(tmp_path, 
         "test_errors.png",
         "hysteresis_loops.png",
     }
+    assert any(out.glob("residuals*.png")), sorted(p.name for p in out.iterdir())
 
 
 def test_predict_refuses_bad_input_in_one_line(tmp_path, capsys):

@@ -9,6 +9,21 @@ from typing import Any
 import numpy as np
 
 
+def subplots(*args: Any, pyplot: bool = True, **kwargs: Any) -> tuple[Any, Any]:
+    """A figure and its axes (`plt.subplots`' arguments). `pyplot=True`: through pyplot, with the user's backend, so
+    a notebook shows it; `pyplot=False`: a `matplotlib.figure.Figure` no backend holds, for a file the command line
+    writes (fricjax never switches the backend: `matplotlib.use('Agg')` in a notebook silenced every later figure)."""
+    if pyplot:
+        import matplotlib.pyplot as plt
+
+        return plt.subplots(*args, **kwargs)
+    from matplotlib.figure import Figure
+
+    layout = {key: kwargs.pop(key) for key in ("figsize", "constrained_layout", "layout") if key in kwargs}
+    figure = Figure(**layout)
+    return figure, figure.subplots(*args, **kwargs)
+
+
 def plot_loops(
     motion: Any,
     forces: Mapping[str, Any],
@@ -16,23 +31,20 @@ def plot_loops(
     presliding_window: tuple[int, int] | None = None,
     velocity_only: Collection[str] = (),
     title: str = "",
+    pyplot: bool = True,
 ) -> Any:
     """Three panels: F(x) in pre-sliding (first samples), F(x) over the whole record, and F(v).
 
     **Arguments:** `motion` a `Motion` with `x` and `v`; `forces` {label: force array (T,)};
     `presliding_window` sample range of the pre-sliding panel (default: the first quarter);
-    `velocity_only` labels drawn only in the F(v) panel (static curves, whose F(x) is a square wave).
+    `velocity_only` labels drawn only in the F(v) panel (static curves, whose F(x) is a square wave); `pyplot`
+    False for a figure outside pyplot (to save to a file; see `subplots`).
     **Returns:** the matplotlib `Figure`.
     """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
     x = np.asarray(motion.x) * 1e6
     v = np.asarray(motion.v) * 1e3
     start, stop = presliding_window or (0, len(x) // 4)
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
+    fig, axes = subplots(1, 3, figsize=(15, 4.6), constrained_layout=True, pyplot=pyplot)
     for label, force in forces.items():
         force = np.asarray(force)
         style = {"lw": 0.8, "label": label}
@@ -53,17 +65,13 @@ def plot_loops(
     return fig
 
 
-def plot_residual_analysis(analyses: Mapping[str, Any], *, title: str = "") -> Any:
+def plot_residual_analysis(analyses: Mapping[str, Any], *, title: str = "", pyplot: bool = True) -> Any:
     """Residual analysis figure (MATLAB's `resid` layout): for each `fj.ResidualAnalysis` in `analyses` {label:
     analysis}, the residual's autocorrelation (left) and its cross-correlation with the input (right), with the
-    confidence band shaded. **Returns:** the matplotlib `Figure`."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
+    confidence band shaded; `pyplot` False for a figure outside pyplot (to save to a file). **Returns:** the
+    matplotlib `Figure`."""
     rows = max(len(analyses), 1)
-    fig, axes = plt.subplots(rows, 2, figsize=(10, 1.9 * rows + 0.6), squeeze=False)
+    fig, axes = subplots(rows, 2, figsize=(10, 1.9 * rows + 0.6), squeeze=False, pyplot=pyplot)
     for (label, analysis), (auto_ax, cross_ax) in zip(analyses.items(), axes, strict=False):
         for ax, lags, values, name, band in (
             (auto_ax, analysis.lags[1:], analysis.autocorrelation[1:], "autocorrelation of e", analysis.band),

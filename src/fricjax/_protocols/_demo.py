@@ -112,6 +112,7 @@ def run_demo(out: pathlib.Path, *, figure: bool = True) -> dict[str, Any]:
             presliding_window=(0, int(0.45 * motion.length)),
             velocity_only=[name for name in forces if "static" in name],
             title="fricjax demo: every physics model under the same displacement",
+            pyplot=False,
         )
         fig.savefig(out / "demo_hysteresis.png", dpi=110)
         print(f"figure: {out / 'demo_hysteresis.png'}")

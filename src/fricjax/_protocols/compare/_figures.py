@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ..._plot import subplots
 from ._scoring import is_ensemble
 
 
@@ -33,11 +34,6 @@ def plot_prediction_errors(
     layout). `rows`: scored models with `label`, `nmse`, `max_error`, `prediction` (offset-corrected, on the
     scored part); `test`: the `fj.compare.TestRecord` (or a `Split`: its test part); `units`: the record's units
     (forces are shown in them); `label`: the record's name in the title (default: its file name)."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
     test = _as_test(test)
     _, _, f_unit = _display(units)
     f_scale = 1.0 if units is None else 1.0 / units.force_factor
@@ -45,7 +41,7 @@ def plot_prediction_errors(
     measured = np.asarray(test.record.force)[test.scored_start :]
     t = np.arange(measured.size) * float(np.asarray(test.record.motion.dt))
     step = _stride(measured.size)
-    fig, axes = plt.subplots(len(ordered) + 1, 1, figsize=(10, 1.6 * (len(ordered) + 1)), sharex=True)
+    fig, axes = subplots(len(ordered) + 1, 1, figsize=(10, 1.6 * (len(ordered) + 1)), sharex=True, pyplot=False)
     axes[0].plot(t[::step], f_scale * measured[::step], "k", lw=0.7)
     axes[0].set_ylabel(f"F [{f_unit}]")
     axes[0].set_title(
@@ -64,18 +60,12 @@ def plot_prediction_errors(
     axes[-1].set_xlabel("time in the scored part [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def plot_test_loops(rows: Sequence[Any], test: Any, path: Any, *, units: Any = None, label: str | None = None) -> None:
     """Measured vs predicted friction-displacement loops on a test record's scored part: the four best distinct
     models (`distinct_models`: the ensembles, whose predictions are near-identical mixtures of the best single
     model, count as one); `label`: the record's name in the title (default: its file name)."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
     test = _as_test(test)
     x_scale, x_unit, f_unit = _display(units)
     f_scale = 1.0 if units is None else 1.0 / units.force_factor
@@ -83,7 +73,7 @@ def plot_test_loops(rows: Sequence[Any], test: Any, path: Any, *, units: Any = N
     x = np.asarray(test.record.motion.samples().x)[test.scored_start :] * x_scale
     measured = np.asarray(test.record.force)[test.scored_start :] * f_scale
     step = _stride(x.size)
-    fig, axes = plt.subplots(1, len(ordered), figsize=(4 * len(ordered), 3.8), squeeze=False)
+    fig, axes = subplots(1, len(ordered), figsize=(4 * len(ordered), 3.8), squeeze=False, pyplot=False)
     for ax, r in zip(axes[0], ordered, strict=True):
         ax.plot(x[::step], measured[::step], color="0.6", lw=0.8, label="measured")
         ax.plot(x[::step], f_scale * np.asarray(r.prediction)[::step], "r", lw=0.6, label="predicted")
@@ -92,21 +82,15 @@ def plot_test_loops(rows: Sequence[Any], test: Any, path: Any, *, units: Any = N
     fig.suptitle(f"{_record_name(test, label)}: friction-displacement loops", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def plot_test_records(rows: Sequence[Any], labels: Sequence[str], path: Any) -> None:
     """Each model's free-run NMSE on every test record (log scale), one line per model in the table's order: how
     each model carries over to records it was not fitted on. `rows`: scored models with `label` and `tests` (the
     `Score` on each test record, in order); `labels`: the test records' names."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
     ordered = sorted(rows, key=lambda r: (not np.isfinite(r.nmse), np.nan_to_num(r.nmse)))
     positions = np.arange(len(labels))
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.2 * len(labels) + 3.0), 4.2))
+    fig, ax = subplots(figsize=(max(6.0, 1.2 * len(labels) + 3.0), 4.2), pyplot=False)
     for r in ordered:
         values = np.array([score.nmse for score in r.tests.values()], dtype=float)
         values = np.where(np.isfinite(values) & (values > 0), values, np.nan)
@@ -119,7 +103,6 @@ def plot_test_records(rows: Sequence[Any], labels: Sequence[str], path: Any) -> 
     below = 0.1 + 0.008 * max((len(str(label)) for label in labels), default=0)  # under the rotated names
     ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -below), ncol=3, frameon=False)
     fig.savefig(path, dpi=100, bbox_inches="tight")  # the canvas grows to hold the rotated names and the legend
-    plt.close(fig)
 
 
 def distinct_models(rows: Sequence[Any], count: int) -> list[Any]:

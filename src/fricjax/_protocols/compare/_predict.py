@@ -226,12 +226,9 @@ def _predict(model: Any, test: TestRecord, init: str, test_drift: str) -> np.nda
 
 
 def _save_residuals(path: pathlib.Path, *, rows: Sequence[Prediction], label: str) -> None:
-    import matplotlib.pyplot as plt
-
     analyses = {r.name: r.residuals for r in rows if not isinstance(r.residuals, str)}
-    figure = plot_residual_analysis(analyses, title=f"{label}: residual analysis")
+    figure = plot_residual_analysis(analyses, title=f"{label}: residual analysis", pyplot=False)
     figure.savefig(path, dpi=100)
-    plt.close(figure)
 
 
 def format_predictions(results: Sequence[Prediction]) -> str:
