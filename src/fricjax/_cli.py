@@ -335,6 +335,7 @@ def _run(args: argparse.Namespace) -> int:
         enable_compilation_cache()
 
     from ._protocols._demo import run_demo
+    from ._protocols.compare._config import CompareConfig, as_flags
     from ._protocols.compare._output import check_writable, output_folder
     from ._protocols.compare._run import run_compare
     from ._protocols.compare._settings import CompareError
@@ -345,7 +346,7 @@ def _run(args: argparse.Namespace) -> int:
             out = output_folder(args.out)
             check_writable(out)
         except CompareError as err:
-            print(f"fricjax demo: {err}", file=sys.stderr)
+            print(f"fricjax demo: {as_flags(str(err))}", file=sys.stderr)
             return 2
         run_demo(out, figure=not args.no_figure)
         return 0
@@ -363,7 +364,7 @@ def _run(args: argparse.Namespace) -> int:
                 out=args.out,
             )
         except CompareError as err:
-            print("fricjax predict: " + " ".join(str(err).split()), file=sys.stderr)
+            print("fricjax predict: " + " ".join(as_flags(str(err)).split()), file=sys.stderr)
             return 2
         return 0
     if args.device == "gpu" and not [d for d in jax.devices() if d.platform != "cpu"]:
@@ -374,7 +375,7 @@ def _run(args: argparse.Namespace) -> int:
         )
         return 2
     try:
-        run_compare(
+        config = CompareConfig(
             data=args.data,
             test=args.test,
             validation=args.validation,
@@ -397,9 +398,10 @@ def _run(args: argparse.Namespace) -> int:
             # puts it (the host CPU without a time-parallel form or on a short record; stated in the log)
             device="cpu" if args.device == "cpu" else "auto",
         )
+        run_compare(config)
         return 0
-    except CompareError as err:
-        print("fricjax compare: " + " ".join(str(err).split()), file=sys.stderr)
+    except CompareError as err:  # named as the configuration's fields: shown as this command's flags
+        print("fricjax compare: " + " ".join(as_flags(str(err)).split()), file=sys.stderr)
         return 2
 
 

@@ -1,5 +1,9 @@
 """The identification exercise behind `fricjax compare`, as a public namespace: `fj.compare.default_models()`.
 
+The whole run as data in and a report out: `run_compare(CompareConfig(...))` (a validated `CompareConfig` whose
+errors name its fields; `load_records` loads and checks the records it names, `CompareRecords`) returns the `Report`
+(the rows, `table()`, `contents()` of `report.json`, `write(out)`).
+
 The recipe registry (`default_models`: each model's start from the training record and its fit recipe; the
 names in `PHYSICS_MODELS`, fitted by default, `NEURAL_MODELS` and `LINEAR_MODELS`, `MODEL_NAMES` for all),
 data (`load_record_spec`, `load_split`, `split_record`, `Split`, `TrainingRecords`: several training records of one
@@ -23,6 +27,10 @@ than the first: `rows_on_test`), `plot_test_records` (each model's NMSE on each;
 
 from ._estimation.loop._plausibility import implausible as implausible
 from ._protocols.compare._blackbox_recipes import linear_in_parameters_models as linear_in_parameters_models
+from ._protocols.compare._config import CompareConfig as CompareConfig
+from ._protocols.compare._config import CompareRecords as CompareRecords
+from ._protocols.compare._config import expanded_specs as expanded_specs
+from ._protocols.compare._config import load_records as load_records
 from ._protocols.compare._ensembles import add_ensembles as add_ensembles
 from ._protocols.compare._figures import distinct_models as distinct_models
 from ._protocols.compare._figures import plot_prediction_errors as plot_prediction_errors
@@ -46,8 +54,10 @@ from ._protocols.compare._registry import MODEL_NAMES as MODEL_NAMES
 from ._protocols.compare._registry import NEURAL_MODELS as NEURAL_MODELS
 from ._protocols.compare._registry import PHYSICS_MODELS as PHYSICS_MODELS
 from ._protocols.compare._registry import default_models as default_models
+from ._protocols.compare._report import Report as Report
 from ._protocols.compare._report import format_table as format_table
 from ._protocols.compare._run import fit_and_score as fit_and_score
+from ._protocols.compare._run import run_compare as run_compare
 from ._protocols.compare._scoring import ModelScore as ModelScore
 from ._protocols.compare._scoring import Score as Score
 from ._protocols.compare._scoring import count_parameters as count_parameters

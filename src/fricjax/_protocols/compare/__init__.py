@@ -19,7 +19,9 @@ One job per module, each depending only on those before it:
 - `_scoring`: exact-mode free runs and scores, `ModelScore` (a row of the table), `paired_validation_gain`;
 - `_recipes`: `ModelSpec` and the fit recipes shared by the families; `_physics_recipes`, `_blackbox_recipes`:
   each family's starts and fits; `_registry`: the model names and `default_models`;
-- `_ensembles`: `add_ensembles`; `_report`: the table and `report.json`; `_figures`: the figures;
-  `_output`: the output folder and strict JSON; `_emps_table`: `--data emps`;
-- `_run`: `fit_and_score` and `run_compare`, the command from end to end.
+- `_config`: `CompareConfig` (a run's configuration, validated; errors name its fields, `as_flags` shows them as
+  the command line's flags) and `load_records` (its records loaded, checked and split: `CompareRecords`);
+- `_ensembles`: `add_ensembles`; `_figures`: the figures; `_output`: the output folder and strict JSON;
+- `_report`: the table, `report.json` and the `Report` a run returns and writes; `_emps_table`: `--data emps`;
+- `_run`: `fit_and_score` and `run_compare` (a `CompareConfig` in, a `Report` out), the command from end to end.
 """

@@ -34,7 +34,7 @@ JOURNAL_NAME = "publishing.json"  # in a staging folder while its files move int
 UNFINISHED_LOCK_AFTER = 10.0  # seconds: an empty lock file this old was left by a run killed as it created it
 
 
-def output_folder(text: str | os.PathLike[str], option: str = "--out") -> pathlib.Path:
+def output_folder(text: str | os.PathLike[str], option: str = "`out`") -> pathlib.Path:
     """The output folder named by `--out`: an empty name is refused (read as a path it would be the working folder)."""
     if not str(os.fspath(text)).strip():
         raise CompareError(f"{option}: an empty name; give a folder (created if missing), or {option} . for this one")
@@ -88,8 +88,8 @@ def keep_copies(out: pathlib.Path, planned: list[tuple[str, pathlib.Path]]) -> l
             for copy in copies:
                 copy.unlink(missing_ok=True)
             raise CompareError(
-                f"--out {out}: {name} is not from an earlier run and could not be kept as {backup.name} "
-                f"({_reason(err)}); move it away or choose another --out (nothing was written)"
+                f"`out` {out}: {name} is not from an earlier run and could not be kept as {backup.name} "
+                f"({_reason(err)}); move it away or choose another `out` (nothing was written)"
             ) from None
         print(f"note: --out {out}: your {name} is kept as {backup.relative_to(out)} (this run writes its own {name})")
         copies.append(backup)
@@ -103,7 +103,7 @@ def check_writable(out: pathlib.Path, files: tuple[str, ...] = ()) -> None:
     the run left it empty (interrupted, or stopped by an error: nothing written, not even the folder)."""
     created = not os.path.lexists(out)
     if os.path.lexists(out) and not out.is_dir():
-        raise CompareError(f"--out {out}: a file, not a folder; choose another --out (a folder, created if missing)")
+        raise CompareError(f"`out` {out}: a file, not a folder; choose another `out` (a folder, created if missing)")
     try:
         out.mkdir(parents=True, exist_ok=True)
         locks = _LOCKS.get()
@@ -114,13 +114,13 @@ def check_writable(out: pathlib.Path, files: tuple[str, ...] = ()) -> None:
         os.close(handle)
         os.unlink(probe)
     except OSError as err:
-        raise CompareError(f"--out {out}: not writable ({err.strerror})") from err
+        raise CompareError(f"`out` {out}: not writable ({err.strerror})") from err
     models = out / "models"
     if models.exists() and not models.is_dir():
-        raise CompareError(f"--out {out}: 'models' exists and is not a folder; move it away or choose another --out")
+        raise CompareError(f"`out` {out}: 'models' exists and is not a folder; move it away or choose another `out`")
     for name in files:
         if (out / name).is_dir() and not (out / name).is_symlink():
-            raise CompareError(f"--out {out}: {name} is a folder; move it away or choose another --out")
+            raise CompareError(f"`out` {out}: {name} is a folder; move it away or choose another `out`")
 
 
 def _remove_if_empty(out: pathlib.Path) -> None:
@@ -176,7 +176,7 @@ class _OutputLock:
             except FileExistsError:
                 pass
             except OSError as err:
-                raise CompareError(f"--out {self.out}: could not create {LOCK_NAME} ({_reason(err)})") from None
+                raise CompareError(f"`out` {self.out}: could not create {LOCK_NAME} ({_reason(err)})") from None
             else:
                 with os.fdopen(handle, "w") as stream:
                     stream.write(self.text)
@@ -188,18 +188,18 @@ class _OutputLock:
             except FileNotFoundError:
                 continue  # its run just ended
             except OSError as err:
-                raise CompareError(f"--out {self.out}: could not read {LOCK_NAME} ({_reason(err)})") from None
+                raise CompareError(f"`out` {self.out}: could not read {LOCK_NAME} ({_reason(err)})") from None
             owner = _lock_owner(seen)
             if owner is None and age < UNFINISHED_LOCK_AFTER:
                 owner = {"pid": "?", "host": socket.gethostname()}  # being written by a run starting now
             if owner is not None and _alive(owner["pid"], owner["host"]) is not False:
                 where = "" if owner["host"] == socket.gethostname() else f" on {owner['host']}"
                 raise CompareError(
-                    f"--out {self.out}: another fricjax compare (pid {owner['pid']}{where}) is writing there; wait "
-                    f"for it to end or choose another --out (if no such run is going on, delete {self.path})"
+                    f"`out` {self.out}: another fricjax compare (pid {owner['pid']}{where}) is writing there; wait "
+                    f"for it to end or choose another `out` (if no such run is going on, delete {self.path})"
                 )
             _take_over(self.path, seen)
-        raise CompareError(f"--out {self.out}: other runs keep taking {LOCK_NAME}; run again")
+        raise CompareError(f"`out` {self.out}: other runs keep taking {LOCK_NAME}; run again")
 
     def __exit__(self, *exc: Any) -> None:
         self._release()
@@ -232,7 +232,7 @@ def _take_over(path: pathlib.Path, seen: bytes) -> None:
     except FileNotFoundError:
         return
     except OSError as err:
-        raise CompareError(f"--out {path.parent}: could not remove the stale {LOCK_NAME} ({_reason(err)})") from None
+        raise CompareError(f"`out` {path.parent}: could not remove the stale {LOCK_NAME} ({_reason(err)})") from None
     try:
         if aside.read_bytes() != seen:
             os.link(aside, path)
@@ -294,7 +294,7 @@ class Staging:
             self.new.mkdir()
         except OSError as err:
             shutil.rmtree(self.root, ignore_errors=True)
-            raise CompareError(f"--out {out}: could not start writing ({_reason(err)}); nothing was written") from None
+            raise CompareError(f"`out` {out}: could not start writing ({_reason(err)}); nothing was written") from None
         self.names: list[str] = []  # the staged files, relative to `out`, in the order they are published
         self.keep = False  # a rollback failed: `previous/` holds files of `out` (said in the error)
 
@@ -319,7 +319,7 @@ class Staging:
             if not isinstance(cause, OSError):
                 raise
             reason = _reason(cause)
-            raise CompareError(f"--out {self.out}: could not write {name} ({reason}); nothing was written") from None
+            raise CompareError(f"`out` {self.out}: could not write {name} ({reason}); nothing was written") from None
         self.names.append(name)
 
     def publish(self) -> None:
@@ -332,12 +332,12 @@ class Staging:
             for folder in self._folders(name):
                 if os.path.lexists(folder) and not folder.is_dir():
                     raise CompareError(
-                        f"--out {self.out}: {folder.name} is not a folder, but {name} must go in it; move it away "
-                        "or choose another --out (nothing was written)"
+                        f"`out` {self.out}: {folder.name} is not a folder, but {name} must go in it; move it away "
+                        "or choose another `out` (nothing was written)"
                     )
             if (self.out / name).is_dir() and not (self.out / name).is_symlink():
                 raise CompareError(
-                    f"--out {self.out}: {name} is a folder; move it away or choose another --out (nothing was written)"
+                    f"`out` {self.out}: {name} is a folder; move it away or choose another `out` (nothing was written)"
                 )
         planned = backups(self.out, self.names, earlier_outputs(self.out))
         moves: list[tuple[pathlib.Path, pathlib.Path]] = []  # the renames done, to undo in reverse
@@ -367,13 +367,13 @@ class Staging:
                 self.keep = bool(failed)
                 if failed:
                     raise CompareError(
-                        f"--out {self.out}: could not move {current} into place ({err}), nor put back {failed[0]}; "
+                        f"`out` {self.out}: could not move {current} into place ({err}), nor put back {failed[0]}; "
                         f"the previous files are in {self.previous}: move them back by hand"
                     ) from None
                 if not isinstance(err, OSError):
                     raise
                 raise CompareError(
-                    f"--out {self.out}: could not move {current} into place ({_reason(err)}); nothing was changed "
+                    f"`out` {self.out}: could not move {current} into place ({_reason(err)}); nothing was changed "
                     "(the previous files are back)"
                 ) from None
 
@@ -397,7 +397,7 @@ class Staging:
             (self.root / JOURNAL_NAME).write_text(json.dumps(journal))
         except OSError as err:
             raise CompareError(
-                f"--out {self.out}: could not start publishing ({_reason(err)}); nothing was written"
+                f"`out` {self.out}: could not start publishing ({_reason(err)}); nothing was written"
             ) from None
 
     def _folders(self, name: str) -> list[pathlib.Path]:
@@ -425,14 +425,14 @@ def _reason(err: OSError) -> str:
     """Why a write or a rename failed, with what to do about it, in a few words."""
     text = err.strerror or str(err)
     if err.errno in (errno.ENOSPC, errno.EDQUOT):
-        return f"{text}: free some space or choose another --out"
+        return f"{text}: free some space or choose another `out`"
     if err.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
-        return f"{text}: check the folder's permissions or choose another --out"
+        return f"{text}: check the folder's permissions or choose another `out`"
     if err.errno in (errno.EBUSY, errno.ETXTBSY):
         return f"{text}: close the program that holds it and run again"
     if err.errno == errno.EXDEV:
-        return f"{text}: 'models' is on another file system than --out; choose another --out"
-    return f"{text}: check --out and run again"
+        return f"{text}: 'models' is on another file system than `out`; choose another `out`"
+    return f"{text}: check `out` and run again"
 
 
 def remove_stale_staging(out: pathlib.Path, *, now: float | None = None) -> None:

@@ -5,6 +5,10 @@ scores, parameters with their SI units and standard deviations)."""
 from __future__ import annotations
 
 import dataclasses
+import functools
+import json
+import pathlib
+import re
 import time
 from typing import Any
 
@@ -12,13 +16,24 @@ import numpy as np
 
 from ..._constraints import parameter_arrays, parameter_units, unwrap
 from ..._data._columns import Units
+from ..._data._model_files import save_model
 from ..._smoothing import exact
 from ..._version import fricjax_version
+from ._config import CompareRecords
+from ._figures import plot_prediction_errors, plot_test_loops, plot_test_records
 from ._names import NEURAL_MODELS
-from ._output import versions
+from ._output import Staging, strict_json, versions
 from ._records import LoadedRecord, Split, TestRecord, TrainingRecords, short_labels
-from ._scoring import ModelScore, Score, is_ensemble
-from ._settings import RESULT_CODES, FitSettings
+from ._scoring import (
+    ModelScore,
+    Score,
+    is_ensemble,
+    reference_scores,
+    residual_summary,
+    residuals_on,
+    rows_on_test,
+)
+from ._settings import RESULT_CODES, CompareError, FitSettings
 
 
 def by_score(row: ModelScore) -> tuple[bool, float]:
@@ -230,3 +245,124 @@ def _units(model: Any) -> dict[str, str | None]:
 def _estimated_std(std: Any) -> dict[str, Any]:
     """The Gauss-Newton standard deviations that were estimated: fixed and untrained leaves (NaN) are left out."""
     return {path: value.tolist() for path, value in parameter_arrays(std).items() if not np.all(np.isnan(value))}
+
+
+@dataclasses.dataclass(frozen=True)
+class Report:
+    """What a `compare` run found, to print and to write: `rows` (a `ModelScore` per model and ensemble), the
+    `records` it ran on (`CompareRecords`), the noise-floor scores of the test records (`floor`), each row's
+    residual analysis on the first test record (`residuals`: `fj.ResidualAnalysis` or why there is none), the `seed`
+    and when the fits `started` (a `time.perf_counter()` reading)."""
+
+    rows: list[ModelScore]
+    records: CompareRecords
+    floor: dict[str, Score]
+    residuals: dict[str, Any]
+    seed: int
+    started: float
+
+    @classmethod
+    def of(cls, rows: list[ModelScore], records: CompareRecords, *, seed: int, started: float) -> Report:
+        residuals = {row.name: residuals_on(records.tests[0], row.prediction) for row in rows}
+        return cls(rows, records, reference_scores(records.tests), residuals, seed, started)
+
+    @property
+    def labels(self) -> list[str]:
+        """The test records' short names (figures and their titles)."""
+        return short_labels([t.name for t in self.records.tests])
+
+    def table(self) -> str:
+        """The table as printed: models by test NMSE, the records' nuisances (several records), residual verdicts."""
+        lines = [format_table(self.rows, self.floor)]
+        if self.records.several:
+            lines.append(format_record_nuisances(self.rows, self.records.training.units))
+        lines.append(f"\nresiduals on {self.labels[0]} (its scored part; the 99 % band; v the input):")
+        lines += [f"  {row.label}: {residual_summary(self.residuals[row.name])['verdict']}" for row in self.rows]
+        return "\n".join(lines)
+
+    def contents(self, figures: list[str]) -> dict[str, Any]:
+        """`report.json`'s contents (`compare_report`), with the figures written and the residual summaries."""
+        records = self.records
+        report = compare_report(
+            data=records.data,
+            seed=self.seed,
+            training=records.training,
+            split=records.split,
+            tests=records.tests,
+            cards=records.cards,
+            floor=self.floor,
+            settings=records.settings,
+            rows=self.rows,
+            started=self.started,
+            training_cards=records.training_cards,
+        )
+        report["figures"] = figures
+        report["residuals"] = {name: residual_summary(r) for name, r in self.residuals.items()}
+        return report
+
+    def write(self, out: pathlib.Path) -> None:
+        """Write the models (`models/NAME.eqx`), each test record's figures and `report.json` (last) into `out`,
+        staged and published together; figures an earlier run in `out` drew and this one did not are removed."""
+        try:
+            staging = Staging(out)  # the files are written there, then moved into `out` together (or not at all)
+        except OSError as err:
+            raise CompareError(f"`out` {out}: could not create a staging folder ({err.strerror})") from None
+        tests, units = self.records.tests, self.records.training.units
+        with staging:
+            for row in self.rows:
+                staging.write(f"models/{row.name}.eqx", functools.partial(save_model, model=row.model))
+            figures = []
+            for k, (record, label) in enumerate(zip(tests, self.labels, strict=True)):
+                scored = self.rows if k == 0 else rows_on_test(self.rows, record)
+                for stem, plot in zip(FIGURES, (plot_prediction_errors, plot_test_loops), strict=True):
+                    name = figure_name(stem, k)
+                    staging.write(name, functools.partial(plot, scored, record, units=units, label=label))
+                    figures.append(name)
+            if len(tests) > 1:
+                staging.write("test_records.png", functools.partial(plot_test_records, self.rows, self.labels))
+                figures.append("test_records.png")
+            report = self.contents(figures)
+            staging.write("report.json", lambda path: path.write_text(strict_json(report)))  # the report last
+            earlier = _earlier_figures(out)
+            staging.publish()
+        _remove_stale_figures(out, earlier, figures)
+
+    def figures_line(self, out: pathlib.Path) -> str:
+        """Where the figures are, as the run's last line names them."""
+        if len(self.records.tests) == 1:
+            return f"{out / 'test_errors.png'}, {out / 'hysteresis_loops.png'}"
+        return (
+            f"{out}/test_errors[_K].png and hysteresis_loops[_K].png for test records 1-{len(self.records.tests)} "
+            f"(no _K: record 1, {self.labels[0]}), {out / 'test_records.png'} (each model's NMSE on each)"
+        )
+
+
+FIGURES = ("test_errors", "hysteresis_loops")  # each test record's figures: NAME.png for the first, NAME_K.png
+_FIGURE_NAME = re.compile(r"(test_errors|hysteresis_loops)(_([2-9]|[1-9][0-9]+))?\.png|test_records\.png")
+
+
+def _earlier_figures(out: pathlib.Path) -> list[str]:
+    """The figures an earlier run's `report.json` in `out` lists (none where there is no readable report)."""
+    try:
+        listed = json.loads((out / "report.json").read_text()).get("figures", [])
+    except (OSError, ValueError, AttributeError, RecursionError):
+        return []
+    if not isinstance(listed, list):
+        return []
+    return [name for name in listed if isinstance(name, str) and _FIGURE_NAME.fullmatch(name)]
+
+
+def _remove_stale_figures(out: pathlib.Path, earlier: list[str], figures: list[str]) -> None:
+    """Remove the figures of an earlier run that this one did not draw (a run with fewer test records): only files
+    the earlier run's own report listed, by compare's figure names, so that no file of the user's is touched. After
+    publishing: a run stopped in between leaves them, as before."""
+    for name in sorted(set(earlier) - set(figures)):
+        try:
+            (out / name).unlink(missing_ok=True)
+        except OSError:
+            pass  # a figure that cannot be removed is left, as it was
+
+
+def figure_name(stem: str, k: int) -> str:
+    """The file of figure `stem` for test record `k` (from 0): the first record's keep their names."""
+    return f"{stem}.png" if k == 0 else f"{stem}_{k + 1}.png"

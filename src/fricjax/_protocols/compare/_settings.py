@@ -122,17 +122,17 @@ class FitSettings:
 
     def __post_init__(self) -> None:
         if self.drift not in ("linear", "leaky", "none"):
-            raise CompareError(f"--drift must be linear, leaky or none, got {self.drift!r}")
+            raise CompareError(f"`drift` must be linear, leaky or none, got {self.drift!r}")
         if self.init not in ("state", "offset"):
-            raise CompareError(f"--init must be state or offset, got {self.init!r}")
+            raise CompareError(f"`init` must be state or offset, got {self.init!r}")
         if self.test_drift not in ("auto", "none", "window", "carry"):
-            raise CompareError(f"--test-drift must be auto, none, window or carry, got {self.test_drift!r}")
-        try:  # the command line's options, named as the user typed them (its error line names the command)
+            raise CompareError(f"`test_drift` must be auto, none, window or carry, got {self.test_drift!r}")
+        try:  # named as `CompareConfig`'s fields (the command line shows its flags: `as_flags`)
             for name in ("steps", "gms_elements", "maxwell_elements", "starts", "neural_steps"):
                 if name == "gms_elements" and self.gms_elements == "auto":
                     continue
                 hint = "(or auto)" if name == "gms_elements" else ""
-                value = positive_int(getattr(self, name), f"--{name.replace('_', '-')}", "", hint=hint)
+                value = positive_int(getattr(self, name), name, "", hint=hint)
                 object.__setattr__(self, name, value)
             object.__setattr__(self, "tolerance", nonnegative_float(self.tolerance, "tolerance", "FitSettings"))
         except ValueError as error:
