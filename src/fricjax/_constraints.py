@@ -9,6 +9,7 @@ Wrappers are resolved once by `unwrap` at the simulation / loss boundary (as in 
 from __future__ import annotations
 
 import abc
+import dataclasses
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, Generic, Literal, TypeAlias, TypeVar
 
@@ -336,15 +337,43 @@ def _declared_by_fricjax(cls: type, name: str) -> bool:
     return cls.__module__.split(".")[0] == "fricjax"
 
 
-def parameter_line(path: str, value: Any, std: Any = None, unit: str = "") -> str:
+def sided_paths(tree: Any) -> set[str]:
+    """The paths (as `parameter_arrays` keys them) of `tree`'s (+, -) pairs: fields declared `SidedParameter` that
+    hold two values, the first for v > 0 and the second for v < 0 (decided by the declaration and the shape, never by
+    the values). Pass `unwrap(model)`."""
+    out: set[str] = set()
+
+    def walk(node: Any, prefix: str) -> None:
+        if isinstance(node, eqx.Module):
+            for field in dataclasses.fields(node):
+                value: Any = getattr(node, field.name, None)
+                path = f"{prefix}{field.name}"
+                if "SidedParameter" in str(field.type) and eqx.is_array(value) and np.shape(value) == (2,):
+                    out.add(path)
+                else:
+                    walk(value, path + ".")
+        elif isinstance(node, (list, tuple)):
+            for i, item in enumerate(node):
+                walk(item, f"{prefix.removesuffix('.')}[{i}].")
+
+    walk(tree, "")
+    return out
+
+
+def parameter_line(path: str, value: Any, std: Any = None, unit: str = "", *, sided: bool = False) -> str:
     """One parameter array as a line of text: `"sigma0 = 100000 ± 312 [N/m]"` (the `±` part only where every
-    entry of `std` is finite); an array of more than 8 entries by its shape and range. `Solution.summary` and
-    `str(model)` write their parameters so."""
+    entry of `std` is finite); an array of more than 8 entries by its shape and range; a (+, -) pair (`sided`,
+    `sided_paths`) as `"Fc = 1.2 (v > 0), 1 (v < 0) [N]"`. `Solution.summary` and `str(model)` write their
+    parameters so."""
     value = np.asarray(value)
     suffix = f" [{unit}]" if unit else ""
     if value.size > 8:
         return f"{path}: shape {value.shape}, range [{value.min():.4g}, {value.max():.4g}]" + suffix
+    known = std is not None and bool(np.all(np.isfinite(std)))
+    if sided and value.shape == (2,):
+        plus_minus = [f" ± {float(s):.3g}" for s in np.asarray(std)] if known else ["", ""]
+        return f"{path} = {value[0]:.6g}{plus_minus[0]} (v > 0), {value[1]:.6g}{plus_minus[1]} (v < 0){suffix}"
     text = np.array2string(value, formatter={"float_kind": lambda x: f"{x:.6g}"})
-    if std is not None and np.all(np.isfinite(std)):
+    if known:
         text += " ± " + np.array2string(np.asarray(std), formatter={"float_kind": lambda x: f"{x:.3g}"})
     return f"{path} = {text}{suffix}"

@@ -22,7 +22,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from .._constraints import Fixed, parameter_arrays, parameter_line, parameter_units, unwrap
+from .._constraints import Fixed, parameter_arrays, parameter_line, parameter_units, sided_paths, unwrap
 from .._smoothing import AbstractSmoothing, Exact, Smooth, exact
 from .._smoothing import is_concrete as _no_tracers
 
@@ -49,6 +49,7 @@ def _listing(model: Any, max_lines: int) -> str | None:
         with jax.ensure_compile_time_eval():
             values = parameter_arrays(unwrap(exact(model)))
             units = parameter_units(unwrap(exact(model)))
+            sided = sided_paths(unwrap(exact(model)))
             smoothing = _smoothing_text(model)
     except Exception:  # a repr never raises: a half-built model (an error in its __init__) prints as equinox's
         return None
@@ -56,7 +57,7 @@ def _listing(model: Any, max_lines: int) -> str | None:
     lines = [type(model).__name__ + (f" ({smoothing})" if smoothing else "")]
     rows = list(values.items())
     for path, value in rows[:max_lines]:
-        line = "  " + parameter_line(path, value, None, units[path])
+        line = "  " + parameter_line(path, value, None, units[path], sided=path in sided)
         if any(path == f or path.startswith(f + ".") or path.startswith(f + "[") for f in fixed):
             line += " (fixed)"
         lines.append(line)

@@ -1,5 +1,6 @@
-"""Honest words on a fitted physics model: parameters a model of its class should not have (`implausible`),
-read by `Solution.summary()` and by `fricjax compare`'s table."""
+"""Honest words on a fitted physics model: parameters a model of its class should not have (`implausible`) and
+parameters its records do not determine (`poorly_determined`), read by `Solution.summary()` and by `fricjax compare`'s
+table."""
 
 from __future__ import annotations
 
@@ -7,10 +8,15 @@ from typing import Any
 
 import numpy as np
 
-from ..._constraints import unwrap
+from ..._constraints import PARAMETER_UNITS, parameter_arrays, parameter_units, unwrap
 from ..._models._base import FS_BELOW_FC, NEGLIGIBLE
+from ..._smoothing import exact
 
-__all__ = ["FS_BELOW_FC", "NEGLIGIBLE", "half_excursion", "implausible"]
+__all__ = ["FS_BELOW_FC", "NEGLIGIBLE", "UNCERTAIN", "half_excursion", "implausible", "poorly_determined"]
+
+UNCERTAIN = 0.2  # a Gauss-Newton standard deviation above this fraction of the value: not determined by the records
+# what belongs to a record, not to the friction: offsets, initial states, drifts (`poorly_determined` leaves them out)
+_NUISANCES = ("offset", "z0", "w0", "rate", "tau", "reference")
 
 
 def implausible(model: Any, record_excursion: float | None = None, *, bounds: bool = True) -> list[str]:
@@ -39,3 +45,31 @@ def half_excursion(motion: Any) -> float | None:
     turns = moving[1:][np.sign(step[moving[1:]]) != np.sign(step[moving[:-1]])]
     ends = np.concatenate([[0], turns, [x.size - 1]])
     return float(np.max(np.abs(np.diff(x[ends])))) / 2
+
+
+def poorly_determined(model: Any, std: Any, limit: float = UNCERTAIN) -> list[str]:
+    """A note naming the physical parameters of `model` (the literature's symbols: `PARAMETER_UNITS`) whose
+    Gauss-Newton standard deviation `std` (a pytree shaped like `fj.unwrap(model)`, as `Solution.std`) is above `limit`
+    of their value: the records do not determine them, and other starts or records may give other values. Offsets,
+    initial states and drifts (which belong to a record) are left out; an array by its worst entry. Empty when none
+    is, or without `std`."""
+    if std is None:
+        return []
+    physical = unwrap(exact(model))
+    values, units = parameter_arrays(physical), parameter_units(physical)
+    spreads = parameter_arrays(std)
+    parts = []
+    for path, value in values.items():
+        name = path.split(".")[-1]
+        if path not in spreads or not units.get(path) or name not in PARAMETER_UNITS or name in _NUISANCES:
+            continue  # a regression's coefficients (no literature symbol) are not read one by one
+        spread, value = np.abs(spreads[path]), np.abs(value)
+        relative = np.where(value > 0, spread / np.where(value > 0, value, 1.0), np.inf)
+        relative = relative[np.isfinite(spread)]
+        if relative.size and float(np.max(relative)) > limit:
+            parts.append(f"{path.removeprefix('model.')} ±{100 * float(np.max(relative)):.0f} %")
+    if not parts:
+        return []
+    return [
+        f"standard deviation above {100 * limit:.0f} % of the value ({', '.join(parts)}): not determined by the data"
+    ]

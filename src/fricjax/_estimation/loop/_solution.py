@@ -16,9 +16,9 @@ import numpy as np
 import optimistix as optx
 
 from ..._constraints import PARAMETER_UNITS as PARAMETER_UNITS
-from ..._constraints import parameter_arrays, parameter_line, parameter_units, unwrap
+from ..._constraints import parameter_arrays, parameter_line, parameter_units, sided_paths, unwrap
 from ..._smoothing import exact
-from ._plausibility import implausible
+from ._plausibility import implausible, poorly_determined
 
 
 class RESULTS(optx.RESULTS):  # type: ignore[misc]
@@ -212,13 +212,14 @@ class Solution(eqx.Module):
 
     def parameter_table(self) -> list[dict[str, Any]]:
         """One row per physical parameter: `path`, `value`, `std` (NaN where unknown) and `unit` (SI; `""` where the
-        name is not a literature symbol fricjax knows)."""
+        name is not a literature symbol fricjax knows), `sided`: a (+, -) pair (value and std: v > 0, then v < 0)."""
         rows = []
         units = parameter_units(unwrap(exact(self.model)))
+        sided = sided_paths(unwrap(exact(self.model)))
         for path, (value, std) in self.parameters().items():
             value = np.asarray(value)
             std = np.full(value.shape, np.nan) if std is None else np.asarray(std)
-            rows.append({"path": path, "value": value, "std": std, "unit": units[path]})
+            rows.append({"path": path, "value": value, "std": std, "unit": units[path], "sided": path in sided})
         return rows
 
     def _validation_text(self) -> str:
@@ -256,7 +257,7 @@ class Solution(eqx.Module):
         # force on record i is the model's, its own offset included, plus record i's offset
         per_record_offsets = self.records is not None and self.records.offset is not None
         for row in rows[:max_parameters]:
-            line = "  " + parameter_line(row["path"], row["value"], row["std"], row["unit"])
+            line = "  " + parameter_line(row["path"], row["value"], row["std"], row["unit"], sided=row["sided"])
             if per_record_offsets and row["path"].split(".")[-1] == "offset":
                 line += " (held; each record's offset below is added to it)"
             lines.append(line)
@@ -267,6 +268,9 @@ class Solution(eqx.Module):
         notes = implausible(self.model, bounds=False)
         if notes:
             lines.append("  implausible: " + "; ".join(notes))
+        uncertain = poorly_determined(self.model, self.std)
+        if uncertain:
+            lines.append("  uncertain: " + "; ".join(uncertain))
         if self.records is not None:
             lines.append(f"  per record ({len(self.records.names)}):")
             lines += ["    " + line for line in self.records.lines()]

@@ -53,9 +53,16 @@ def label_width(rows: list[ModelScore]) -> int:
     return max([44, *(len(r.label) for r in rows)])
 
 
+def fit_percent_of(nmse: float) -> float:
+    """The system-identification FIT [%] (`fj.fit_percent`, MATLAB's `compare`) of an NMSE [%]: `100 (1 - ||e|| /
+    ||F - mean F||)` = `100 (1 - sqrt(NMSE / 100))`; 100 a perfect prediction, 0 the mean force's, below 0 worse."""
+    return 100.0 * (1.0 - float(np.sqrt(nmse / 100.0))) if np.isfinite(nmse) and nmse >= 0 else float("nan")
+
+
 def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = None) -> str:
     """The comparison table, sorted by test NMSE (kernel paper Table 1 / worden2007 Fig. 11 layout): one NMSE
-    column per test record (where there are several), MAX as the largest absolute error divided by the standard
+    column per test record (where there are several), `fit %` (MATLAB's FIT, `fit_percent_of`, the first test
+    record's), MAX as the largest absolute error divided by the standard
     deviation of the measured force (the first test record's), the noise-floor reference row where there is one,
     what the result codes mean, and each flagged row's notes (`ModelScore.notes`)."""
     w = label_width(rows) + 2  # "* " marks the validation part's choice
@@ -63,10 +70,11 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
     several = len(names) > 1
     heads = [f"NMSE % {i + 1}" for i in range(len(names))] if several else ["NMSE %"]
     max_head = "MAX/std 1" if several else "MAX/std"  # the first test record's, as the sort
+    fit_head = "fit % 1" if several else "fit %"
     lines = [
         f"{'model':{w}s} {'params':>6s} {'val %':>11s} "
         + " ".join(f"{h:>10s}" for h in heads)
-        + f" {max_head:>9s} {'fit s':>7s}  result"
+        + f" {fit_head:>7s} {max_head:>9s} {'fit s':>7s}  result"
     ]
 
     def values(tests: dict[str, Score], fallback: float) -> list[float]:
@@ -83,8 +91,8 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
         val_cell = "-" if not np.isfinite(val) else (f"({val:.4f})" if is_ensemble(r) else f"{val:.4f}")
         label = ("* " if r is chosen else "  ") + r.label
         lines.append(
-            f"{label:{w}s} {r.num_parameters:6d} {val_cell:>11s} {cells} {r.max_error:9.3f} {r.fit_time:7.1f}  "
-            f"{r.result}{flag}"
+            f"{label:{w}s} {r.num_parameters:6d} {val_cell:>11s} {cells} {fit_percent_of(r.nmse):7.2f} "
+            f"{r.max_error:9.3f} {r.fit_time:7.1f}  {r.result}{flag}"
         )
     if reference:
         floor = [reference[n].nmse if n in reference else float("nan") for n in names]
@@ -92,6 +100,7 @@ def format_table(rows: list[ModelScore], reference: dict[str, Score] | None = No
         first = reference.get(names[0])
         lines.append(
             f"{'  noise floor (true model + sensor model)':{w}s} {'':6s} {'':11s} {cells} "
+            f"{fit_percent_of(first.nmse if first else float('nan')):7.2f} "
             f"{(first.max_error if first else float('nan')):9.3f}"
         )
     if chosen is not None:
@@ -196,6 +205,7 @@ def compare_report(
                 "name": r.name,
                 "label": r.label,
                 "nmse_percent": r.nmse,
+                "fit_percent": fit_percent_of(r.nmse),
                 "max_error_over_std": r.max_error,
                 "validation_nmse_percent": r.validation_nmse,
                 "test_scores": {name: dataclasses.asdict(value) for name, value in r.tests.items()},

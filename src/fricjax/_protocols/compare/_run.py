@@ -14,7 +14,7 @@ import numpy as np
 from ..._data._record import FrictionData
 from ..._estimation.loop._interrupts import abandonable, check_interrupt
 from ..._estimation.loop._placement import choose_device, forced_device, resolve_device
-from ..._estimation.loop._plausibility import half_excursion, implausible
+from ..._estimation.loop._plausibility import half_excursion, implausible, poorly_determined
 from ..._version import fricjax_version
 from ._checks import trained_on, unused_load_columns
 from ._config import CompareConfig, CompareRecords, expanded_specs, load_records
@@ -131,6 +131,8 @@ def _fit_and_score_one(
         for test in tests
     }
     notes = implausible(model, _largest_excursion(split))
+    if name in PHYSICS_MODELS:  # a network's weights or a regression's coefficients are not read one by one
+        notes += poorly_determined(model, result.std)
     # "successful" is the solver's verdict on steps that were not kept; a network's NOE stage that does not improve on
     # its least-squares start is the recipe working (its message says so), a physics fit's is worth a note
     if name in PHYSICS_MODELS and getattr(result, "start_kept", False):

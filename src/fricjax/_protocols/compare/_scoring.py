@@ -208,7 +208,7 @@ def score_row(
         val = slice(split.train_end, split.validation_end)
         validation_nmse = float(nmse(measured[val], full_prediction[val]))
     first = scores[tests[0].name]
-    notes = (*extra.pop("notes", ()), *_worse_than_constant(validation_nmse, scores))
+    notes = (*_poor_predictions(validation_nmse, scores), *extra.pop("notes", ()))  # the prediction first
     return ModelScore(
         name,
         label,
@@ -225,15 +225,23 @@ def score_row(
     )
 
 
-def _worse_than_constant(validation_nmse: float, scores: dict[str, Score]) -> list[str]:
-    """Where a model's NMSE is above 100 %: it predicts the force worse than its mean would (a fit that stopped
-    `successful` can still be there)."""
+def _poor_predictions(validation_nmse: float, scores: dict[str, Score]) -> list[str]:
+    """Where a model's NMSE is above 100 % (it predicts the force worse than its mean would; a fit that stopped
+    `successful` can still be there), and where a test record's is above 50 % (most of its force missed)."""
     parts = [f"validation {validation_nmse:.0f} %"] if validation_nmse > 100 else []
     several = len(scores) > 1
     for i, score in enumerate(scores.values()):
         if score.nmse > 100:
             parts.append(f"test{f' {i + 1}' if several else ''} {score.nmse:.0f} %")
-    return [f"NMSE above 100 % ({', '.join(parts)}): worse than a constant force"] if parts else []
+    notes = [f"NMSE above 100 % ({', '.join(parts)}): worse than a constant force"] if parts else []
+    misses = [
+        f"test{f' {i + 1}' if several else ''} {score.nmse:.0f} %"
+        for i, score in enumerate(scores.values())
+        if 50 < score.nmse <= 100
+    ]
+    if misses:
+        notes.append(f"NMSE above 50 % ({', '.join(misses)}): most of that record's force is not predicted")
+    return notes
 
 
 def rows_on_test(rows: list[ModelScore], test: TestRecord) -> list[ModelScore]:
