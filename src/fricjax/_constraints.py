@@ -79,6 +79,39 @@ class Positive(AbstractUnwrappable):
         return jax.nn.softplus(self.raw)
 
 
+class Bounded(AbstractUnwrappable):
+    """A parameter held inside an interval: stored as an unconstrained leaf `raw`, `value = low + (high - low)
+    sigmoid(raw)` (System Identification Toolbox's `Minimum` / `Maximum` of an `idnlgrey` parameter), so every solver
+    steps freely and the value never leaves `(low, high)`. The bounds are settings, never trained.
+
+    **Arguments:** `value` the physical value (scalar or array; strictly inside the interval); `low`, `high` the
+    bounds (`low < high`, finite); `name` the parameter's name in error messages.
+    """
+
+    raw: Array
+    low: float = eqx.field(static=True)
+    high: float = eqx.field(static=True)
+
+    def __init__(self, value: ParamLike, low: float, high: float, *, name: str = "value", dtype: Any = None):
+        low, high = float(low), float(high)
+        if not (np.isfinite(low) and np.isfinite(high) and low < high):
+            raise ValueError(f"`{name}`: bounds must be finite with low < high, got ({low!r}, {high!r}).")
+        value = as_float_array(value, dtype)
+        if is_concrete(value):
+            inside = np.asarray(value)
+            if not bool(np.all(np.isfinite(inside) & (inside > low) & (inside < high))):
+                raise ValueError(
+                    f"`{name}` = {inside.tolist()} is not strictly inside its bounds ({low:g}, {high:g}); start it "
+                    "inside them, or widen them."
+                )
+        self.low, self.high = low, high
+        fraction = (value - low) / (high - low)
+        self.raw = jnp.log(fraction) - jnp.log1p(-fraction)
+
+    def unwrap(self) -> Array:
+        return self.low + (self.high - self.low) * jax.nn.sigmoid(self.raw)
+
+
 def check_normal(value: Any, name: str) -> None:
     """Refuse a positive value below the smallest normal float of its dtype (a subnormal such as 1e-320): a model
     divides by such parameters, and the quotient overflows to inf / NaN forces."""
@@ -135,7 +168,7 @@ def _is_wrapper(leaf: object) -> bool:
 
 
 def unwrap(tree: Any) -> Any:
-    """Replace every `Positive` / `Fixed` wrapper inside `tree` by its constrained value."""
+    """Replace every `Positive` / `Fixed` / `Bounded` / `Simplex` wrapper inside `tree` by its constrained value."""
     return jax.tree_util.tree_map(lambda leaf: leaf.unwrap() if _is_wrapper(leaf) else leaf, tree, is_leaf=_is_wrapper)
 
 

@@ -9,6 +9,7 @@ from . import emps as emps  # the public `fj.emps` namespace: the EMPS benchmark
 from ._cli import main as main  # the command line: fj.main(["compare", ...])
 from ._compilation_cache import enable_compilation_cache as enable_compilation_cache
 from ._constraints import AbstractUnwrappable as AbstractUnwrappable
+from ._constraints import Bounded as Bounded
 from ._constraints import Fixed as Fixed
 from ._constraints import Positive as Positive
 from ._constraints import Simplex as Simplex
@@ -86,11 +87,13 @@ from ._estimation.loop._solvers import AbstractSolver as AbstractSolver
 from ._estimation.loop._solvers import OptaxSolver as OptaxSolver
 from ._estimation.loop._solvers import OptimistixSolver as OptimistixSolver
 from ._estimation.loop._strategies import AbstractStrategy as AbstractStrategy
+from ._estimation.loop._strategies import Bounds as Bounds
 from ._estimation.loop._strategies import Continuation as Continuation
 from ._estimation.loop._strategies import EarlyStopping as EarlyStopping
 from ._estimation.loop._strategies import FitPlan as FitPlan
 from ._estimation.loop._strategies import MultiStart as MultiStart
 from ._estimation.loop._strategies import ParameterScaling as ParameterScaling
+from ._estimation.loop._strategies import Regularisation as Regularisation
 from ._estimation.loop._strategies import Separable as Separable
 from ._estimation.loop._strategies import Tolerance as Tolerance
 from ._estimation.problem._losses import AbstractLoss as AbstractLoss

@@ -214,6 +214,7 @@ def _build_problem(f: FitState, a: dict[str, Any]) -> None:
         data=f.data,
         validation=f.validation,
         val_loss=f.val_loss_fn,
+        penalty=plan.penalty,
     )
     f.count = jax.tree_util.tree_leaves(plan.starts)[0].shape[0] if jax.tree_util.tree_leaves(plan.starts) else 1
     if isinstance(f.loss, RecordsLoss):
@@ -323,6 +324,8 @@ def _solution(f: FitState, search: Search, start_time: float, compute_std: bool)
     fitted = f.problem.materialise(chosen[0], f.static)
     if losses is not None:  # the returned model's losses, as the problem scores it (no further program)
         train_loss, val_loss = losses
+        if f.problem.penalty is not None:  # the data's loss, without the regularisation's penalty
+            train_loss = float(evaluate(f.loss, fitted, chosen[1], f.data))
     else:
         train_loss = float(evaluate(f.loss, fitted, chosen[1], f.data))
         val_loss = (

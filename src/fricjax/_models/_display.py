@@ -22,7 +22,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from .._constraints import Fixed, parameter_arrays, parameter_line, parameter_units, sided_paths, unwrap
+from .._constraints import Bounded, Fixed, parameter_arrays, parameter_line, parameter_units, sided_paths, unwrap
 from .._smoothing import AbstractSmoothing, Exact, Smooth, exact
 from .._smoothing import is_concrete as _no_tracers
 
@@ -53,13 +53,15 @@ def _listing(model: Any, max_lines: int) -> str | None:
             smoothing = _smoothing_text(model)
     except Exception:  # a repr never raises: a half-built model (an error in its __init__) prints as equinox's
         return None
-    fixed = _fixed_paths(model)
+    fixed, bounded = _fixed_paths(model), _bounded_paths(model)
     lines = [type(model).__name__ + (f" ({smoothing})" if smoothing else "")]
     rows = list(values.items())
     for path, value in rows[:max_lines]:
         line = "  " + parameter_line(path, value, None, units[path], sided=path in sided)
         if any(path == f or path.startswith(f + ".") or path.startswith(f + "[") for f in fixed):
             line += " (fixed)"
+        elif path in bounded:
+            line += f" (bounded {bounded[path][0]:g} .. {bounded[path][1]:g})"
         lines.append(line)
     if len(rows) > max_lines:
         lines.append(f"  ... and {len(rows) - max_lines} more parameter arrays (fj.unwrap(model) holds them all)")
@@ -85,6 +87,16 @@ def _smoothing_text(model: Any) -> str:
     shown = ", ".join(f"{w:.3g}" for w in widths[:3]) + (", ..." if widths.size > 3 else "")
     text = f"smooth, eps {shown}"
     return text + ("; exact in part" if len(smooth) < len(strategies) else "")
+
+
+def _bounded_paths(model: Any) -> dict[str, tuple[float, float]]:
+    """`{path: (low, high)}` of the `fj.Bounded` wrappers in `model` (paths as `parameter_arrays` writes them)."""
+    found = jax.tree_util.tree_leaves_with_path(model, is_leaf=lambda x: isinstance(x, Bounded))
+    return {
+        jax.tree_util.keystr(path).lstrip("."): (leaf.low, leaf.high)
+        for path, leaf in found
+        if isinstance(leaf, Bounded)
+    }
 
 
 def _fixed_paths(model: Any) -> list[str]:

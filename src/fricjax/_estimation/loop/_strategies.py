@@ -20,10 +20,11 @@ from typing import Any
 
 import equinox as eqx
 import jax
+import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 
-from ..._constraints import AbstractUnwrappable, Positive
+from ..._constraints import AbstractUnwrappable, Bounded, Fixed, Positive, unwrap
 from ..._smoothing import AbstractSmoothing, Smooth, is_concrete, on_host, with_smoothing
 from ..._validation import nonnegative_float, positive_float, positive_int
 
@@ -38,7 +39,8 @@ class FitPlan:
       first stage's steps only the `keep` best starts go on.
     - After parameter selection: `params0` (the trained leaves of the start), `scales` (None, or a tree shaped
       like `params0`: the optimiser sees parameters divided by it) and `starts` (a batch of `params0`-shaped trees
-      along a new leading axis, in the optimiser's coordinates: divided by `scales`).
+      along a new leading axis, in the optimiser's coordinates: divided by `scales`); `penalty` (None, or a
+      `Penalty`: regularisation terms added to the loss).
     """
 
     model: Any
@@ -51,6 +53,7 @@ class FitPlan:
     params0: Any = None
     scales: Any = None
     starts: Any = None
+    penalty: Any = None
 
 
 class AbstractStrategy:
@@ -296,6 +299,122 @@ class Tolerance(AbstractStrategy):
 
     def prepare(self, plan: FitPlan) -> FitPlan:
         return dataclasses.replace(plan, tolerance=self.rtol)
+
+
+@dataclasses.dataclass(frozen=True)
+class Bounds(AbstractStrategy):
+    """Keep parameters inside intervals (System Identification Toolbox's `Minimum` / `Maximum`): `{path: (low, high)}`
+    with dotted field paths (`"sigma0"`, `"stribeck.Fc"`). Each is stored as an `fj.Bounded` leaf (`low + (high - low)
+    sigmoid(raw)`) for the fit, so every solver steps freely and the value never leaves the interval; the fitted model
+    keeps the wrappers (`print(model)` says `(bounded low .. high)`, `fj.unwrap` gives the values). A start outside
+    its interval is moved inside it (to 1 % of the interval from the bound it crossed), with a warning. A bounded
+    parameter cannot be separable (solved by unconstrained least squares) nor fixed.
+    """
+
+    bounds: dict[str, tuple[float, float]]
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.bounds, dict) or not self.bounds:
+            raise TypeError(f"Bounds: give {{path: (low, high)}}, e.g. {{'sigma0': (1e4, 1e7)}}; got {self.bounds!r}.")
+        checked = {}
+        for path, interval in self.bounds.items():
+            try:
+                low, high = (float(x) for x in interval)
+            except (TypeError, ValueError):
+                raise ValueError(f"Bounds: {path!r} needs (low, high), got {interval!r}.") from None
+            if not (np.isfinite(low) and np.isfinite(high) and low < high):
+                raise ValueError(f"Bounds: {path!r} needs finite low < high, got ({low!r}, {high!r}).")
+            checked[str(path)] = (low, high)
+        object.__setattr__(self, "bounds", checked)
+
+    def prepare(self, plan: FitPlan) -> FitPlan:
+        import warnings
+
+        model = plan.model
+        for path, (low, high) in self.bounds.items():
+            if path in plan.separable:
+                raise ValueError(
+                    f"Bounds: {path!r} is also separable (solved by unconstrained least squares); drop it from one."
+                )
+            where = where_from_path(path)
+            try:
+                node = where(model)
+            except (AttributeError, IndexError, KeyError, TypeError):
+                raise ValueError(f"Bounds: {path!r} is not a field path of {type(model).__name__}.") from None
+            if isinstance(node, Fixed):
+                raise ValueError(
+                    f"Bounds: {path!r} is fixed (fj.Fixed); a fixed parameter is not fitted, so not bounded."
+                )
+            if isinstance(node, Bounded):
+                node = unwrap(node)
+            value = np.asarray(unwrap(node), dtype=float)
+            margin = 0.01 * (high - low)
+            inside = np.clip(value, low + margin, high - margin)
+            if not np.array_equal(inside, value) and np.any((value <= low) | (value >= high)):
+                warnings.warn(
+                    f"Bounds: the start's {path} = {value.tolist()} is not inside ({low:g}, {high:g}); it starts at "
+                    f"{inside.tolist()}.",
+                    stacklevel=4,
+                )
+            else:
+                inside = value
+            model = eqx.tree_at(where, model, Bounded(inside, low, high, name=path, dtype=value.dtype))
+        return dataclasses.replace(plan, model=model)
+
+
+class Penalty(eqx.Module):
+    """Regularisation of a fit's iterate `y` towards `nominal` (the start, in the optimiser's coordinates):
+    `l2 sum d^2 + l1 sum |d|_s` added to the loss, `d = y - nominal` and `|d|_s = d^2 / sqrt(d^2 + 1e-12)` (|d|,
+    smooth at 0); `rows(y)` are residual rows whose squares sum to it, for least-squares solvers (finite Jacobians
+    at d = 0, where every fit starts)."""
+
+    nominal: Any
+    l2: float = eqx.field(static=True)
+    l1: float = eqx.field(static=True)
+
+    def _deviation(self, params: Any) -> jax.Array:
+        flat, _ = jax.flatten_util.ravel_pytree(params)
+        nominal, _ = jax.flatten_util.ravel_pytree(self.nominal)
+        return flat - nominal
+
+    def rows(self, params: Any) -> jax.Array:
+        d = self._deviation(params)
+        parts = []
+        if self.l2 > 0:
+            parts.append(jnp.sqrt(self.l2) * d)
+        if self.l1 > 0:
+            parts.append(jnp.sqrt(self.l1) * d * (d**2 + _L1_WIDTH**2) ** -0.25)
+        return jnp.concatenate(parts) if parts else jnp.zeros((0,), d.dtype)
+
+    def value(self, params: Any) -> jax.Array:
+        d = self._deviation(params)
+        return self.l2 * jnp.sum(d**2) + self.l1 * jnp.sum(d**2 / jnp.sqrt(d**2 + _L1_WIDTH**2))
+
+
+_L1_WIDTH = 1e-6  # where the L1 penalty's |d| is rounded (the optimiser's coordinates: a 1e-6 relative change)
+
+
+@dataclasses.dataclass(frozen=True)
+class Regularisation(AbstractStrategy):
+    """L2 (ridge) and L1 penalties on the parameters' change from the start (`idnlgrey`'s `Regularization` with the
+    nominal model): `l2 sum d^2 + l1 sum |d|` added to the loss, `d` the trained parameters minus the start's in the
+    optimiser's coordinates (positive parameters are stored as logs, so there `d` is a relative change; real ones as
+    they are: with `fj.ParameterScaling` first, relative too). For parameters the data hardly determine (a large
+    Gauss-Newton standard deviation): the penalty holds them near the start instead of letting them wander.
+    """
+
+    l2: float = 0.0
+    l1: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "l2", nonnegative_float(self.l2, "l2", "Regularisation"))
+        object.__setattr__(self, "l1", nonnegative_float(self.l1, "l1", "Regularisation"))
+        if self.l2 == 0 and self.l1 == 0:
+            raise ValueError("Regularisation: give l2 > 0 and / or l1 > 0 (both are 0: no penalty).")
+
+    def transform(self, plan: FitPlan) -> FitPlan:
+        nominal = _divide(plan.params0, plan.scales)
+        return dataclasses.replace(plan, penalty=Penalty(nominal, self.l2, self.l1))
 
 
 def submodels(model: Any, prefix: str = "") -> list[tuple[str, eqx.Module]]:

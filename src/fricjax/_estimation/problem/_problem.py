@@ -299,7 +299,8 @@ class Problem(eqx.Module):
     The iterate is `y = (params, extra)`: the trained parameters (divided by `scales` where given) and the loss's
     extra decision variables (multiple-shooting states); `args` is the rest of the model (`eqx.partition`'s static
     half: frozen arrays, smoothing widths, structure). `nonnegative` (a tree of Python bools, or None) marks the
-    parameters `project` keeps >= 0.
+    parameters `project` keeps >= 0. `penalty` (an `fj.Regularisation`'s `Penalty`, or None) is added to the
+    objective; the residuals then end with its rows, scaled so that `loss_of_residuals` is the penalised loss.
     """
 
     loss: AbstractLoss
@@ -310,6 +311,7 @@ class Problem(eqx.Module):
     data: FrictionData
     validation: FrictionData | None
     val_loss: AbstractLoss
+    penalty: Any = None  # a `Penalty` (fj.Regularisation): added to the objective, rows appended to the residuals
 
     def project(self, y: Any) -> Any:
         """The iterate with the physically non-negative parameters (damping coefficients) clipped at 0 (elementwise:
@@ -331,11 +333,16 @@ class Problem(eqx.Module):
 
     def objective(self, state: Any, static: Any) -> jax.Array:
         params, extra = state
-        return self.loss(self.materialise(params, static), extra, self.data)
+        loss = self.loss(self.materialise(params, static), extra, self.data)
+        return loss if self.penalty is None else loss + self.penalty.value(params)
 
     def residuals(self, state: Any, static: Any) -> jax.Array:
         params, extra = state
-        return self.loss.residuals(self.materialise(params, static), extra, self.data)
+        r = self.loss.residuals(self.materialise(params, static), extra, self.data)
+        if self.penalty is None:
+            return r
+        # mean(r^2) is the loss: the penalty's rows times sqrt(len(r)) add its value to sum(.^2) / len(r)
+        return jnp.concatenate([r, jnp.sqrt(jnp.asarray(r.size, r.dtype)) * self.penalty.rows(params)])
 
     def gauss_newton(self, state: Any, static: Any) -> tuple[jax.Array, jax.Array]:
         """`([J r]^T [J r], r)`: the residuals at `state` and their Gauss-Newton products (J their Jacobian with
@@ -351,7 +358,8 @@ class Problem(eqx.Module):
         def residuals(q: jax.Array) -> jax.Array:
             return self.residuals(unravel(q), static)
 
-        groups = None if self.linear_spec is not None else self.loss.jacobian_groups(state[1], self.data)
+        coupled = self.linear_spec is not None or self.penalty is not None  # every row moved by every variable
+        groups = None if coupled else self.loss.jacobian_groups(state[1], self.data)
         if groups is None:  # a separable fit's linear solve couples every row with every variable
             return dense_gauss_newton(residuals, flat)
         shared = jax.tree_util.tree_map(lambda leaf: np.full(np.shape(leaf), -1), state[0])
@@ -367,8 +375,12 @@ class Problem(eqx.Module):
         return _grouped_products(compressed, r, columns, colors, groups, type(self.loss).__name__), r
 
     def loss_of_residuals(self, residuals: jax.Array) -> jax.Array:
-        """`objective` from the residual vector: every fricjax loss is the mean square of its residuals."""
-        return jnp.mean(residuals**2)
+        """`objective` from the residual vector: every fricjax loss is the mean square of its residuals (with a
+        penalty: their sum of squares over the loss's own count, the penalty's rows after them)."""
+        if self.penalty is None:
+            return jnp.mean(residuals**2)
+        count = residuals.size - self.penalty.rows(self.penalty.nominal).size
+        return jnp.sum(residuals**2) / count
 
     def val_objective(self, state: Any, static: Any) -> jax.Array:
         if self.validation is None:
