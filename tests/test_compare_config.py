@@ -71,3 +71,32 @@ def test_run_compare_returns_the_report_it_printed_and_wrote(tmp_path, capsys):
     assert [m["name"] for m in written["models"]] == [m["name"] for m in report.contents([])["models"]]
     assert written["figures"] == ["test_errors.png", "hysteresis_loops.png"]
     assert {row.name for row in report.rows} >= {"stribeck"} and report.records.data == str(path)
+
+
+def test_fix_and_bounds_are_checked_and_name_a_parameter_of_the_models(tmp_path, capsys):
+    with pytest.raises(CompareError, match="`bounds` sigma0=2:1"):
+        CompareConfig(bounds={"sigma0": (2.0, 1.0)})
+    with pytest.raises(CompareError, match="`fix` sigma2"):
+        CompareConfig(fix={"sigma2": float("nan")})
+    assert CompareConfig(fix={"sigma2": 0}, bounds={"vs": (1e-4, 1e-2)}).settings(False).bounds == (("vs", 1e-4, 1e-2),)
+    out = str(tmp_path / "out")
+    code = fj.main(["compare", "--models", "stribeck", "--fix", "sigma0=1e5", "--out", out, "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and "--fix sigma0: no physics model fitted here has such a parameter; theirs:" in err, err
+    with pytest.raises(SystemExit) as exited:  # argparse's usage error
+        fj.main(["compare", "--bounds", "vs=1e-3"])
+    assert exited.value.code == 2 and "give NAME=LO:HI" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # one LuGre fit (~20 s)
+def test_fixed_and_bounded_parameters_hold_in_the_fitted_models(tmp_path):
+    out = tmp_path / "out"
+    argv = ["compare", "--data", "tribometer:mixed:duration=1", "--models", "lugre", "--steps", "8", "--no-progress"]
+    code = fj.main([*argv, "--fix", "sigma2=0.5", "--bounds", "stribeck.vs=1e-4:1e-2", "--out", str(out)])
+    assert code == 0
+    model = fj.load_model(out / "models" / "lugre.eqx")
+    physical = fj.unwrap(model)
+    assert float(physical.model.sigma2) == 0.5 and 1e-4 < float(physical.model.stribeck.vs) < 1e-2
+    assert "sigma2 = 0.5 [N s/m] (fixed)" in str(model) and "(bounded 0.0001 .. 0.01)" in str(model)
+    report = json.loads((out / "report.json").read_text())
+    assert report["settings"]["fix"] == [["sigma2", 0.5]]

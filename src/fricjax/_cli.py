@@ -180,6 +180,22 @@ def _parser() -> argparse.ArgumentParser:
         "--maxwell-elements", type=int, default=5, help="Maxwell-slip NLR / DNLRX elements (default: %(default)s)"
     )
     compare.add_argument(
+        "--fix",
+        nargs="+",
+        metavar="NAME=VALUE",
+        type=_named_value,
+        help="hold a parameter of the physics models at VALUE (SI units: N, m, s) in every model that has it: NAME "
+        "is its field or the end of its path, e.g. sigma2=0 or stribeck.vs=1e-3 (printed models mark it fixed)",
+    )
+    compare.add_argument(
+        "--bounds",
+        nargs="+",
+        metavar="NAME=LO:HI",
+        type=_named_interval,
+        help="keep a parameter of the physics models inside (LO, HI) (SI units), e.g. sigma0=1e4:1e8; a start "
+        "outside is moved inside",
+    )
+    compare.add_argument(
         "--drift",
         default="auto",
         choices=("auto", "linear", "leaky", "none"),
@@ -292,6 +308,29 @@ def _add_column_options(command: argparse.ArgumentParser) -> None:
         )
 
 
+def _named_value(text: str) -> tuple[str, float]:
+    """`NAME=VALUE` of `--fix` as `(name, value)`."""
+    name, sep, value = text.partition("=")
+    try:
+        if not (sep and name.strip()):
+            raise ValueError
+        return name.strip(), float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give NAME=VALUE, e.g. sigma2=0") from None
+
+
+def _named_interval(text: str) -> tuple[str, tuple[float, float]]:
+    """`NAME=LO:HI` of `--bounds` as `(name, (low, high))`."""
+    name, sep, interval = text.partition("=")
+    low, colon, high = interval.partition(":")
+    try:
+        if not (sep and colon and name.strip()):
+            raise ValueError
+        return name.strip(), (float(low), float(high))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give NAME=LO:HI, e.g. sigma0=1e4:1e8") from None
+
+
 def _record_options(args: argparse.Namespace) -> dict:  # type: ignore[type-arg]
     """How compare and predict read the record files: units, column names (`load_record`'s `columns`), velocity,
     the normal load and whether a load that follows the force is taken."""
@@ -391,6 +430,8 @@ def _run(args: argparse.Namespace) -> int:
             **_record_options(args),
             init=args.init,
             test_drift=args.test_drift,
+            fix=dict(args.fix or ()),
+            bounds=dict(args.bounds or ()),
             out=args.out,
             seed=args.seed,
             progress=not args.no_progress,

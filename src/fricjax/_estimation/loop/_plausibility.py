@@ -64,8 +64,8 @@ def poorly_determined(model: Any, std: Any, limit: float = UNCERTAIN) -> list[st
         if path not in spreads or not units.get(path) or name not in PARAMETER_UNITS or name in _NUISANCES:
             continue  # a regression's coefficients (no literature symbol) are not read one by one
         spread, value = np.abs(spreads[path]), np.abs(value)
-        relative = np.where(value > 0, spread / np.where(value > 0, value, 1.0), np.inf)
-        relative = relative[np.isfinite(spread)]
+        known = np.isfinite(spread) & (value > 0)  # a value at 0 is held at its bound (`implausible` says so)
+        relative = spread[known] / value[known]
         if relative.size and float(np.max(relative)) > limit:
             parts.append(f"{path.removeprefix('model.')} ±{100 * float(np.max(relative)):.0f} %")
     if not parts:

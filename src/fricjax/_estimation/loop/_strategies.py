@@ -251,6 +251,8 @@ class ParameterScaling(AbstractStrategy):
         for path, value in self.scale.items():
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"ParameterScaling: the scale of {path!r} must be a positive number, got {value!r}.")
+            if not eqx.is_inexact_array(where_from_path(path)(params)):
+                continue  # held (fj.Fixed) or stored through a wrapper (fj.Bounded): nothing to scale
             scales = eqx.tree_at(where_from_path(path), scales, replace_fn=_constant(value))
         return scales
 

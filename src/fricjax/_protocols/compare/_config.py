@@ -52,6 +52,8 @@ FLAGS = {
     "accept_correlated_load": "--accept-correlated-load",
     "init": "--init",
     "test_drift": "--test-drift",
+    "fix": "--fix",
+    "bounds": "--bounds",
     "out": "--out",
     "seed": "--seed",
     "progress": "--no-progress",
@@ -70,7 +72,7 @@ def as_flags(message: str) -> str:
 _NOT_FOR_EMPS = (
     "test", "validation", "split_at", "init_window", "models", "steps", "gms_elements", "maxwell_elements", "starts",
     "drift", "neural_steps", "dt", "x_unit", "force_unit", "t_unit", "columns", "velocity", "normal_force_column",
-    "accept_correlated_load", "init", "test_drift", "seed",
+    "accept_correlated_load", "init", "test_drift", "seed", "fix", "bounds",
 )  # fmt: skip
 # the fields that describe record files (given with built-in records only, they would be ignored)
 _FILE_FIELDS = ("dt", "x_unit", "force_unit", "t_unit", "velocity", "columns", "normal_force_column")
@@ -99,6 +101,9 @@ class CompareConfig:
     - `models`: model names (`all`: every one); `steps`, `gms_elements`, `maxwell_elements`, `starts`, `drift`,
       `neural_steps`: budgets and sizes (`FitSettings`); `init`, `test_drift`, `init_window`: how a model starts on
       a test record.
+    - `fix` ({name: value}, SI units) and `bounds` ({name: (low, high)}): parameters of the physics models held at a
+      value or kept in an interval (`name`: a field or the end of a dotted path, `sigma2`, `stribeck.vs`; every
+      physics model that has it).
     - `dt`, `x_unit`, `force_unit`, `t_unit`, `columns` ({role: column name}), `velocity`, `normal_force_column`:
       how record files are read; `accept_correlated_load`: keep a load column that follows the force.
     - `out`: the output folder; `seed`; `progress`: progress bars; `device`: `auto`, `cpu` or `gpu`.
@@ -126,6 +131,8 @@ class CompareConfig:
     accept_correlated_load: bool = False
     init: str = "state"
     test_drift: str = "auto"
+    fix: dict[str, float] | None = None
+    bounds: dict[str, tuple[float, float]] | None = None
     out: str | os.PathLike[str] = "fricjax-compare"
     seed: int = 0
     progress: bool = True
@@ -142,6 +149,11 @@ class CompareConfig:
         if self.normal_force_column is not None:
             put("normal_force_column", tuple(self.normal_force_column) or None)
         put("columns", dict(self.columns) if self.columns else None)
+        put("fix", dict(self.fix) if self.fix else None)
+        put("bounds", dict(self.bounds) if self.bounds else None)
+        for name, interval in (self.bounds or {}).items():
+            if np.shape(interval) != (2,):
+                raise CompareError(f"`bounds` {name}: give (low, high), got {interval!r}")
         models = tuple(dict.fromkeys(str(m).lower() for m in self.models))  # case-insensitive, each once
         put("models", tuple(MODEL_NAMES) if models == ("all",) else models)
         unknown = [m for m in self.models if m not in MODEL_NAMES]
@@ -198,6 +210,8 @@ class CompareConfig:
             neural_steps=self.neural_steps,
             init=self.init,
             test_drift=self.test_drift,
+            fix=tuple((self.fix or {}).items()),
+            bounds=tuple((name, *interval) for name, interval in (self.bounds or {}).items()),
         )
         if self.test_drift == "carry" and (several or settings.drift == "none"):
             raise CompareError(

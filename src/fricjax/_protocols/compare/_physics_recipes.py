@@ -29,7 +29,7 @@ from ..._models.physics._maxwell_slip import MaxwellSlip
 from ..._models.physics._static import BoPavelescu
 from ..._models.physics._stribeck import ExponentialStribeck
 from ..._smoothing import Smooth
-from ._recipes import ModelSpec, lm_recipe
+from ._recipes import ModelSpec, constrained, lm_recipe
 from ._records import Split, TrainingRecords
 from ._scoring import SIGNIFICANT_T, paired_validation_gain
 from ._settings import DataScales, FitSettings
@@ -186,7 +186,12 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         screened fit's own arguments (scaling, solver, budget, tolerance, records)."""
         if not np.isfinite(result.train_loss):
             return result
-        polished = fit(result.model, train, continuation=Continuation(GMS_POLISH_WIDTH * eps, eps, stages=2), **lm)
+        polished = fit(
+            constrained(result.model, settings),
+            train,
+            continuation=Continuation(GMS_POLISH_WIDTH * eps, eps, stages=2),
+            **lm,
+        )
         wall_time = result.wall_time + polished.wall_time
         if _choice_key(polished) < _choice_key(result):
             how = f"polished by a smoothing continuation ({GMS_POLISH_WIDTH:g}x the width, then 1x)"
@@ -228,7 +233,8 @@ def _gms_fit(settings: FitSettings) -> Callable[..., FitResult]:
         multistart = MultiStart(count, spread=1.0, distribution="log-uniform", keep=SCREENED_GMS_KEEP, screen=0.0)
         results = []
         for name, begin in zip(names, guesses, strict=False):
-            result = fit(with_inner_friction(start, begin), train, multistart=multistart, seed=seed, **lm)
+            begin = constrained(with_inner_friction(start, begin), settings)
+            result = fit(begin, train, multistart=multistart, seed=seed, **lm)
             result = dataclasses.replace(result, message=f"{name}, {count} screened starts, LM: {result.message}")
             results.append(polish(result, train, lm, eps))
         best = min(results, key=_choice_key)

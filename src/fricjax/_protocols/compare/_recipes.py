@@ -10,19 +10,21 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 import optax
 
-from ..._constraints import unwrap
+from ..._constraints import Bounded, Fixed, Positive, parameter_arrays, unwrap
 from ..._estimation._fit import fit
 from ..._estimation.loop._levenberg_marquardt import levenberg_marquardt
 from ..._estimation.loop._solution import FitResult
-from ..._estimation.loop._strategies import MultiStart, ParameterScaling
+from ..._estimation.loop._strategies import MultiStart, ParameterScaling, where_from_path
 from ..._metrics import nmse
 from ..._models.combine._wrapper import inner_friction, wrapper_path
 from ._records import Split, TrainingRecords
 from ._scoring import SIGNIFICANT_T, VALIDATION_BLOCKS, free_run, paired_validation_gain
-from ._settings import DataScales, FitSettings
+from ._settings import CompareError, DataScales, FitSettings
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,9 +48,50 @@ class ModelSpec:
 
 
 def separable_paths(start: Any, paths: tuple[str, ...]) -> tuple[str, ...]:
-    """The linear parameters of a (possibly wrapped) model: the friction model's, and the drift rate."""
+    """The linear parameters of a (possibly wrapped) model: the friction model's, and the drift rate; none that is
+    fixed or bounded (`constrained`: not solved by unconstrained least squares)."""
     prefixed = tuple(wrapper_path(start) + path for path in paths)
-    return (*prefixed, "rate") if getattr(start, "drifts", False) else prefixed
+    linear = (*prefixed, "rate") if getattr(start, "drifts", False) else prefixed
+    return tuple(path for path in linear if not isinstance(where_from_path(path)(start), (Fixed, Bounded)))
+
+
+def matching_paths(model: Any, name: str) -> list[str]:
+    """The parameter paths of `model` (as `fj.unwrap(model)`'s `parameter_arrays`) that `name` names: the path
+    itself or its end after a dot (`sigma2` names `model.sigma2`; `stribeck.Fc` names `model.stribeck.Fc`)."""
+    return [path for path in parameter_arrays(unwrap(model)) if path == name or path.endswith("." + name)]
+
+
+def constrained(model: Any, settings: FitSettings) -> Any:
+    """`model` with the parameters `settings.fix` names held at their values (`fj.Fixed`, a positive one as
+    `Fixed(Positive(value))`) and those `settings.bounds` names kept in their intervals (`fj.Bounded`, a start outside
+    moved 1 % inside); idempotent (a parameter already fixed or bounded is left as it is)."""
+    for name, value in settings.fix:
+        for path in matching_paths(model, name):
+            where = where_from_path(path)
+            node = where(model)
+            if isinstance(node, (Fixed, Bounded)):
+                continue
+            current = np.asarray(unwrap(node))
+            held = np.broadcast_to(np.asarray(value, current.dtype), current.shape)
+            if isinstance(node, Positive):
+                if value <= 0:
+                    raise CompareError(f"`fix` {name}={value:g}: {path} is a positive parameter; give a value > 0")
+                model = eqx.tree_at(where, model, Fixed(Positive(held, transform=node.transform, name=path)))
+            else:
+                model = eqx.tree_at(where, model, Fixed(jnp.asarray(held)))
+    for name, low, high in settings.bounds:
+        for path in matching_paths(model, name):
+            where = where_from_path(path)
+            node = where(model)
+            if isinstance(node, (Fixed, Bounded)):
+                continue
+            current = np.asarray(unwrap(node), dtype=float)
+            margin = 0.01 * (high - low)
+            inside = np.clip(current, low + margin, high - margin)
+            model = eqx.tree_at(
+                where, model, Bounded(inside, low, high, name=path, dtype=np.asarray(unwrap(node)).dtype)
+            )
+    return model
 
 
 def lm_recipe(separable: tuple[str, ...], starts: int, settings: FitSettings) -> Callable[..., FitResult]:
@@ -56,6 +99,7 @@ def lm_recipe(separable: tuple[str, ...], starts: int, settings: FitSettings) ->
     parameters `separable` (and the drift rate) solved by least squares inside each step."""
 
     def run(start: Any, split: Split | TrainingRecords, seed: int, progress: bool) -> FitResult:
+        start = constrained(start, settings)
         data, records = split.fit_arguments(start, drift=settings.drift != "none")
         return fit(
             start,

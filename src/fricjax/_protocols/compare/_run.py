@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from ..._constraints import parameter_arrays, unwrap
 from ..._data._record import FrictionData
 from ..._estimation.loop._interrupts import abandonable, check_interrupt
 from ..._estimation.loop._placement import choose_device, forced_device, resolve_device
@@ -28,6 +29,7 @@ from ._output import (
     remove_stale_staging,
 )
 from ._plausibility import command_line_advice
+from ._recipes import matching_paths
 from ._records import (
     Split,
     TestRecord,
@@ -85,12 +87,15 @@ def fit_and_score(
         tests = [split.test_record()]
     tests = list(tests)
     scales = DataScales.from_data(split.train_records)  # several: each read on its own start, the readings pooled
+    builders = {name: specs[name].build for name in names}
+    starts = {name: None if build is None else build(scales) for name, build in builders.items()}
+    _check_constrained_names(settings, starts)
     rows = []
     for name in names:
         check_interrupt()  # SIGINT / SIGTERM under `fricjax compare` stop the run here (a no-op elsewhere)
         spec = specs[name]
         start_time = time.perf_counter()
-        start = None if spec.build is None else spec.build(scales)
+        start = starts[name]
         target, reason = choose_device(start, split.train, device, batched=False)
         label = spec.label_for(start)
         log(f"fitting {label} ..." if target is None else f"fitting {label} on {target.platform} ({reason}) ...")
@@ -99,6 +104,18 @@ def fit_and_score(
         rows.append(row)
         log(f"  {row.label}: test NMSE {row.nmse:.3f} %, MAX {row.max_error:.3f}, {row.fit_time:.1f} s: {row.message}")
     return rows
+
+
+def _check_constrained_names(settings: FitSettings, starts: dict[str, Any]) -> None:
+    """Each parameter `settings.fix` / `settings.bounds` names is a parameter of a physics model fitted here."""
+    physics = [start for name, start in starts.items() if name in PHYSICS_MODELS and start is not None]
+    for field, names in (("fix", [n for n, _ in settings.fix]), ("bounds", [n for n, *_ in settings.bounds])):
+        unknown = [n for n in names if not any(matching_paths(start, n) for start in physics)]
+        if unknown:
+            known = sorted({p.split(".")[-1] for start in physics for p in parameter_arrays(unwrap(start))})
+            raise CompareError(
+                f"`{field}` {unknown[0]}: no physics model fitted here has such a parameter; theirs: {', '.join(known)}"
+            )
 
 
 def _fit_and_score_one(

@@ -108,6 +108,9 @@ class FitSettings:
       scaled by the ratio of the force ranges the model predicts on the two records: a drift that is a fixed
       fraction of the range, as the tribometer's; records of equal length assumed, the tribometer's drift reaching
       its level at each record's end).
+    - `fix`: `(name, value)` pairs: the parameter `name` (a field name or the end of a dotted path: `sigma2`,
+      `stribeck.vs`) held at `value` (SI units) in every physics model that has it (`fj.Fixed`); `bounds`: `(name,
+      low, high)` triples: the parameter kept inside `(low, high)` (`fj.Bounded`; a start outside moved inside).
     """
 
     steps: int = 40
@@ -119,6 +122,8 @@ class FitSettings:
     neural_steps: int = 600
     init: str = "state"
     test_drift: str = "auto"
+    fix: tuple[tuple[str, float], ...] = ()
+    bounds: tuple[tuple[str, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if self.drift not in ("linear", "leaky", "none"):
@@ -127,6 +132,14 @@ class FitSettings:
             raise CompareError(f"`init` must be state or offset, got {self.init!r}")
         if self.test_drift not in ("auto", "none", "window", "carry"):
             raise CompareError(f"`test_drift` must be auto, none, window or carry, got {self.test_drift!r}")
+        object.__setattr__(self, "fix", tuple((str(n), float(v)) for n, v in self.fix))
+        object.__setattr__(self, "bounds", tuple((str(n), float(lo), float(hi)) for n, lo, hi in self.bounds))
+        for name, low, high in self.bounds:
+            if not (np.isfinite(low) and np.isfinite(high) and low < high):
+                raise CompareError(f"`bounds` {name}={low:g}:{high:g}: give finite LOW < HIGH")
+        for name, value in self.fix:
+            if not np.isfinite(value):
+                raise CompareError(f"`fix` {name}={value}: give a finite value (SI units)")
         try:  # named as `CompareConfig`'s fields (the command line shows its flags: `as_flags`)
             for name in ("steps", "gms_elements", "maxwell_elements", "starts", "neural_steps"):
                 if name == "gms_elements" and self.gms_elements == "auto":
