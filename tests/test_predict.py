@@ -28,10 +28,11 @@ def test_predict_scores_a_saved_model_as_compare_scores_a_test_record(tmp_path, 
 
     backend = matplotlib.get_backend()
     matplotlib.use("svg")  # a backend other than Agg, as a notebook's inline one: writing figures must leave it be
+    open_figures = plt.get_fignums()  # an earlier test's, in this process
     try:
         _predict_and_check(tmp_path, capsys)
         # the figures were files, not pyplot's: a notebook that ran the command still shows its own figures
-        assert matplotlib.get_backend() == "svg" and not plt.get_fignums()
+        assert matplotlib.get_backend() == "svg" and plt.get_fignums() == open_figures
     finally:
         matplotlib.use(backend)
 
