@@ -297,7 +297,16 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _add_column_options(command: argparse.ArgumentParser) -> None:
-    """--t-column, --x-column, --v-column, --force-column: a file's columns whose names are no alias of their role."""
+    """--t-column, --x-column, --v-column, --force-column: a file's columns whose names are no alias of their role;
+    --resample: every file record at one sample rate."""
+    command.add_argument(
+        "--resample",
+        type=float,
+        default=None,
+        metavar="HZ",
+        help="resample every file record to HZ (a polyphase anti-alias filter, fj.resample): records sampled at "
+        "different rates are fitted and scored together",
+    )
     for role, what in (("t", "time"), ("x", "displacement"), ("v", "velocity"), ("force", "friction force")):
         command.add_argument(
             f"--{role}-column",
@@ -344,6 +353,7 @@ def _record_options(args: argparse.Namespace) -> dict:  # type: ignore[type-arg]
         "velocity": args.velocity,
         "normal_force_column": args.normal_force_column,
         "accept_correlated_load": args.accept_correlated_load,
+        "resample": args.resample,
     }
 
 

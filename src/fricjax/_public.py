@@ -37,6 +37,7 @@ from ._data._preprocessing import detrend_linear as detrend_linear
 from ._data._preprocessing import normalise as normalise
 from ._data._record import FrictionData as FrictionData
 from ._data._record import concatenate as concatenate
+from ._data._record import resample as resample
 from ._data._tribometer import TribometerData as TribometerData
 from ._data._tribometer import make_tribometer as make_tribometer
 from ._data._tribometer_model import default_tribometer_model as default_tribometer_model

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import equinox as eqx
 import numpy as np
@@ -126,6 +127,54 @@ def concatenate(parts: Sequence[FrictionData]) -> FrictionData:
 
     motion = Motion(x=join("x"), v=join("v"), dt=first.dt, a=join("a"), normal_force=join("normal_force"))
     return FrictionData(motion, np.concatenate([np.asarray(p.force) for p in parts]))
+
+
+def resample(data: FrictionData, rate: float, *, max_denominator: int = 1000) -> FrictionData:
+    """`data` at another sample rate `rate` [Hz]: each signal (`x`, `v`, `a`, `normal_force`, the force) resampled by a
+    polyphase filter (`scipy.signal.resample_poly`, its Kaiser-windowed anti-alias low-pass, the edges extended
+    linearly), the ratio of the rates as a fraction `up / down` with `down <= max_denominator` (the rate reached is
+    `rate` within that approximation: the new `dt` is the old one times `down / up`). Records sampled at different
+    rates can then be fitted together (`fricjax compare --resample HZ`).
+
+    ```python
+    >>> import numpy as np, fricjax as fj
+    >>> motion = fj.Motion.from_position(np.sin(np.linspace(0, 6, 1000)), dt=1e-3)
+    >>> fj.resample(fj.FrictionData(motion, np.cos(np.linspace(0, 6, 1000))), 500.0).length
+    500
+    ```
+    """
+    from fractions import Fraction
+
+    import scipy.signal as ss
+
+    rate = float(rate)
+    if not (np.isfinite(rate) and rate > 0):
+        raise ValueError(f"resample: `rate` must be a positive sample rate in Hz, got {rate!r}.")
+    dt = float(np.asarray(data.motion.dt).reshape(-1)[0])
+    ratio = Fraction(rate * dt).limit_denominator(int(max_denominator))
+    if ratio <= 0:
+        raise ValueError(f"resample: {rate:g} Hz is too far below the record's {1 / dt:g} Hz; choose a higher rate.")
+    if ratio == 1:
+        return data
+
+    def poly(signal: Any) -> np.ndarray | None:
+        if signal is None:
+            return None
+        return ss.resample_poly(np.asarray(signal, dtype=float), *_pair(ratio), padtype="line")
+
+    motion = data.motion
+    resampled = Motion(
+        x=poly(motion.x),
+        v=poly(motion.v),
+        dt=dt * ratio.denominator / ratio.numerator,
+        a=poly(motion.a),
+        normal_force=poly(motion.normal_force),
+    )
+    return FrictionData(resampled, ss.resample_poly(np.asarray(data.force, float), *_pair(ratio), padtype="line"))
+
+
+def _pair(ratio: Any) -> tuple[int, int]:
+    return ratio.numerator, ratio.denominator
 
 
 # a normal load whose |correlation| with the friction force, or with its magnitude, reaches this follows the force

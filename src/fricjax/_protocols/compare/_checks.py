@@ -149,11 +149,12 @@ def check_records_together(records: Sequence[Any]) -> None:
             "file or in none (name its column with --normal-force-column, or drop it)"
         )
     for other in records[1:]:
-        dt, reference = other.card.get("dt_s", 0.0), first.card.get("dt_s", 0.0)
+        dt, reference = (float(np.asarray(r.data.motion.dt).reshape(-1)[0]) for r in (other, first))
         if not same_sample_time(dt, reference):
             raise CompareError(
                 f"{other.name}: sampled at dt = {dt:.9g} s, {first.name} at {reference:.9g} s; records fitted together "
-                "need one sample time (resample them, or pass --dt when the files' time columns are rounded)"
+                "need one sample time (`resample` HZ resamples every record to one rate; or pass `dt` when the files' "
+                "time columns are rounded)"
             )
     force = [float(numpy_std(r.data.force)) for r in records]
     travel = [float(np.ptp(np.asarray(r.data.motion.samples().x))) for r in records]

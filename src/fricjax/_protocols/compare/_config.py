@@ -47,6 +47,7 @@ FLAGS = {
     "force_unit": "--force-unit",
     "t_unit": "--t-unit",
     "columns": "--t-column / --x-column / --v-column / --force-column",
+    "resample": "--resample",
     "velocity": "--velocity",
     "normal_force_column": "--normal-force-column",
     "accept_correlated_load": "--accept-correlated-load",
@@ -72,10 +73,10 @@ def as_flags(message: str) -> str:
 _NOT_FOR_EMPS = (
     "test", "validation", "split_at", "init_window", "models", "steps", "gms_elements", "maxwell_elements", "starts",
     "drift", "neural_steps", "dt", "x_unit", "force_unit", "t_unit", "columns", "velocity", "normal_force_column",
-    "accept_correlated_load", "init", "test_drift", "seed", "fix", "bounds",
+    "accept_correlated_load", "init", "test_drift", "seed", "fix", "bounds", "resample",
 )  # fmt: skip
 # the fields that describe record files (given with built-in records only, they would be ignored)
-_FILE_FIELDS = ("dt", "x_unit", "force_unit", "t_unit", "velocity", "columns", "normal_force_column")
+_FILE_FIELDS = ("dt", "x_unit", "force_unit", "t_unit", "velocity", "columns", "normal_force_column", "resample")
 
 
 def _strings(value: Any, field: str) -> tuple[str, ...]:
@@ -105,7 +106,8 @@ class CompareConfig:
       value or kept in an interval (`name`: a field or the end of a dotted path, `sigma2`, `stribeck.vs`; every
       physics model that has it).
     - `dt`, `x_unit`, `force_unit`, `t_unit`, `columns` ({role: column name}), `velocity`, `normal_force_column`:
-      how record files are read; `accept_correlated_load`: keep a load column that follows the force.
+      how record files are read; `resample` [Hz]: every file record resampled to that rate (`fj.resample`);
+      `accept_correlated_load`: keep a load column that follows the force.
     - `out`: the output folder; `seed`; `progress`: progress bars; `device`: `auto`, `cpu` or `gpu`.
     """
 
@@ -126,6 +128,7 @@ class CompareConfig:
     force_unit: str | None = None
     t_unit: str | None = None
     columns: dict[str, str] | None = None
+    resample: float | None = None
     velocity: str = "auto"
     normal_force_column: Sequence[str] | None = None
     accept_correlated_load: bool = False

@@ -75,6 +75,7 @@ def run_predict(
     velocity: str = "auto",
     normal_force_column: Sequence[str] | None = None,
     accept_correlated_load: bool = False,
+    resample: float | None = None,
     out: str | pathlib.Path = "fricjax-predict",
 ) -> list[Prediction]:
     """Run each model file of `models` on each record of `data` (files, quoted globs, or built-in records) as
@@ -120,6 +121,7 @@ def run_predict(
         "columns": columns,
         "velocity": velocity,
         "normal_force_column": normal_force_column,
+        "resample": resample,
     }
     tests, units = [], []
     for spec in specs:

@@ -17,6 +17,7 @@ import numpy as np
 from ..._data._columns import Units
 from ..._data._io import read_record
 from ..._data._record import FrictionData
+from ..._data._record import resample as resample_record
 from ..._metrics import numpy_std
 from ._settings import CompareError
 
@@ -333,10 +334,12 @@ def load_record_spec(
     normal_force_column: Sequence[str] | None = None,
     t_unit: str | None = None,
     columns: dict[str, str] | None = None,
+    resample: float | None = None,
 ) -> LoadedRecord:
     """Resolve a record named on the command line: `tribometer:REGIME[:key=value,...]` (keys `seed`, `offset`
     [N] force-cell offset, `drift` [N], `duration` [s]; e.g. `tribometer:mixed:seed=1,offset=0.3`), or a `.npz`
-    / `.csv` file (`fj.load_record`: column aliases, units, `dt`)."""
+    / `.csv` file (`fj.load_record`: column aliases, units, `dt`), resampled to `resample` [Hz] where given
+    (`fj.resample`; its data card keeps the file's `dt_s` and says `resampled_to_hz`)."""
     import pathlib
 
     from ..._data._tribometer import make_tribometer
@@ -410,6 +413,12 @@ def load_record_spec(
         "dt_s": float(np.asarray(full.motion.dt)),
         "read_with": {"columns": dict(columns) if columns else None, "velocity": velocity, "t_unit": t_unit},
     }
+    if resample is not None:
+        try:
+            full = resample_record(full, resample)
+        except ValueError as err:
+            raise CompareError(f"{spec}: {err} (`resample`)") from None
+        card.update(resampled_to_hz=1.0 / float(np.asarray(full.motion.dt)), samples=full.length)
     return LoadedRecord(spec, full, card, info.units)
 
 
