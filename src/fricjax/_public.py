@@ -97,6 +97,8 @@ from ._estimation.loop._strategies import ParameterScaling as ParameterScaling
 from ._estimation.loop._strategies import Regularisation as Regularisation
 from ._estimation.loop._strategies import Separable as Separable
 from ._estimation.loop._strategies import Tolerance as Tolerance
+from ._estimation.problem._bands import PredictionBand as PredictionBand
+from ._estimation.problem._bands import prediction_band as prediction_band
 from ._estimation.problem._losses import AbstractLoss as AbstractLoss
 from ._estimation.problem._losses import JacobianGroups as JacobianGroups
 from ._estimation.problem._losses import MultipleShootingLoss as MultipleShootingLoss
