@@ -45,6 +45,8 @@ def test_compare_fits_records_of_different_rates_with_resample(tmp_path, capsys)
     assert fj.main(argv) == 2
     assert "--resample HZ resamples every record to one rate" in capsys.readouterr().err
     assert fj.main([*argv, "--resample", "1000"]) == 0
+    printed = capsys.readouterr().out  # each test record's offset beside the table, in the records' unit
+    assert "offsets on the test records [N] (on each one's initialisation window):" in printed
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     cards = report["data_card"]  # one per training record
     assert cards[0].get("resampled_to_hz") == pytest.approx(1000.0, rel=1e-6), cards

@@ -134,6 +134,21 @@ def format_record_nuisances(rows: list[ModelScore], units: Units | None = None) 
     return "\n".join(lines)
 
 
+def format_test_offsets(rows: list[ModelScore], names: list[str], units: Units | None = None) -> str:
+    """Each model's force offset on each test record (estimated on the record's initialisation window, with the
+    model's initial state), in the records' force unit (`units`; default N): one column per test record (`names`,
+    their short labels), the rows in the table's order."""
+    unit, factor = (units.force, units.force_factor) if units is not None else ("N", 1.0)
+    width = label_width(rows)
+    heads = [name[-12:] for name in names]
+    lines = [f"offsets on the test records [{unit}] (on each one's initialisation window):"]
+    lines.append(f"  {'':{width}s} " + " ".join(f"{h:>12s}" for h in heads))
+    for r in sorted(rows, key=by_score):
+        cells = [r.tests[n].offset / factor if n in r.tests else float("nan") for n in r.tests]
+        lines.append(f"  {r.label:{width}s} " + " ".join(f"{c:12.4g}" for c in cells))
+    return "\n".join(lines)
+
+
 def compare_report(
     *,
     data: str,
@@ -286,6 +301,8 @@ class Report:
         lines = [format_table(self.rows, self.floor)]
         if self.records.several:
             lines.append(format_record_nuisances(self.rows, self.records.training.units))
+        if self.records.cards:  # records named with `test` (the training record's own test part needs none)
+            lines.append(format_test_offsets(self.rows, self.labels, self.records.training.units))
         lines.append(f"\nresiduals on {self.labels[0]} (its scored part; the 99 % band; v the input):")
         lines += [f"  {row.label}: {residual_summary(self.residuals[row.name])['verdict']}" for row in self.rows]
         return "\n".join(lines)
