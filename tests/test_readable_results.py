@@ -61,3 +61,15 @@ def test_a_model_that_misses_most_of_a_test_record_is_noted(tmp_path):
     assert 50 < row.tests[test.name].nmse <= 100, row.tests
     assert any("NMSE above 50 % (test 2 " in note for note in row.notes), row.notes
     assert "(note 1)" in fj.compare.format_table([row])
+
+
+def test_initial_guess_keeps_the_asymmetric_pairs_of_an_instance():
+    """`fj.initial_guess` of an instance with (+, -) pairs returned a symmetric start (the pairs dropped)."""
+    data = fj.make_tribometer("mixed", seed=0, duration=1.0).full
+    asymmetric = fj.LuGre(fj.ExponentialStribeck(Fc=(1.0, 0.8), Fs=(1.3, 1.1), vs=1e-3), 1e5, 300.0, 0.0)
+    guess = fj.unwrap(fj.initial_guess(asymmetric, data))
+    assert np.shape(guess.stribeck.Fc) == (2,) and np.shape(guess.stribeck.Fs) == (2,)
+    assert np.shape(guess.stribeck.vs) == ()  # symmetric where the instance is
+    symmetric = fj.unwrap(fj.initial_guess(fj.LuGre, data))
+    np.testing.assert_allclose(guess.stribeck.Fc, float(symmetric.stribeck.Fc))  # the same levels on both sides
+    assert np.all(np.isfinite(np.asarray(fj.simulate(fj.initial_guess(asymmetric, data), data.motion))))

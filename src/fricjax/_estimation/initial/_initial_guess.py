@@ -11,13 +11,17 @@ import warnings
 from collections.abc import Sequence
 from typing import Any
 
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 
+from ..._constraints import Positive, sided_paths, unwrap
 from ..._data._record import FrictionData
 from ..._metrics import scaled_std
 from ..._models._base import AbstractFrictionModel
 from ..._smoothing import AbstractSmoothing, Exact
 from ..._validation import positive_int
+from ..loop._strategies import where_from_path
 from ..problem._records import RecordBatch
 from ._elements import (
     element_count,
@@ -175,4 +179,24 @@ def initial_guesses(
     starts = cls.start_from_scales(
         StartReader(s, records), elements=elements, smoothing=smoothing, without_small_elements=without_small_elements
     )
-    return list(starts or [])
+    sided = () if isinstance(model, type) else sorted(sided_paths(unwrap(model)))
+    return [_with_pairs(start, sided) for start in starts or []]
+
+
+def _with_pairs(start: Any, paths: Sequence[str]) -> Any:
+    """`start` with a (+, -) pair at each of `paths` (an instance's asymmetric coefficients, `sided_paths`), both
+    sides at the start's symmetric value: the structure the instance asked for is kept, and the fit separates the
+    sides (in sliding a force offset and an asymmetry of the levels are alike, so the record alone does not)."""
+    for path in paths:
+        where = where_from_path(path)
+        try:
+            node = where(start)
+        except (AttributeError, IndexError, KeyError, TypeError):
+            continue
+        value = np.asarray(unwrap(node))
+        if value.shape == (2,):
+            continue
+        pair = np.full((2,), float(value), dtype=value.dtype)
+        replaced = Positive(pair, transform=node.transform) if isinstance(node, Positive) else jnp.asarray(pair)
+        start = eqx.tree_at(where, start, replaced)
+    return start
