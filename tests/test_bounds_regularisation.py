@@ -40,6 +40,7 @@ def test_a_bounded_fit_ends_inside_its_bounds(solver):
     result = fj.fit(START, DATA, solver=chosen, steps=60, strategies=[fj.Bounds({"Fc": (0.2, 0.8)})])
     fitted = fj.unwrap(result.model)
     assert 0.2 < float(fitted.Fc) < 0.8 and result.success
+    assert "(bounded 0.2 .. 0.8)" in result.summary()
     if solver == "lm":  # the truth (Fc = 1) is outside: the fit presses against the upper bound
         assert float(fitted.Fc) > 0.79
 

@@ -53,7 +53,7 @@ def _listing(model: Any, max_lines: int) -> str | None:
             smoothing = _smoothing_text(model)
     except Exception:  # a repr never raises: a half-built model (an error in its __init__) prints as equinox's
         return None
-    fixed, bounded = _fixed_paths(model), _bounded_paths(model)
+    fixed, bounded = _fixed_paths(model), bounded_paths(model)
     lines = [type(model).__name__ + (f" ({smoothing})" if smoothing else "")]
     rows = list(values.items())
     for path, value in rows[:max_lines]:
@@ -89,7 +89,7 @@ def _smoothing_text(model: Any) -> str:
     return text + ("; exact in part" if len(smooth) < len(strategies) else "")
 
 
-def _bounded_paths(model: Any) -> dict[str, tuple[float, float]]:
+def bounded_paths(model: Any) -> dict[str, tuple[float, float]]:
     """`{path: (low, high)}` of the `fj.Bounded` wrappers in `model` (paths as `parameter_arrays` writes them)."""
     found = jax.tree_util.tree_leaves_with_path(model, is_leaf=lambda x: isinstance(x, Bounded))
     return {

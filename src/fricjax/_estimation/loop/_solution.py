@@ -17,6 +17,7 @@ import optimistix as optx
 
 from ..._constraints import PARAMETER_UNITS as PARAMETER_UNITS
 from ..._constraints import parameter_arrays, parameter_line, parameter_units, sided_paths, unwrap
+from ..._models._display import bounded_paths
 from ..._smoothing import exact
 from ._plausibility import implausible, poorly_determined
 
@@ -256,10 +257,13 @@ class Solution(eqx.Module):
         # with per-record offsets the model's own `offset` fields were held at their start (fj.Nuisances): the
         # force on record i is the model's, its own offset included, plus record i's offset
         per_record_offsets = self.records is not None and self.records.offset is not None
+        bounded = bounded_paths(self.model)
         for row in rows[:max_parameters]:
             line = "  " + parameter_line(row["path"], row["value"], row["std"], row["unit"], sided=row["sided"])
             if per_record_offsets and row["path"].split(".")[-1] == "offset":
                 line += " (held; each record's offset below is added to it)"
+            if row["path"] in bounded:
+                line += " (bounded {:g} .. {:g})".format(*bounded[row["path"]])
             lines.append(line)
         if len(rows) > max_parameters:
             lines.append(f"  ... and {len(rows) - max_parameters} more parameter arrays (Solution.parameters())")
