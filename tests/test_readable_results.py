@@ -73,3 +73,14 @@ def test_initial_guess_keeps_the_asymmetric_pairs_of_an_instance():
     symmetric = fj.unwrap(fj.initial_guess(fj.LuGre, data))
     np.testing.assert_allclose(guess.stribeck.Fc, float(symmetric.stribeck.Fc))  # the same levels on both sides
     assert np.all(np.isfinite(np.asarray(fj.simulate(fj.initial_guess(asymmetric, data), data.motion))))
+
+
+def test_each_training_records_initial_state_is_printed_beside_its_offset():
+    """The initial states a fit to several records estimated were behind reprs in Python and nowhere in the CLI."""
+    state = fj.LuGreState(z=np.array([1e-7, -2e-7]))
+    nuisances = fj.RecordNuisances(("a.csv", "b.csv"), np.array([0.1, 0.2]), None, state, np.array([1.0, 2.0]))
+    assert nuisances.lines() == [
+        "a.csv: train NMSE 1 %, offset 0.1 N, initial state z 1e-07",
+        "b.csv: train NMSE 2 %, offset 0.2 N, initial state z -2e-07",
+    ]
+    assert nuisances.table()[1]["initial_state"] == {"z": -2e-07}

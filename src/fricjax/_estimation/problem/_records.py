@@ -508,7 +508,8 @@ class RecordNuisances:
 
     def lines(self, force_unit: str = "N", newtons_per_unit: float = 1.0) -> list[str]:
         """One line per record: its name, training NMSE and the nuisances estimated, offset and drift in
-        `force_unit` (`newtons_per_unit` N each; default N, N/s)."""
+        `force_unit` (`newtons_per_unit` N each; default N, N/s), and the model's initial state (SI units of its
+        fields: LuGre's `z` in m)."""
         out = []
         for row in self.table():
             text = f"{row['name']}: train NMSE {row['train_nmse_percent']:.4g} %"
@@ -516,12 +517,18 @@ class RecordNuisances:
                 text += f", offset {row['offset_N'] / newtons_per_unit:.4g} {force_unit}"
             if row["drift_N_per_s"] is not None:
                 text += f", drift {row['drift_N_per_s'] / newtons_per_unit:.4g} {force_unit}/s"
+            if row["initial_state"]:
+                text += ", initial state " + ", ".join(
+                    f"{name} {_compact(value)}" for name, value in row["initial_state"].items()
+                )
             out.append(text)
         return out
 
     def table(self) -> list[dict[str, Any]]:
-        """One row per record: `name`, `offset_N`, `drift_N_per_s`, `train_nmse_percent`."""
+        """One row per record: `name`, `offset_N`, `drift_N_per_s`, `train_nmse_percent`, `initial_state` ({field of
+        the model's state: its value(s) on this record}; empty when none was estimated)."""
         rows = []
+        leaves = [] if self.initial_state is None else jax.tree_util.tree_leaves_with_path(self.initial_state)
         for i, name in enumerate(self.names):
             rows.append(
                 {
@@ -529,9 +536,24 @@ class RecordNuisances:
                     "offset_N": None if self.offset is None else float(self.offset[i]),
                     "drift_N_per_s": None if self.drift is None else float(self.drift[i]),
                     "train_nmse_percent": float(self.train_nmse[i]),
+                    "initial_state": {
+                        jax.tree_util.keystr(path).lstrip("."): np.asarray(leaf)[i].tolist()
+                        for path, leaf in leaves
+                        if np.ndim(leaf) >= 1 and np.shape(leaf)[0] == len(self.names)
+                    },
                 }
             )
         return rows
+
+
+def _compact(value: Any) -> str:
+    """A state's value in a line: a number, a short list, or its shape and range."""
+    array = np.asarray(value, dtype=float)
+    if array.size == 1:
+        return f"{float(array.reshape(-1)[0]):.4g}"
+    if array.size <= 4:
+        return "[" + " ".join(f"{v:.3g}" for v in array.reshape(-1)) + "]"
+    return f"shape {array.shape}, range [{array.min():.3g}, {array.max():.3g}]"
 
 
 def record_nuisances(loss: RecordsLoss, model: Any, extra: RecordExtra, batch: RecordBatch) -> RecordNuisances:
