@@ -162,10 +162,13 @@ def compare_report(
     rows: list[ModelScore],
     started: float,
     training_cards: list[dict[str, Any]] | None = None,
+    training_specs: list[str] | None = None,
 ) -> dict[str, Any]:
     """The contents of `report.json`: `data` and `seed` as given, the training record's data card and units, the
     split, each test record (its windows, noise floor and, for other records, its data card from `cards`), the
-    settings, the result codes, the noise floor, and every model's row (sorted by test NMSE); `total_time_s` counts
+    settings, the result codes, the noise floor, and every model's row (sorted by test NMSE; its `test_scores` keyed
+    by each test record as it was named, its `training_records` rows by their short `name` and, as named, `record`:
+    `training_specs`, the expanded `data` names); `total_time_s` counts
     from `started` (a `time.perf_counter()` reading)."""
     units = training.units
     return {
@@ -232,7 +235,13 @@ def compare_report(
                 "parameters": _parameters(r.model),
                 "parameter_units": _units(r.model),
                 "parameter_std": _estimated_std(r.std) if r.std is not None else None,
-                "training_records": r.records.table() if r.records is not None else None,
+                # each row by its short name and, as `test_scores` keys its records, by the name it was given
+                "training_records": [
+                    {**row, "record": record}
+                    for row, record in zip(r.records.table(), training_specs or split.names, strict=False)
+                ]
+                if r.records is not None and isinstance(split, TrainingRecords)
+                else None,
             }
             for r in sorted(rows, key=by_score)
         ],
@@ -322,6 +331,7 @@ class Report:
             rows=self.rows,
             started=self.started,
             training_cards=records.training_cards,
+            training_specs=records.specs["data"],
         )
         report["figures"] = figures
         report["residuals"] = {name: residual_summary(r) for name, r in self.residuals.items()}
