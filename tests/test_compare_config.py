@@ -89,11 +89,14 @@ def test_fix_and_bounds_are_checked_and_name_a_parameter_of_the_models(tmp_path,
 
 
 @pytest.mark.slow  # one LuGre fit (~20 s)
-def test_fixed_and_bounded_parameters_hold_in_the_fitted_models(tmp_path):
+def test_fixed_and_bounded_parameters_hold_in_the_fitted_models(tmp_path, capsys):
     out = tmp_path / "out"
     argv = ["compare", "--data", "tribometer:mixed:duration=1", "--models", "lugre", "--steps", "8", "--no-progress"]
+    argv += ["--test", "tribometer:mixed:seed=3,duration=1", "--test-drift", "window"]  # its own window, not carried
     code = fj.main([*argv, "--fix", "sigma2=0.5", "--bounds", "stribeck.vs=1e-4:1e-2", "--out", str(out)])
     assert code == 0
+    printed = capsys.readouterr().out  # the test record's offset and the initial state its window found
+    assert "offsets on the test records [N]" in printed and "LuGre on tribometer:mixed:seed=3,duration=1: z " in printed
     model = fj.load_model(out / "models" / "lugre.eqx")
     physical = fj.unwrap(model)
     assert float(physical.model.sigma2) == 0.5 and 1e-4 < float(physical.model.stribeck.vs) < 1e-2

@@ -141,12 +141,38 @@ def format_test_offsets(rows: list[ModelScore], names: list[str], units: Units |
     unit, factor = (units.force, units.force_factor) if units is not None else ("N", 1.0)
     width = label_width(rows)
     heads = [name[-12:] for name in names]
-    lines = [f"offsets on the test records [{unit}] (on each one's initialisation window):"]
+    lines = [f"offsets on the test records [{unit}] (on each one's initialisation window, with the initial state):"]
     lines.append(f"  {'':{width}s} " + " ".join(f"{h:>12s}" for h in heads))
+    states = []
     for r in sorted(rows, key=by_score):
         cells = [r.tests[n].offset / factor if n in r.tests else float("nan") for n in r.tests]
         lines.append(f"  {r.label:{width}s} " + " ".join(f"{c:12.4g}" for c in cells))
+        for name, state in r.test_states.items():
+            text = state_text(state)
+            if text:
+                states.append(f"    {r.label} on {short_labels([name])[0]}: {text}")
+    if states:
+        lines += ["  initial states found on the windows (SI units):", *states]
     return "\n".join(lines)
+
+
+def state_text(state: Any) -> str:
+    """A model's state in a line: each floating field (`z 1.2e-07`), a long array by its shape and range."""
+    import jax
+
+    parts = []
+    for path, leaf in jax.tree_util.tree_leaves_with_path(state):
+        array = np.asarray(leaf)
+        if not np.issubdtype(array.dtype, np.floating):
+            continue
+        name = jax.tree_util.keystr(path).lstrip(".")
+        if array.size == 1:
+            parts.append(f"{name} {float(array.reshape(-1)[0]):.4g}")
+        elif array.size <= 6:
+            parts.append(f"{name} [" + " ".join(f"{v:.3g}" for v in array.reshape(-1)) + "]")
+        else:
+            parts.append(f"{name} shape {array.shape}, range [{array.min():.3g}, {array.max():.3g}]")
+    return ", ".join(parts)
 
 
 def compare_report(

@@ -141,10 +141,11 @@ def _fit_and_score_one(
     carried = carried and any(carries_drift(t, settings.test_drift) for t in tests if t.record is not split.full)
     # the training record's force range without the drift, once per model: a carried drift is scaled by it
     training_range = float(np.ptp(free_run(model.without_drift(), split.full))) if carried else None
+    states: dict[str, Any] = {}  # each test record's initial state, where its window estimated one
     predictions = {
         test.name: full_prediction
         if full_prediction is not None and test.record is split.full
-        else predict_test_record(model, test, settings.init, settings.test_drift, training_range)
+        else predict_test_record(model, test, settings.init, settings.test_drift, training_range, states)
         for test in tests
     }
     notes = implausible(model, _largest_excursion(split))
@@ -170,6 +171,7 @@ def _fit_and_score_one(
         std=result.std,
         validation_nmse=100 * result.val_loss if split.several else None,
         records=result.records,
+        test_states=states,
     )
 
 

@@ -59,6 +59,7 @@ def predict_test_record(
     init: str = "state",
     test_drift: str = "auto",
     training_range: float | None = None,
+    states: dict[str, Any] | None = None,
 ) -> np.ndarray:
     """`model`'s exact-mode prediction over the whole of a record it was not fitted on (`--test`). A training
     record's drift (`fj.SensorDrift`) belongs to that record: it is left out (`test_drift="none"`), estimated on
@@ -69,8 +70,9 @@ def predict_test_record(
     built-in tribometer's cell drifts by 3 % of each record's range) goes over in proportion; only the model and the
     motions enter, never the test record's measured force. Its time course goes over as it is: records of equal
     length are assumed (the tribometer's drift reaches its level at each record's end). With `init="state"` and a
-    window, the record's offset and the model's initial state are fitted on the window (`fj.initialise`); otherwise
-    the model runs from rest (and `score_prediction` takes the window's mean error as the offset: `fj.AtRest`'s)."""
+    window, the record's offset and the model's initial state are fitted on the window (`fj.initialise`; the state is
+    put in `states[test.name]` where a dict is given); otherwise the model runs from rest (and `score_prediction`
+    takes the window's mean error as the offset: `fj.AtRest`'s)."""
     from ..._estimation.initial._initialise import WindowLeastSquares, initialise
 
     drifting = getattr(model, "drifts", False)
@@ -92,6 +94,8 @@ def predict_test_record(
         found = initialise(exact(friction), window, initialiser=WindowLeastSquares(drift=test_drift == "window"))
     for warning in caught:
         warnings.warn(f"{test.name}: {warning.message}", warning.category, stacklevel=2)
+    if states is not None:
+        states[test.name] = found.state0
     # without the offset: `score_prediction` takes the window's mean error, which is the offset fitted with the state
     return found.predict(exact(friction), test.record.motion) - found.offset
 
@@ -161,6 +165,7 @@ class ModelScore:
     message: str = ""
     tests: dict[str, Score] = dataclasses.field(default_factory=dict)
     test_predictions: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    test_states: dict[str, Any] = dataclasses.field(default_factory=dict)  # the initial state found on each window
     validation_nmse: float = float("nan")
     std: Any = None
     records: Any = None  # several training records: the fit's `fj.RecordNuisances`
