@@ -153,14 +153,18 @@ def fit(
     1.0
     ```
     """
-    arguments = dict(locals())
     if device is not None:
-        moved = _on_chosen_device(arguments)
+        moved = _on_chosen_device(dict(locals()))  # the same fit, on the device `device` names
         if moved is not None:
             return moved
     start_time = time.perf_counter()
-    fitting = checked_arguments(arguments)
-    _build_problem(fitting, arguments)
+    fitting = checked_arguments(
+        model, data, loss=loss, solver=solver, steps=steps, validation=validation,
+        validation_burn_in=validation_burn_in, train=train, freeze=freeze, nuisances=nuisances,
+        eval_every=eval_every, seed=seed, strategies=strategies,
+        keyword_strategies=(scaling, multistart, continuation, separable, patience, tolerance),
+    )  # fmt: skip
+    _build_problem(fitting, train)
     bar = _progress_bar(progress, fitting.steps, fitting.solver.kind)
     search = Search(fitting.ys0, fitting.validation is not None, start_time, bar)
     _run_stages(fitting, search)
@@ -184,7 +188,7 @@ def _on_chosen_device(arguments: dict[str, Any]) -> Solution | None:
     return dataclasses.replace(solution, message=f"{solution.message} (on {target.platform}: {reason})")
 
 
-def _build_problem(f: FitState, a: dict[str, Any]) -> None:
+def _build_problem(f: FitState, train: Selector | None) -> None:
     """The plan (each strategy wraps the problem, before and after parameter selection, in the order given), the
     `Problem` and the batch of starts."""
     plan = FitPlan(model=f.model, seed=f.seed)
@@ -199,7 +203,7 @@ def _build_problem(f: FitState, a: dict[str, Any]) -> None:
         )
     f.model = model
     f.own_width = _smoothing_width(model)  # the history's `eps` of a stage that keeps the model's own width
-    f.spec, f.linear_spec = parameter_specs(model, a["train"], f.freeze, separable, f.loss, f.data)
+    f.spec, f.linear_spec = parameter_specs(model, train, f.freeze, separable, f.loss, f.data)
     f.params0, f.static = eqx.partition(model, f.spec)
     plan = dataclasses.replace(plan, params0=f.params0, starts=MultiStart(1, 0.0).draw(f.params0, f.seed))
     for strategy in f.strategies:

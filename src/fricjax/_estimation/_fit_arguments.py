@@ -76,44 +76,58 @@ class FitState:
     screened: str = ""
 
 
-def checked_arguments(a: dict[str, Any]) -> FitState:
-    """`fit`'s arguments checked and brought to one form (several records: a batch with per-record nuisances)."""
-    model, data, validation, freeze = a["model"], a["data"], a["validation"], a["freeze"]
-    loss = SimulationLoss() if a["loss"] is None else a["loss"]
+def checked_arguments(
+    model: Any,
+    data: Any,
+    *,
+    loss: Any,
+    solver: Any,
+    steps: Any,
+    validation: Any,
+    validation_burn_in: Any,
+    train: Any,
+    freeze: Any,
+    nuisances: Any,
+    eval_every: Any,
+    seed: Any,
+    strategies: Any,
+    keyword_strategies: tuple[Any, ...],
+) -> FitState:
+    """`fit`'s arguments checked and brought to one form (several records: a batch with per-record nuisances);
+    `keyword_strategies` are the values of `fit`'s `scaling`, `multistart`, `continuation`, `separable`, `patience`,
+    `tolerance`, in that order."""
+    loss = SimulationLoss() if loss is None else loss
     if not isinstance(loss, AbstractLoss):
         raise TypeError(f"fit: `loss` must be a fricjax loss (fj.SimulationLoss(), ...), got {type(loss).__name__}.")
-    train = a["train"]
     both = sorted(set(selector_paths(train)) & set(selector_paths(freeze))) if train is not None else []
     if both:  # the user's own freeze: the nuisances a fit to several records holds per record are not theirs
         raise ValueError(
             f"fit: {', '.join(map(repr, both))} is in both `train` and `freeze`; name a parameter in one of them "
             "(`freeze` narrows `train`: train='stribeck', freeze='stribeck.vs')."
         )
-    validation_burn_in = a["validation_burn_in"]
     if isinstance(data, (list, tuple, dict, RecordBatch)):  # several records: shared parameters, per-record nuisances
         data, validation, loss, freeze = _several_records(
-            model, data, validation, validation_burn_in, loss, a["nuisances"], freeze
+            model, data, validation, validation_burn_in, loss, nuisances, freeze
         )
         validation_burn_in = None
-    elif a["nuisances"] is not None:
+    elif nuisances is not None:
         raise ValueError(
             "fit: `nuisances` are per-record parameters of a fit to several records; pass a list of records as `data`."
         )
     elif isinstance(validation, (list, tuple, dict, RecordBatch)):
         raise ValueError("fit: a list of validation records needs a list of training records as `data`.")
     check_records(model, data, validation, loss)
-    steps = positive_int(a["steps"], "steps", "fit")
-    eval_every = optional(positive_int, a["eval_every"], "eval_every", "fit")
-    seed = seed_value(a["seed"], "seed", "fit")
-    solver = as_solver(DEFAULT_SOLVER if a["solver"] is None else a["solver"])
-    for strategy in a["strategies"]:
+    steps = positive_int(steps, "steps", "fit")
+    eval_every = optional(positive_int, eval_every, "eval_every", "fit")
+    seed = seed_value(seed, "seed", "fit")
+    solver = as_solver(DEFAULT_SOLVER if solver is None else solver)
+    for strategy in strategies:
         if not isinstance(strategy, AbstractStrategy):
             raise TypeError(
                 "fit: `strategies` takes fj.AbstractStrategy objects (fj.MultiStart, fj.Continuation, "
                 f"fj.ParameterScaling, fj.Separable, fj.EarlyStopping, fj.Tolerance), got {type(strategy).__name__}."
             )
-    keywords = [a[name] for name in ("scaling", "multistart", "continuation", "separable", "patience", "tolerance")]
-    strategies = [*_keyword_strategies(*keywords), *a["strategies"]]
+    strategies = [*_keyword_strategies(*keyword_strategies), *strategies]
     val_loss_fn = loss.validation_loss() if validation_burn_in is None else _burn_in_loss(loss, validation_burn_in)
     if validation is not None and getattr(val_loss_fn, "burn_in", 0) >= validation.length:
         raise ValueError(
