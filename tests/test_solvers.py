@@ -411,3 +411,33 @@ def test_levenberg_marquardt_converges_where_the_full_step_would_not_change_the_
         trial = (-e + np.array([leftover, 0.0, 0.0]))[None]
         new_state, accept, _ = solver.judge(np, state, flat, trial, products(trial[0]), np.array([1.0]))
         assert accept.all() and bool(new_state.done[0]) is converged, leftover
+
+
+@pytest.mark.slow  # two fits of 2000 samples (~9 s)
+def test_levenberg_marquardt_holds_a_parameter_at_its_bound_while_the_gradient_points_out():
+    """LuGre from 50 % off (issue 56): the unconstrained Levenberg-Marquardt path (optimistix's) takes `sigma2` (0.6,
+    truth 0.4) to -27 and back. fricjax's takes optimistix's steps until the bound binds, then holds `sigma2` at 0
+    (an active set) while the gradient points below it, and converges; clipping only the trials pinned `sigma2` at
+    0 with steps the quadratic model did not predict (loss 2e-5 after 200 steps)."""
+    rng = np.random.default_rng(2)
+    t = np.arange(2000) / 250.0
+    freqs = np.geomspace(0.25, 6.0, 7) * rng.uniform(0.9, 1.1, 7)
+    phases = rng.uniform(0, 2 * np.pi, 7)
+    x = sum(1e-4 / f**0.8 * np.sin(2 * np.pi * f * t + p) for f, p in zip(freqs, phases, strict=True))
+    motion = fj.Motion.from_position(x - x[0], dt=1 / 250.0)
+    truth = fj.LuGre(fj.ExponentialStribeck(1.0, 1.5, 1e-3, 2.0), sigma0=1e5, sigma1=300.0, sigma2=0.4)
+    data = fj.FrictionData(motion, fj.simulate(truth, motion))
+    start = fj.LuGre(
+        fj.ExponentialStribeck(1.5, 0.75, 1.5e-3, 3.0), sigma0=5e4, sigma1=450.0, sigma2=0.6, smoothing=fj.Smooth(1e-6)
+    )
+    clipped = fj.fit(start, data, solver=fj.levenberg_marquardt(), steps=200)  # the default: trials clipped only
+    result = fj.fit(start, data, solver=fj.levenberg_marquardt(hold_bounds=True), steps=200)
+    assert result.code == "successful" and result.train_loss < 1e-10 and result.evaluations < 40, result.summary()
+    assert clipped.train_loss > 1e3 * result.train_loss, clipped.summary()
+    np.testing.assert_allclose(float(fj.unwrap(result.model).sigma2), 0.4, rtol=1e-2)
+    # before the bound binds (the 11th trial), optimistix's iterates
+    ours = fj.fit(start, data, solver=fj.levenberg_marquardt(hold_bounds=True), steps=9)
+    theirs = fj.fit(start, data, solver=optx.LevenbergMarquardt(1e-10, 1e-12), steps=9)
+    leaves = [jax.tree_util.tree_leaves(fj.unwrap(fit.model)) for fit in (ours, theirs)]
+    for a, b in zip(*leaves, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-14)
