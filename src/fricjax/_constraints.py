@@ -393,6 +393,16 @@ def sided_paths(tree: Any) -> set[str]:
     return out
 
 
+def compact_value(value: Any) -> str:
+    """An array in a line of text: a number (`1.2e-07`), up to 6 entries (`[0.1 0.2]`), else its shape and range."""
+    array = np.asarray(value, dtype=float)
+    if array.size == 1:
+        return f"{float(array.reshape(-1)[0]):.4g}"
+    if array.size <= 6:
+        return "[" + " ".join(f"{v:.3g}" for v in array.reshape(-1)) + "]"
+    return f"shape {array.shape}, range [{array.min():.3g}, {array.max():.3g}]"
+
+
 def parameter_line(path: str, value: Any, std: Any = None, unit: str = "", *, sided: bool = False) -> str:
     """One parameter array as a line of text: `"sigma0 = 100000 ± 312 [N/m]"` (the `±` part only where every
     entry of `std` is finite); an array of more than 8 entries by its shape and range; a (+, -) pair (`sided`,

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from ..._constraints import unwrap
+from ..._constraints import compact_value, unwrap
 from ..._data._record import FrictionData
 from ..._inputs import Motion
 from ..._metrics import scaled_std
@@ -519,7 +519,7 @@ class RecordNuisances:
                 text += f", drift {row['drift_N_per_s'] / newtons_per_unit:.4g} {force_unit}/s"
             if row["initial_state"]:
                 text += ", initial state " + ", ".join(
-                    f"{name} {_compact(value)}" for name, value in row["initial_state"].items()
+                    f"{name} {compact_value(value)}" for name, value in row["initial_state"].items()
                 )
             out.append(text)
         return out
@@ -544,16 +544,6 @@ class RecordNuisances:
                 }
             )
         return rows
-
-
-def _compact(value: Any) -> str:
-    """A state's value in a line: a number, a short list, or its shape and range."""
-    array = np.asarray(value, dtype=float)
-    if array.size == 1:
-        return f"{float(array.reshape(-1)[0]):.4g}"
-    if array.size <= 4:
-        return "[" + " ".join(f"{v:.3g}" for v in array.reshape(-1)) + "]"
-    return f"shape {array.shape}, range [{array.min():.3g}, {array.max():.3g}]"
 
 
 def record_nuisances(loss: RecordsLoss, model: Any, extra: RecordExtra, batch: RecordBatch) -> RecordNuisances:

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..._constraints import parameter_arrays, parameter_units, unwrap
+from ..._constraints import compact_value, parameter_arrays, parameter_units, unwrap
 from ..._data._columns import Units
 from ..._data._model_files import save_model
 from ..._smoothing import exact
@@ -165,13 +165,7 @@ def state_text(state: Any) -> str:
         array = np.asarray(leaf)
         if not np.issubdtype(array.dtype, np.floating):
             continue
-        name = jax.tree_util.keystr(path).lstrip(".")
-        if array.size == 1:
-            parts.append(f"{name} {float(array.reshape(-1)[0]):.4g}")
-        elif array.size <= 6:
-            parts.append(f"{name} [" + " ".join(f"{v:.3g}" for v in array.reshape(-1)) + "]")
-        else:
-            parts.append(f"{name} shape {array.shape}, range [{array.min():.3g}, {array.max():.3g}]")
+        parts.append(f"{jax.tree_util.keystr(path).lstrip('.')} {compact_value(array)}")
     return ", ".join(parts)
 
 
