@@ -83,3 +83,24 @@ def test_predict_refuses_bad_input_in_one_line(tmp_path, capsys):
 
 # compare's saved models run by `fricjax predict` reproduce compare's test scores (ensembles included): notebook 08's
 # final cell checks it (to 1e-9) in the slow tier, where it runs anyway; on the damper it held to the printed digit.
+
+
+@pytest.mark.slow  # a static-law fit on a damper record and its prediction of another (~30 s)
+def test_predict_gives_a_saved_damper_model_the_nmse_compare_gave_it(data_dir, tmp_path, capsys):
+    """Issue 55's acceptance on the real device: a model compare saved, run by `fricjax predict` on a record it was
+    not fitted on, scores the NMSE compare printed for that record."""
+    folder = data_dir / "damper" / "dataset-2" / "characterization_tests"
+    train, other = folder / "0.25Hz36lbtension1amplitude.npz", folder / "0.5Hz36lbtension0.5amplitude.npz"
+    out = tmp_path / "compare"
+    argv = ["compare", "--data", str(train), "--test", str(other), "--models", "stribeck", "lugre", "--steps", "4"]
+    assert fj.main([*argv, "--no-progress", "--out", str(out)]) == 0
+    compared = {
+        m["name"]: m["test_scores"][str(other)]["nmse"] for m in json.loads((out / "report.json").read_text())["models"]
+    }
+    models = [str(out / "models" / f"{name}.eqx") for name in ("stribeck", "lugre")]
+    assert fj.main(["predict", "--model", *models, "--data", str(other), "--out", str(tmp_path / "predict")]) == 0
+    report = json.loads((tmp_path / "predict" / "report.json").read_text())
+    predicted = {score["model"]: score["nmse"] for score in report["scores"]}
+    for name in ("stribeck", "lugre"):
+        assert predicted[name] == pytest.approx(compared[name], rel=1e-9), (name, predicted, compared)
+    capsys.readouterr()
