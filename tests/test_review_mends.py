@@ -257,7 +257,8 @@ def test_compare_dedupes_models_and_warns_of_unused_loads_and_of_testing_on_trai
     argv = ["compare", "--data", path, "--test", path, "--models", "stribeck", "STRIBECK", "--steps", "3"]
     assert fj.main([*argv, "--out", str(tmp_path / "o"), "--no-progress"]) == 0
     out = capsys.readouterr().out
-    assert "models: stribeck\n" in out and out.count("Stribeck (static)  ") == 1
+    table = out[out.index("\nmodel ") : out.index("\nresult:")]  # the table's rows: one per model fitted
+    assert "models: stribeck\n" in out and table.count("Stribeck (static)  ") == 1
     assert "a training record too; its test score is not held out" in out
     assert "columns 'actuator_force1_lb' are not used; if they hold the normal load, name them" in out
 
