@@ -284,6 +284,7 @@ def test_a_fit_whose_steps_never_improve_returns_its_start_and_says_so():
     assert not fj.fit(_start(), data, solver=fj.levenberg_marquardt(), steps=10).start_kept
 
 
+@pytest.mark.slow  # a sweep over several records (~13 s): the fast tier stays under 5 minutes
 def test_a_sweep_over_several_records_holds_what_fit_holds():
     """fj.sweep on several records trained the model's own offset and initial state, which fj.fit holds (each
     record has its own): the same configuration reached 0.0375 in the sweep and 3.3e-6 in the fit. A single

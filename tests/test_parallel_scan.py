@@ -227,6 +227,7 @@ def _has_loop(fun, *args) -> bool:
     return " scan[" in text or " while[" in text
 
 
+@pytest.mark.slow  # ~8 s of compilations: the fast tier stays under 5 minutes
 def test_auto_choices_when_the_default_device_is_an_accelerator(monkeypatch):
     """What `scan="auto"` and `fj.fit(device="auto")` choose on a GPU / TPU, run here with JAX's default backend
     reported as "gpu": the parallel form (no loop: an accelerator unrolls its rounds) from 256 samples on for a
