@@ -111,6 +111,12 @@ class Bounded(AbstractUnwrappable):
     def unwrap(self) -> Array:
         return self.low + (self.high - self.low) * jax.nn.sigmoid(self.raw)
 
+    @staticmethod
+    def inside(value: Any, low: float, high: float) -> np.ndarray:
+        """`value` clipped to 1 % of the interval inside `(low, high)`: where a start outside its bounds begins."""
+        margin = 0.01 * (high - low)
+        return np.clip(np.asarray(value), low + margin, high - margin)
+
 
 def check_normal(value: Any, name: str) -> None:
     """Refuse a positive value below the smallest normal float of its dtype (a subnormal such as 1e-320): a model

@@ -157,24 +157,18 @@ def resample(data: FrictionData, rate: float, *, max_denominator: int = 1000) ->
     if ratio == 1:
         return data
 
-    def poly(signal: Any) -> np.ndarray | None:
-        if signal is None:
-            return None
-        return ss.resample_poly(np.asarray(signal, dtype=float), *_pair(ratio), padtype="line")
+    def poly(signal: Any) -> np.ndarray:
+        return ss.resample_poly(np.asarray(signal, dtype=float), ratio.numerator, ratio.denominator, padtype="line")
 
     motion = data.motion
     resampled = Motion(
-        x=poly(motion.x),
-        v=poly(motion.v),
+        x=None if motion.x is None else poly(motion.x),
+        v=None if motion.v is None else poly(motion.v),
         dt=dt * ratio.denominator / ratio.numerator,
-        a=poly(motion.a),
-        normal_force=poly(motion.normal_force),
+        a=None if motion.a is None else poly(motion.a),
+        normal_force=None if motion.normal_force is None else poly(motion.normal_force),
     )
-    return FrictionData(resampled, ss.resample_poly(np.asarray(data.force, float), *_pair(ratio), padtype="line"))
-
-
-def _pair(ratio: Any) -> tuple[int, int]:
-    return ratio.numerator, ratio.denominator
+    return FrictionData(resampled, poly(data.force))
 
 
 # a normal load whose |correlation| with the friction force, or with its magnitude, reaches this follows the force

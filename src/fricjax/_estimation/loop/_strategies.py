@@ -347,11 +347,8 @@ class Bounds(AbstractStrategy):
                 raise ValueError(
                     f"Bounds: {path!r} is fixed (fj.Fixed); a fixed parameter is not fitted, so not bounded."
                 )
-            if isinstance(node, Bounded):
-                node = unwrap(node)
             value = np.asarray(unwrap(node), dtype=float)
-            margin = 0.01 * (high - low)
-            inside = np.clip(value, low + margin, high - margin)
+            inside = Bounded.inside(value, low, high)
             if not np.array_equal(inside, value) and np.any((value <= low) | (value >= high)):
                 warnings.warn(
                     f"Bounds: the start's {path} = {value.tolist()} is not inside ({low:g}, {high:g}); it starts at "
@@ -387,6 +384,12 @@ class Penalty(eqx.Module):
         if self.l1 > 0:
             parts.append(jnp.sqrt(self.l1) * d * (d**2 + _L1_WIDTH**2) ** -0.25)
         return jnp.concatenate(parts) if parts else jnp.zeros((0,), d.dtype)
+
+    @property
+    def row_count(self) -> int:
+        """How many rows `rows` appends: one per parameter for each active penalty."""
+        size = sum(int(np.size(leaf)) for leaf in jax.tree_util.tree_leaves(self.nominal))
+        return size * ((self.l2 > 0) + (self.l1 > 0))
 
     def value(self, params: Any) -> jax.Array:
         d = self._deviation(params)

@@ -379,7 +379,7 @@ class Problem(eqx.Module):
         penalty: their sum of squares over the loss's own count, the penalty's rows after them)."""
         if self.penalty is None:
             return jnp.mean(residuals**2)
-        count = residuals.size - self.penalty.rows(self.penalty.nominal).size
+        count = residuals.size - self.penalty.row_count
         return jnp.sum(residuals**2) / count
 
     def val_objective(self, state: Any, static: Any) -> jax.Array:

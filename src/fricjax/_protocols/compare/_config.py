@@ -255,10 +255,9 @@ class CompareRecords:
 
 def expanded_specs(config: CompareConfig) -> dict[str, list[str]]:
     """The record names of `data`, `validation` and `test`, globs expanded (each record once)."""
-    return {name: expand_record_specs(list(getattr(config, name)), f"`{name}`") for name in FLAGS if name in _SPECS}
-
-
-_SPECS = ("data", "validation", "test")
+    return {
+        name: expand_record_specs(list(getattr(config, name)), f"`{name}`") for name in ("data", "validation", "test")
+    }
 
 
 def load_records(config: CompareConfig, specs: dict[str, list[str]]) -> CompareRecords:

@@ -85,12 +85,9 @@ def constrained(model: Any, settings: FitSettings) -> Any:
             node = where(model)
             if isinstance(node, (Fixed, Bounded)):
                 continue
-            current = np.asarray(unwrap(node), dtype=float)
-            margin = 0.01 * (high - low)
-            inside = np.clip(current, low + margin, high - margin)
-            model = eqx.tree_at(
-                where, model, Bounded(inside, low, high, name=path, dtype=np.asarray(unwrap(node)).dtype)
-            )
+            current = np.asarray(unwrap(node))
+            inside = Bounded.inside(current.astype(float), low, high)
+            model = eqx.tree_at(where, model, Bounded(inside, low, high, name=path, dtype=current.dtype))
     return model
 
 
