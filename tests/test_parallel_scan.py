@@ -80,6 +80,7 @@ def test_parallel_gradients_equal_sequential(name):
         assert _relative(a, b) < 1e-10
 
 
+@pytest.mark.slow  # 5-6 s: the fast tier stays within 5 minutes
 def test_parallel_on_records_of_every_length_and_in_forward_mode():
     """Records shorter than two blocks, one sample past them, and a length no block divides; then a jvp."""
     model = MODELS["nlr"]

@@ -54,6 +54,7 @@ def test_padding_never_leaks_the_loss_is_the_mean_of_each_records_nmse():
     np.testing.assert_allclose(float(burned(model, burned.init_extra(model, batch), batch)), np.mean(alone), rtol=1e-10)
 
 
+@pytest.mark.slow  # 5-6 s: the fast tier stays within 5 minutes
 def test_shared_parameters_and_each_records_offset_and_drift_are_recovered():
     records = _records(drift=True)
     solution = fj.fit(
@@ -288,6 +289,7 @@ class _Known(fj.AbstractInitialiser):
         return fj.Initialisation(0.0, self.state, float("nan"), 0)
 
 
+@pytest.mark.slow  # 5-6 s: the fast tier stays within 5 minutes
 def test_initialisers_are_objects_a_user_can_add_to():
     """`fj.initialise` takes an `fj.AbstractInitialiser`: `fj.WindowLeastSquares` (its default: the same numbers as
     its keyword arguments), `fj.AtRest` (rest, the window's mean error as the offset: exact for a record that starts

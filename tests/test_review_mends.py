@@ -477,6 +477,7 @@ class _WithActivation(fj.AbstractFrictionModel):
         return state, self.Fc * self.activation(sample.v / 1e-4)
 
 
+@pytest.mark.slow  # 5-6 s: the fast tier stays within 5 minutes
 def test_models_holding_functions_pass_the_shape_checks():
     """The force-shape and state checks traced the model with `jax.eval_shape`, which takes no function leaves:
     every fit of an MLP-NARX failed before its first step (the CI of 2026-11-28 caught it in the slow tier); so
